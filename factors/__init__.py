@@ -1,0 +1,1 @@
+"""Custom GTSAM factors of gtsam_rotid (filled by the estimation-core issue)."""

@@ -1,0 +1,310 @@
+"""Robot arm kinematics through Pinocchio: the wrist axis of each measurement in the arm-base frame.
+
+Joint angles are one value per revolute joint (``Arm.joint_names``), model order, radians; a dict
+name -> angle is accepted too. Pinocchio's configuration vector ``q`` is built only by
+:meth:`Arm.configuration` (continuous joints are stored there as (cos, sin); other joints, such as
+Panda's prismatic fingers, are held at their neutral value).
+
+Pinocchio conventions are converted here and nowhere else (DESIGN.md §2): Pinocchio motion vectors
+are [linear; angular]; this module returns plain 3-vectors and ``gtsam.Pose3`` placements.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+
+import gtsam
+import numpy as np
+import pinocchio as pin
+
+from .errors import ArmError
+from .geometry import Line3, unit
+
+#: Pinocchio joint models that are 1-DoF revolute joints (bounded or continuous).
+_REVOLUTE = {
+    "JointModelRX",
+    "JointModelRY",
+    "JointModelRZ",
+    "JointModelRevoluteUnaligned",
+}
+_CONTINUOUS = {
+    "JointModelRUBX",
+    "JointModelRUBY",
+    "JointModelRUBZ",
+    "JointModelRevoluteUnboundedUnaligned",
+}
+
+#: example-robot-data names known to work; others are tried as given.
+KNOWN_ROBOTS = ("kinova", "ur5", "ur10", "panda", "xarm7")
+
+_END_EFFECTOR_HINTS = ("end_effector", "tool0", "hand_tcp", "tcp", "eef", "ee_link", "flange", "hand")
+
+
+def _pose3(se3: pin.SE3) -> gtsam.Pose3:
+    return gtsam.Pose3(gtsam.Rot3(np.array(se3.rotation)), np.array(se3.translation))
+
+
+class Arm:
+    """A serial arm with known kinematics whose last revolute joint (the wrist) spins.
+
+    Use the named constructors :meth:`from_robot`, :meth:`from_urdf` or :meth:`from_urdf_string`.
+    """
+
+    def __init__(self, model: pin.Model, *, wrist_joint: str | None = None, source: dict | None = None):
+        self.model = model
+        self._data = model.createData()
+        self._source = dict(source or {})
+        self._joint_ids = []  # pinocchio joint id of each revolute joint, model order
+        self._continuous = []
+        for jid in range(1, model.njoints):
+            kind = model.joints[jid].shortname()
+            if kind in _REVOLUTE or kind in _CONTINUOUS:
+                self._joint_ids.append(jid)
+                self._continuous.append(kind in _CONTINUOUS)
+        if not self._joint_ids:
+            raise ArmError("the robot model has no revolute joint")
+        self.joint_names = [model.names[j] for j in self._joint_ids]
+        if wrist_joint is None:
+            wrist_joint = self.joint_names[-1]
+        if wrist_joint not in self.joint_names:
+            raise ArmError(f"wrist joint {wrist_joint!r} is not a revolute joint of the model; "
+                           f"revolute joints: {self.joint_names}")
+        self.wrist_joint = wrist_joint
+        self._wrist_id = self._joint_ids[self.joint_names.index(wrist_joint)]
+        self.wrist_index = self.joint_names.index(wrist_joint)
+        lower, upper = [], []
+        for jid, continuous in zip(self._joint_ids, self._continuous, strict=True):
+            iq = model.joints[jid].idx_q
+            if continuous:
+                lower.append(-np.pi)
+                upper.append(np.pi)
+            else:
+                lower.append(float(model.lowerPositionLimit[iq]))
+                upper.append(float(model.upperPositionLimit[iq]))
+        self.lower_limits = np.array(lower)
+        self.upper_limits = np.array(upper)
+        self.end_effector_frame = self._find_end_effector_frame()
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def from_robot(cls, name: str, wrist_joint: str | None = None) -> Arm:
+        """An arm from example-robot-data (``kinova`` is the paper's Jaco2 j2s6s200, ``ur5``, ...)."""
+        try:
+            import example_robot_data as erd
+        except ImportError as exc:  # pragma: no cover - a hard dependency
+            raise ArmError("example-robot-data-loaders is not installed") from exc
+        if name == "ur3":
+            raise ArmError("example_robot_data.load('ur3') returns a UR5 model; load a UR3 URDF with "
+                           "Arm.from_urdf instead")
+        try:
+            robot = erd.load(name)
+        except Exception as exc:
+            raise ArmError(f"example-robot-data has no robot {name!r} ({exc}); known to work: "
+                           f"{', '.join(KNOWN_ROBOTS)}") from None
+        return cls(robot.model, wrist_joint=wrist_joint, source={"robot": name})
+
+    @classmethod
+    def from_urdf(cls, path: str | os.PathLike, wrist_joint: str | None = None) -> Arm:
+        """An arm from a URDF file (meshes are not needed: only the kinematic tree is read)."""
+        try:
+            with open(path, encoding="utf-8") as handle:
+                xml = handle.read()
+        except OSError as exc:
+            raise ArmError(f"cannot read URDF {os.fspath(path)!r}: {exc}") from None
+        return cls.from_urdf_string(xml, wrist_joint=wrist_joint)
+
+    @classmethod
+    def from_urdf_string(cls, xml: str, wrist_joint: str | None = None) -> Arm:
+        try:
+            model = pin.buildModelFromXML(xml)
+        except Exception as exc:
+            raise ArmError(f"Pinocchio cannot parse the URDF: {exc}") from None
+        return cls(model, wrist_joint=wrist_joint, source={"urdf_xml": xml})
+
+    @classmethod
+    def from_dict(cls, data: Mapping) -> Arm:
+        """Inverse of :meth:`to_dict`."""
+        wrist = data.get("wrist_joint")
+        if "robot" in data:
+            return cls.from_robot(data["robot"], wrist_joint=wrist)
+        if "urdf_xml" in data:
+            return cls.from_urdf_string(data["urdf_xml"], wrist_joint=wrist)
+        raise ArmError("an arm description needs 'robot' (example-robot-data name) or 'urdf_xml'")
+
+    def to_dict(self) -> dict:
+        """``{"robot": name}`` or ``{"urdf_xml": text}``, plus ``wrist_joint`` and ``joint_names``."""
+        return {**self._source, "wrist_joint": self.wrist_joint, "joint_names": list(self.joint_names)}
+
+    @property
+    def name(self) -> str:
+        return self._source.get("robot", self.model.name or "urdf")
+
+    def __repr__(self) -> str:
+        return f"Arm({self.name!r}, {len(self.joint_names)} revolute joints, wrist={self.wrist_joint!r})"
+
+    # ------------------------------------------------------------------ joint angles
+    @property
+    def dof(self) -> int:
+        return len(self.joint_names)
+
+    def joint_angle_vector(self, joint_angles) -> np.ndarray:
+        """Validate joint angles (sequence in ``joint_names`` order, or dict name -> angle) -> (dof,) array."""
+        if isinstance(joint_angles, Mapping):
+            unknown = sorted(set(joint_angles) - set(self.joint_names))
+            if unknown:
+                raise ArmError(f"unknown joint name(s) {unknown}; the arm's joints are {self.joint_names}")
+            missing = [n for n in self.joint_names if n not in joint_angles]
+            if missing:
+                raise ArmError(f"joint angle(s) missing for {missing}")
+            values = [joint_angles[n] for n in self.joint_names]
+        elif isinstance(joint_angles, (Sequence, np.ndarray)) and not isinstance(joint_angles, str):
+            values = list(np.asarray(joint_angles).ravel()) if isinstance(joint_angles, np.ndarray) \
+                else list(joint_angles)
+            if len(values) != self.dof:
+                raise ArmError(f"expected {self.dof} joint angles ({', '.join(self.joint_names)}), "
+                               f"got {len(values)}")
+        else:
+            raise ArmError(f"joint angles must be a sequence or a dict, got {type(joint_angles).__name__}")
+        try:
+            angles = np.array(values, dtype=float)
+        except (TypeError, ValueError):
+            raise ArmError(f"joint angles must be numbers, got {values}") from None
+        bad = [self.joint_names[i] for i in np.flatnonzero(~np.isfinite(angles))]
+        if bad:
+            raise ArmError(f"joint angle of {', '.join(bad)} is NaN or infinite")
+        return angles
+
+    def within_limits(self, joint_angles, tolerance: float = 1e-9) -> bool:
+        q = self.joint_angle_vector(joint_angles)
+        return bool(np.all(q >= self.lower_limits - tolerance) and np.all(q <= self.upper_limits + tolerance))
+
+    def configuration(self, joint_angles) -> np.ndarray:
+        """Pinocchio's ``q`` (size ``model.nq``) for the given joint angles. The one converter."""
+        angles = self.joint_angle_vector(joint_angles)
+        q = pin.neutral(self.model)
+        for angle, jid, continuous in zip(angles, self._joint_ids, self._continuous, strict=True):
+            iq = self.model.joints[jid].idx_q
+            if continuous:
+                q[iq] = np.cos(angle)
+                q[iq + 1] = np.sin(angle)
+            else:
+                q[iq] = angle
+        return q
+
+    def joint_angles_from_configuration(self, q) -> np.ndarray:
+        """Inverse of :meth:`configuration` (angles of continuous joints wrapped to (-pi, pi])."""
+        q = np.asarray(q, dtype=float)
+        out = []
+        for jid, continuous in zip(self._joint_ids, self._continuous, strict=True):
+            iq = self.model.joints[jid].idx_q
+            out.append(np.arctan2(q[iq + 1], q[iq]) if continuous else q[iq])
+        return np.array(out)
+
+    def _limit(self, angles: np.ndarray) -> np.ndarray:
+        """Clip bounded joints to their limits and wrap continuous ones to [-pi, pi)."""
+        wrapped = np.where(self._continuous, (angles + np.pi) % (2 * np.pi) - np.pi, angles)
+        return np.clip(wrapped, self.lower_limits, self.upper_limits)
+
+    def random_joint_angles(self, rng: np.random.Generator) -> np.ndarray:
+        return rng.uniform(self.lower_limits, self.upper_limits)
+
+    # ------------------------------------------------------------------ kinematics
+    def _forward(self, joint_angles) -> None:
+        pin.forwardKinematics(self.model, self._data, self.configuration(joint_angles))
+
+    def _local_axis(self, jid: int) -> np.ndarray:
+        # Motion subspace S of a 1-DoF joint, [linear; angular] in the joint frame.
+        S = np.array(self._data.joints[jid].S).reshape(6)
+        return unit(S[3:], "joint axis")
+
+    def wrist_axis(self, joint_angles) -> Line3:
+        """The wrist rotation axis in the arm-base frame: ``.point`` = wrist joint origin, ``.direction``."""
+        self._forward(joint_angles)
+        oMi = self._data.oMi[self._wrist_id]
+        return Line3(np.array(oMi.translation), np.array(oMi.rotation) @ self._local_axis(self._wrist_id))
+
+    def wrist_axis_local(self) -> np.ndarray:
+        """Unit wrist axis in the wrist joint's own frame (constant)."""
+        pin.forwardKinematics(self.model, self._data, pin.neutral(self.model))
+        return self._local_axis(self._wrist_id)
+
+    def arm_T_joint(self, joint_angles, joint: str | None = None) -> gtsam.Pose3:
+        """Placement of a joint frame (default the wrist) in the arm-base frame."""
+        joint = self.wrist_joint if joint is None else joint
+        if not self.model.existJointName(joint):
+            raise ArmError(f"unknown joint {joint!r}")
+        self._forward(joint_angles)
+        return _pose3(self._data.oMi[self.model.getJointId(joint)])
+
+    def arm_T_wrist(self, joint_angles) -> gtsam.Pose3:
+        """Placement of the wrist joint frame (its child link moves with it) in the arm-base frame."""
+        return self.arm_T_joint(joint_angles, self.wrist_joint)
+
+    def arm_T_frame(self, joint_angles, frame: str) -> gtsam.Pose3:
+        """Placement of any Pinocchio frame (link, tool) in the arm-base frame."""
+        if not self.model.existFrame(frame):
+            raise ArmError(f"unknown frame {frame!r}")
+        q = self.configuration(joint_angles)
+        pin.framesForwardKinematics(self.model, self._data, q)
+        return _pose3(self._data.oMf[self.model.getFrameId(frame)])
+
+    def arm_T_end_effector(self, joint_angles) -> gtsam.Pose3:
+        return self.arm_T_frame(joint_angles, self.end_effector_frame)
+
+    def joint_origins(self, joint_angles) -> np.ndarray:
+        """Origins of every revolute joint in the arm frame, (dof, 3): the arm's skeleton for plots."""
+        self._forward(joint_angles)
+        return np.array([np.array(self._data.oMi[j].translation) for j in self._joint_ids])
+
+    def _find_end_effector_frame(self) -> str:
+        frames = [f for f in self.model.frames
+                  if f.parentJoint == self._wrist_id and f.type == pin.FrameType.BODY]
+        for hint in _END_EFFECTOR_HINTS:
+            for frame in frames:
+                if hint in frame.name:
+                    return frame.name
+        return frames[-1].name if frames else self.model.names[self._wrist_id]
+
+    # ------------------------------------------------------------------ inverse kinematics
+    def solve_wrist_axis(self, point, direction, initial_joint_angles, *, iterations: int = 200,
+                         tolerance: float = 1e-10) -> np.ndarray:
+        """Joint angles that put the wrist joint origin at ``point`` with its axis along ``direction``.
+
+        Damped least squares from ``initial_joint_angles``, inside the joint limits. Raises
+        :class:`ArmError` when no such configuration is found from that start.
+        """
+        target_p = np.asarray(point, dtype=float)
+        target_a = unit(direction, "target axis direction")
+        angles = self._limit(self.joint_angle_vector(initial_joint_angles))
+        a_local = self.wrist_axis_local()
+        columns = [self.model.joints[j].idx_v for j in self._joint_ids]
+
+        def residual_and_jacobian(angles):
+            q = self.configuration(angles)
+            pin.computeJointJacobians(self.model, self._data, q)
+            oMi = self._data.oMi[self._wrist_id]
+            a = np.array(oMi.rotation) @ a_local
+            error = np.concatenate([np.array(oMi.translation) - target_p, a - target_a])
+            J = pin.getJointJacobian(self.model, self._data, self._wrist_id, pin.LOCAL_WORLD_ALIGNED)[:, columns]
+            skew_a = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+            return error, np.vstack([J[:3], -skew_a @ J[3:]])  # d a / d q = omega x a
+
+        error, J = residual_and_jacobian(angles)
+        damping = 1e-3
+        for _ in range(iterations):
+            cost = error @ error
+            if cost < tolerance**2:
+                return angles
+            step = np.linalg.solve(J.T @ J + damping * np.eye(self.dof), -J.T @ error)
+            trial = self._limit(angles + step)
+            trial_error, trial_J = residual_and_jacobian(trial)
+            if trial_error @ trial_error < cost:
+                angles, error, J = trial, trial_error, trial_J
+                damping = max(damping / 3.0, 1e-9)
+            else:
+                damping *= 10.0
+                if damping > 1e6:
+                    break
+        residual = np.linalg.norm(error[:3])
+        raise ArmError(f"inverse kinematics did not reach the wrist target (position error {residual:.3g} m)")

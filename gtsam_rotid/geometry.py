@@ -1,0 +1,128 @@
+"""Pure geometry helpers on numpy arrays (no GTSAM factors, no I/O).
+
+Frame names follow DESIGN.md §2: ``a_T_b`` maps coordinates in frame b to frame a.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from .errors import InputError
+
+
+def unit(vector, what: str = "vector") -> np.ndarray:
+    """Return ``vector`` scaled to unit length; raise :class:`InputError` on a zero or non-finite one."""
+    v = np.asarray(vector, dtype=float)
+    norm = np.linalg.norm(v)
+    if not np.isfinite(norm) or norm < 1e-12:
+        raise InputError(f"{what} must be a finite non-zero vector, got {v.tolist()}")
+    return v / norm
+
+
+def perpendicular_basis(direction) -> tuple[np.ndarray, np.ndarray]:
+    """A fixed right-handed orthonormal pair (e1, e2) perpendicular to ``direction``.
+
+    ``(e1, e2, direction)`` is right handed. The choice is deterministic and continuous except where
+    ``direction`` crosses the plane |a_x| = |a_z| boundary of the helper axis switch.
+    """
+    a = unit(direction, "axis direction")
+    helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = unit(np.cross(helper, a))
+    e2 = np.cross(a, e1)
+    return e1, e2
+
+
+def rotation_about_axis(direction, angles) -> np.ndarray:
+    """Rodrigues rotation matrices about unit ``direction`` for each angle: (F,) -> (F, 3, 3)."""
+    a = unit(direction, "axis direction")
+    angles = np.atleast_1d(np.asarray(angles, dtype=float))
+    skew = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    s = np.sin(angles)[:, None, None]
+    c = np.cos(angles)[:, None, None]
+    return np.eye(3)[None] + s * skew[None] + (1.0 - c) * (skew @ skew)[None]
+
+
+@dataclass(frozen=True, eq=False)
+class Line3:
+    """An oriented 3-D line: a point on it and a unit direction (both in one named frame)."""
+
+    point: np.ndarray
+    direction: np.ndarray
+
+    def __init__(self, point, direction):
+        point = np.array(point, dtype=float).reshape(3)
+        if not np.all(np.isfinite(point)):
+            raise InputError(f"line point must be finite, got {point.tolist()}")
+        direction = unit(np.array(direction, dtype=float).reshape(3), "line direction")
+        point.setflags(write=False)
+        direction.setflags(write=False)
+        object.__setattr__(self, "point", point)
+        object.__setattr__(self, "direction", direction)
+
+    @classmethod
+    def from_point_direction(cls, point, direction) -> Line3:
+        return cls(point, direction)
+
+    @classmethod
+    def from_plucker(cls, direction, moment) -> Line3:
+        """Line from Plücker coordinates (direction d, moment m = p x d); the point is the foot from 0."""
+        d = np.asarray(direction, dtype=float)
+        m = np.asarray(moment, dtype=float)
+        scale = np.dot(d, d)
+        return cls(np.cross(d, m) / scale, d)
+
+    @property
+    def moment(self) -> np.ndarray:
+        """Plücker moment ``point x direction`` (independent of the point chosen on the line)."""
+        return np.cross(self.point, self.direction)
+
+    def points_at(self, s) -> np.ndarray:
+        """Points ``point + s * direction`` for each ``s``: (M,) -> (M, 3)."""
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        return self.point[None, :] + s[:, None] * self.direction[None, :]
+
+    def distance_to(self, points) -> np.ndarray:
+        """Perpendicular distance of each 3-D point to the line: (N, 3) -> (N,)."""
+        diff = np.atleast_2d(np.asarray(points, dtype=float)) - self.point
+        return np.linalg.norm(np.cross(diff, self.direction), axis=1)
+
+    def transformed(self, a_T_b: gtsam.Pose3) -> Line3:
+        """This line (given in frame b) expressed in frame a."""
+        R = a_T_b.rotation().matrix()
+        return Line3(a_T_b.transformFrom(self.point), R @ self.direction)
+
+    def __repr__(self) -> str:
+        return (
+            f"Line3(point={np.array2string(self.point, precision=4)}, "
+            f"direction={np.array2string(self.direction, precision=4)})"
+        )
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> gtsam.Pose3:
+    """``world_T_camera`` of an OpenCV camera (x right, y down, z forward) at ``eye`` looking at ``target``.
+
+    ``up`` is the world direction that should appear upwards in the image.
+    """
+    eye = np.asarray(eye, dtype=float)
+    z = unit(np.asarray(target, dtype=float) - eye, "viewing direction (target - eye)")
+    x = np.cross(z, -unit(up, "up vector"))
+    if np.linalg.norm(x) < 1e-9:
+        raise InputError("the up vector is parallel to the viewing direction")
+    x = unit(x)
+    y = np.cross(z, x)
+    return gtsam.Pose3(gtsam.Rot3(np.column_stack([x, y, z])), eye)
+
+
+def circle_points(center, direction, radius, phases, e1=None, e2=None) -> np.ndarray:
+    """Points ``center + r (cos phi e1 + sin phi e2)`` of a 3-D circle with normal ``direction``."""
+    if e1 is None or e2 is None:
+        e1, e2 = perpendicular_basis(direction)
+    phases = np.atleast_1d(np.asarray(phases, dtype=float))
+    return (
+        np.asarray(center, dtype=float)[None, :]
+        + radius * np.cos(phases)[:, None] * np.asarray(e1)[None, :]
+        + radius * np.sin(phases)[:, None] * np.asarray(e2)[None, :]
+    )

@@ -1,0 +1,396 @@
+"""Simulated calibration scenes with exact ground truth.
+
+A camera is placed by look-at; arm poses are sampled inside the joint limits (or given); features on
+the end effector (radius r from the wrist axis, offset d along it, phase phi) spin with the wrist
+at ``wrist_speed`` rad/s for ``duration`` s at ``fps`` frames per second. A feature is seen only while
+its outward normal faces the camera (the far side of the wrist hides it) and it is inside the image,
+so tracks end and new ones start every revolution. Pixels get Gaussian noise of variance
+``noise_var`` px²; optional outlier tracks are arcs of wrong circles.
+
+Entry points: :func:`simulate`, :func:`reference_scene` (the paper's Kinova Jaco2 system, DESIGN.md
+§6) and :func:`single_crossing_scene` (every wrist axis through one point).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field, replace
+
+import gtsam
+import numpy as np
+
+from .arm import Arm
+from .camera import Camera
+from .dataset import Dataset, Measurement, Track
+from .errors import ArmError, InputError, SimulationError
+from .geometry import Line3, circle_points, look_at, perpendicular_basis, unit
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Everything that defines a simulated scene. Units: metres, radians, seconds, pixels."""
+
+    robot: str = "kinova"
+    camera: Camera = field(default_factory=Camera.xtion)
+    #: Camera centre and look-at target in the arm-base frame; ``up`` appears upwards in the image.
+    camera_eye: tuple = (-0.45, 0.25, 0.95)
+    camera_target: tuple = (0.35, 0.0, 0.35)
+    camera_up: tuple = (0.0, 0.0, 1.0)
+    n_measurements: int = 6
+    #: Explicit arm poses (one joint-angle vector per measurement); sampled when None.
+    joint_angles: tuple | None = None
+    n_features: int = 12
+    radius_range: tuple = (0.03, 0.06)
+    offset_range: tuple = (0.0, 0.10)
+    duration: float = 60.0
+    fps: float = 30.0
+    wrist_speed: float = 0.5
+    noise_var: float = 1.5
+    #: A feature is visible while cos(angle between its outward normal and the ray to the camera)
+    #: exceeds this (0 = visible up to the silhouette).
+    visibility_cos: float = 0.1
+    min_track_length: int = 10
+    outlier_fraction: float = 0.0
+    #: Acceptable angle between the wrist axis and the camera's ray to the wrist (degrees):
+    #: neither end-on (0) nor side-on (90).
+    axis_view_angle_deg: tuple = (25.0, 75.0)
+    #: Wrist distance from the camera (m).
+    depth_range: tuple = (0.5, 1.6)
+    #: Minimum angle between the wrist axes of two measurements (degrees).
+    min_axis_separation_deg: float = 20.0
+    #: Feature circles must stay this far (px) inside the image.
+    image_margin: float = 12.0
+    #: Lowest allowed height (arm-base z, m) of the wrist and of every feature.
+    min_height: float = 0.05
+    max_pose_samples: int = 200_000
+
+    def with_(self, **changes) -> SceneConfig:
+        return replace(self, **changes)
+
+
+@dataclass
+class TrackTruth:
+    """Ground truth of one track: which feature (or outlier) and its circle parameters."""
+
+    feature: int  # -1 for an outlier track
+    radius: float
+    offset: float
+    phase: float  # feature phase at spin angle 0 in the measurement's (e1, e2) basis
+    is_outlier: bool = False
+
+
+@dataclass
+class MeasurementTruth:
+    joint_angles: np.ndarray
+    axis_point: np.ndarray  # wrist joint origin, arm frame
+    axis_direction: np.ndarray  # unit, arm frame
+    e1: np.ndarray  # fixed basis perpendicular to the axis: phase 0 direction
+    e2: np.ndarray
+    spin_angles: np.ndarray  # wrist spin angle of every frame (rad)
+    tracks: list[TrackTruth]
+
+    @property
+    def axis(self) -> Line3:
+        return Line3(self.axis_point, self.axis_direction)
+
+    def circle(self, track: int) -> tuple[np.ndarray, np.ndarray, float]:
+        """(centre, unit normal, radius) of a track's circle in the arm frame."""
+        t = self.tracks[track]
+        return self.axis_point + t.offset * self.axis_direction, self.axis_direction, t.radius
+
+    def feature_points(self, track: int, frames) -> np.ndarray:
+        """True 3-D positions (arm frame) of a track's feature at the given frame indices."""
+        t = self.tracks[track]
+        centre, _, radius = self.circle(track)
+        return circle_points(centre, self.axis_direction, radius,
+                             t.phase + self.spin_angles[np.asarray(frames)], self.e1, self.e2)
+
+
+@dataclass
+class GroundTruth:
+    """The truth behind a simulated dataset. The estimators never see it."""
+
+    arm_T_camera: gtsam.Pose3
+    measurements: list[MeasurementTruth]
+    config: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {
+            "arm_T_camera": self.arm_T_camera.matrix().tolist(),
+            "config": self.config,
+            "measurements": [
+                {
+                    "joint_angles": m.joint_angles.tolist(),
+                    "axis_point": m.axis_point.tolist(),
+                    "axis_direction": m.axis_direction.tolist(),
+                    "e1": m.e1.tolist(),
+                    "e2": m.e2.tolist(),
+                    "spin_angles": m.spin_angles.tolist(),
+                    "tracks": [asdict(t) for t in m.tracks],
+                }
+                for m in self.measurements
+            ],
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> GroundTruth:
+        return cls(
+            arm_T_camera=gtsam.Pose3(np.array(data["arm_T_camera"])),
+            config=data.get("config", {}),
+            measurements=[
+                MeasurementTruth(
+                    joint_angles=np.array(m["joint_angles"]),
+                    axis_point=np.array(m["axis_point"]),
+                    axis_direction=np.array(m["axis_direction"]),
+                    e1=np.array(m["e1"]),
+                    e2=np.array(m["e2"]),
+                    spin_angles=np.array(m["spin_angles"]),
+                    tracks=[TrackTruth(**t) for t in m["tracks"]],
+                )
+                for m in data["measurements"]
+            ],
+        )
+
+    def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
+        """Write as JSON (atomically; refuses to overwrite unless asked)."""
+        path = os.fspath(path)
+        if os.path.exists(path) and not overwrite:
+            raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
+        tmp = path + ".tmp"
+        with open(tmp, "w", encoding="utf-8") as handle:
+            json.dump(self.to_dict(), handle)
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> GroundTruth:
+        with open(path, encoding="utf-8") as handle:
+            return cls.from_dict(json.load(handle))
+
+
+# ---------------------------------------------------------------------------------------------------
+# Scene construction
+
+
+class _Scene:
+    """Camera + arm + features: the checks shared by pose sampling and track generation."""
+
+    def __init__(self, config: SceneConfig, arm: Arm, rng: np.random.Generator):
+        self.config = config
+        self.arm = arm
+        self.camera = config.camera
+        self.arm_T_camera = look_at(config.camera_eye, config.camera_target, config.camera_up)
+        self.camera_T_arm = self.arm_T_camera.inverse()
+        self.camera_centre = np.asarray(config.camera_eye, dtype=float)
+        self.local_axis = arm.wrist_axis_local()
+        self.local_e1, self.local_e2 = perpendicular_basis(self.local_axis)
+        n = config.n_features
+        self.radii = rng.uniform(*config.radius_range, size=n)
+        self.offsets = rng.uniform(*config.offset_range, size=n)
+        self.phases = rng.uniform(0.0, 2.0 * np.pi, size=n)
+
+    def basis(self, joint_angles) -> tuple[Line3, np.ndarray, np.ndarray]:
+        axis = self.arm.wrist_axis(joint_angles)
+        R = self.arm.arm_T_wrist(joint_angles).rotation().matrix()
+        return axis, R @ self.local_e1, R @ self.local_e2
+
+    def project(self, points_arm: np.ndarray) -> np.ndarray:
+        R = self.camera_T_arm.rotation().matrix()
+        t = self.camera_T_arm.translation()
+        return self.camera.project(points_arm @ R.T + t)
+
+    def pose_problem(self, joint_angles) -> str | None:
+        """Why this arm pose is unusable for the scene, or None when it is fine."""
+        cfg = self.config
+        if not self.arm.within_limits(joint_angles):
+            return "outside joint limits"
+        axis, e1, e2 = self.basis(joint_angles)
+        ray = axis.point - self.camera_centre
+        depth = np.linalg.norm(ray)
+        if not cfg.depth_range[0] <= depth <= cfg.depth_range[1]:
+            return f"wrist {depth:.2f} m from the camera"
+        angle = np.degrees(np.arccos(min(1.0, abs(ray @ axis.direction) / depth)))
+        if not cfg.axis_view_angle_deg[0] <= angle <= cfg.axis_view_angle_deg[1]:
+            return f"axis at {angle:.0f} deg to the viewing ray"
+        phases = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+        rims = []
+        for offset in (cfg.offset_range[0], cfg.offset_range[1]):
+            rims.append(circle_points(axis.point + offset * axis.direction, axis.direction,
+                                      cfg.radius_range[1], phases, e1, e2))
+        rims = np.vstack(rims)
+        if np.min(rims[:, 2]) < cfg.min_height or axis.point[2] < cfg.min_height:
+            return "end effector too low"
+        pixels = self.project(rims)
+        if not np.all(self.camera.in_image(pixels, cfg.image_margin)):
+            return "end effector leaves the image"
+        return None
+
+    def sample_poses(self, rng: np.random.Generator) -> list[np.ndarray]:
+        cfg = self.config
+        chosen: list[np.ndarray] = []
+        directions: list[np.ndarray] = []
+        cos_sep = np.cos(np.radians(cfg.min_axis_separation_deg))
+        for _ in range(cfg.max_pose_samples):
+            q = self.arm.random_joint_angles(rng)
+            if self.pose_problem(q) is not None:
+                continue
+            a = self.arm.wrist_axis(q).direction
+            if any(abs(a @ b) > cos_sep for b in directions):
+                continue
+            chosen.append(q)
+            directions.append(a)
+            if len(chosen) == cfg.n_measurements:
+                return chosen
+        raise SimulationError(
+            f"found only {len(chosen)} of {cfg.n_measurements} arm poses with the wrist in view after "
+            f"{cfg.max_pose_samples} samples; move the camera target towards the arm's workspace")
+
+    def measurement(self, joint_angles, rng: np.random.Generator) -> tuple[Measurement, MeasurementTruth]:
+        cfg = self.config
+        axis, e1, e2 = self.basis(joint_angles)
+        n_frames = int(round(cfg.duration * cfg.fps))
+        frames = np.arange(n_frames)
+        spin = cfg.wrist_speed * frames / cfg.fps
+        sigma = np.sqrt(cfg.noise_var)
+        tracks: list[Track] = []
+        truths: list[TrackTruth] = []
+        # (features, frames) arrays: phase, 3-D point, outward normal, visibility
+        phase = self.phases[:, None] + spin[None, :]
+        cos_p, sin_p = np.cos(phase)[..., None], np.sin(phase)[..., None]
+        normal = cos_p * e1 + sin_p * e2
+        points = (axis.point + self.offsets[:, None, None] * axis.direction
+                  + self.radii[:, None, None] * normal)
+        to_camera = self.camera_centre - points
+        facing = np.einsum("fti,fti->ft", normal, to_camera) / np.linalg.norm(to_camera, axis=-1)
+        pixels = self.project(points.reshape(-1, 3)).reshape(cfg.n_features, n_frames, 2)
+        pixels = pixels + rng.normal(0.0, sigma, size=pixels.shape)
+        visible = (facing > cfg.visibility_cos) & self.camera.in_image(
+            pixels.reshape(-1, 2)).reshape(cfg.n_features, n_frames)
+        for feature in range(cfg.n_features):
+            for start, stop in _runs(visible[feature]):
+                if stop - start < cfg.min_track_length:
+                    continue
+                tracks.append(Track(pixels[feature, start:stop], frames[start:stop]))
+                truths.append(TrackTruth(feature, float(self.radii[feature]), float(self.offsets[feature]),
+                                         float(self.phases[feature])))
+        self._plant_outliers(tracks, truths, axis, rng)
+        truth = MeasurementTruth(np.asarray(joint_angles, dtype=float), axis.point.copy(),
+                                 axis.direction.copy(), e1, e2, spin, truths)
+        return Measurement(np.asarray(joint_angles, dtype=float), tracks), truth
+
+    def _plant_outliers(self, tracks, truths, axis: Line3, rng: np.random.Generator) -> None:
+        """Replace a fraction of the tracks by arcs of circles about a wrong axis."""
+        cfg = self.config
+        n_out = int(round(cfg.outlier_fraction * len(tracks)))
+        if n_out == 0:
+            return
+        sigma = np.sqrt(cfg.noise_var)
+        for j in rng.choice(len(tracks), size=n_out, replace=False):
+            frames = tracks[j].frames
+            for _ in range(100):
+                wrong_axis = unit(rng.normal(size=3))
+                centre = axis.point + rng.uniform(-0.08, 0.08, size=3)
+                radius = rng.uniform(*cfg.radius_range)
+                phase0 = rng.uniform(0, 2 * np.pi)
+                phases = phase0 + cfg.wrist_speed * (frames - frames[0]) / cfg.fps
+                pts = circle_points(centre, wrong_axis, radius, phases)
+                pixels = self.project(pts) + rng.normal(0.0, sigma, size=(len(frames), 2))
+                if np.all(self.camera.in_image(pixels)):
+                    tracks[j] = Track(pixels, frames)
+                    truths[j] = TrackTruth(-1, float(radius), float("nan"), float(phase0), is_outlier=True)
+                    break
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) index pairs of the runs of True in a boolean vector."""
+    padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def simulate(config: SceneConfig | None = None, seed: int | None = 0, *, arm: Arm | None = None,
+             ) -> tuple[Dataset, GroundTruth]:
+    """Simulate a scene: returns the dataset (what a user would record) and its ground truth."""
+    config = SceneConfig() if config is None else config
+    if config.n_measurements < 1:
+        raise InputError(f"n_measurements must be at least 1, got {config.n_measurements}")
+    if config.noise_var < 0:
+        raise InputError(f"noise_var must be >= 0 (px^2), got {config.noise_var}")
+    if not 0.0 <= config.outlier_fraction <= 1.0:
+        raise InputError(f"outlier_fraction must be in [0, 1], got {config.outlier_fraction}")
+    rng = np.random.default_rng(seed)
+    arm = Arm.from_robot(config.robot) if arm is None else arm
+    scene = _Scene(config, arm, rng)
+    if config.joint_angles is not None:
+        poses = [arm.joint_angle_vector(q) for q in config.joint_angles]
+        for k, q in enumerate(poses):
+            problem = scene.pose_problem(q)
+            if problem is not None:
+                raise SimulationError(f"measurement {k}: the given arm pose is unusable ({problem})")
+    else:
+        poses = scene.sample_poses(rng)
+    measurements, truths = [], []
+    for q in poses:
+        measurement, truth = scene.measurement(q, rng)
+        measurements.append(measurement)
+        truths.append(truth)
+    config_dict = {k: v for k, v in asdict(config).items() if k != "camera"}
+    metadata = {"simulated": True, "seed": seed, "noise_var": config.noise_var, "fps": config.fps}
+    dataset = Dataset(arm, config.camera, measurements, metadata=metadata)
+    return dataset, GroundTruth(scene.arm_T_camera, truths, config=_jsonable(config_dict))
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def reference_scene(seed: int | None = 0, **changes) -> tuple[Dataset, GroundTruth]:
+    """The paper's physical system (DESIGN.md §6): Kinova Jaco2, Xtion-like camera ~1 m over the
+    shoulder, six 60 s wrist spins at 30 fps and 0.5 rad/s, 12 features 3-6 cm from the axis,
+    noise variance 1.5 px². Keyword arguments override :class:`SceneConfig` fields."""
+    return simulate(SceneConfig(**changes), seed=seed)
+
+
+def single_crossing_scene(seed: int | None = 0, **changes) -> tuple[Dataset, GroundTruth]:
+    """Every wrist axis passes through one point P (same wrist position, other orientations, by
+    inverse kinematics): the paper's degenerate single-crossing case."""
+    config = SceneConfig(**changes)
+    rng = np.random.default_rng(seed)
+    arm = Arm.from_robot(config.robot)
+    scene = _Scene(config, arm, np.random.default_rng(rng.integers(2**63)))
+    first = scene.sample_poses(np.random.default_rng(rng.integers(2**63)))[0]
+    crossing = arm.wrist_axis(first).point
+    poses, directions = [first], [arm.wrist_axis(first).direction]
+    cos_sep = np.cos(np.radians(config.min_axis_separation_deg))
+    for _ in range(5000):
+        if len(poses) == config.n_measurements:
+            break
+        base = poses[rng.integers(len(poses))]
+        direction = unit(directions[0] + rng.normal(scale=0.8, size=3))
+        if any(abs(direction @ b) > cos_sep for b in directions):
+            continue
+        start = base + rng.normal(scale=0.3, size=arm.dof)
+        try:
+            q = arm.solve_wrist_axis(crossing, direction, start)
+        except ArmError:
+            continue
+        if scene.pose_problem(q) is not None:
+            continue
+        poses.append(q)
+        directions.append(direction)
+    if len(poses) < config.n_measurements:
+        raise SimulationError(f"found only {len(poses)} of {config.n_measurements} wrist orientations "
+                              f"through the crossing point {np.round(crossing, 3).tolist()}")
+    config = config.with_(joint_angles=tuple(tuple(q) for q in poses))
+    dataset, truth = simulate(config, seed=int(rng.integers(2**31)), arm=arm)
+    truth.config["crossing_point"] = crossing.tolist()
+    dataset.metadata["scene"] = "single-crossing"
+    return dataset, truth
