@@ -1,1 +1,61 @@
-"""Custom GTSAM factors of gtsam_rotid (filled by the estimation-core issue)."""
+"""Custom GTSAM factors of gtsam_rotid (a low-level layer: imports only numpy and gtsam).
+
+Variables (all in the camera frame of one measurement; the stage-1 scene is known only up to scale):
+
+- **Line variable** ``gtsam.Rot3`` ``R`` with columns ``(c0, c1, c2)``: the wrist axis is ``{c0 + s c1}``. ``c0`` is
+  the foot of the perpendicular from the camera centre at unit distance (fixes the scale gauge: camera-to-axis
+  distance = 1, and the slide gauge: offsets are measured from the foot), ``c1`` the axis direction and
+  ``c2 = c0 x c1`` the normal of the plane through the camera centre that contains the axis; its image line is
+  ``l ∝ K^-T c2``. Retraction is GTSAM's ``R * Exp(w)``, so ``gtsam.Marginals`` is well posed.
+- **Circle variable** (one per track) 2-vector ``(d, r)``: offset ``d`` along ``c1`` from the foot, radius ``r``.
+  Its point at phase ``phi`` is ``X(phi) = R @ (1 + r sin(phi), d, r cos(phi))``.
+- **arm_T_camera** ``gtsam.Pose3`` (GTSAM tangent: rotation first, translation in the camera frame, perturbation
+  on the right).
+
+Pixels are ideal (undistorted): ``u = pi(K X)``. Image lines are homogeneous ``l`` with ``l1^2 + l2^2 = 1``; the
+signed distance of pixel ``u`` is ``l . (u, 1)``. :func:`rot3_from_line` converts a metric camera-frame line into a
+line variable and the scale (camera-to-axis distance) that converts metric offsets and radii.
+
+Factories (thin ``gtsam.CustomFactor`` wrappers over the pure functions in :mod:`.geometry`):
+
+- :func:`make_circle_point_factor` — one track's pixels vs. its projected circle (keys: line, circle).
+- :func:`make_axis_to_line_factor` — projected FK axis test points vs. a measured image line (key: pose).
+- :func:`make_axis_to_line_variable_factor` — the same vs. a line variable's image (keys: pose, line).
+"""
+
+from .axis import make_axis_to_line_factor, make_axis_to_line_variable_factor
+from .circle import make_circle_point_factor
+from .geometry import (
+    axis_point_residuals,
+    circle_coordinates,
+    circle_point_residuals,
+    circle_points,
+    closest_phases,
+    image_line_from_rot3,
+    line_distance_covariance,
+    line_distances,
+    line_points,
+    project,
+    projected_circle,
+    rot3_from_line,
+    transform_to_camera,
+)
+
+__all__ = [
+    "axis_point_residuals",
+    "circle_coordinates",
+    "circle_point_residuals",
+    "circle_points",
+    "closest_phases",
+    "image_line_from_rot3",
+    "line_distance_covariance",
+    "line_distances",
+    "line_points",
+    "make_axis_to_line_factor",
+    "make_axis_to_line_variable_factor",
+    "make_circle_point_factor",
+    "project",
+    "projected_circle",
+    "rot3_from_line",
+    "transform_to_camera",
+]

@@ -1,0 +1,86 @@
+"""Projected-axis distance factors: FK wrist-axis test points, through ``camera_T_arm``, against an image line.
+
+Residual (length M): signed pixel distances ``l . (u_i, 1)`` of the M >= 2 projected test points to the image line
+``l`` (normalised, ``l1^2 + l2^2 = 1``). The line is either a measurement (two-stage methods) or comes from a Rot3
+line variable (joint method). The maths lives in :func:`.geometry.axis_point_residuals`.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from .geometry import axis_point_residuals, image_line_from_rot3, line_distance_covariance
+
+__all__ = ["line_distance_covariance", "make_axis_to_line_factor", "make_axis_to_line_variable_factor"]
+
+
+def _checked_points(noise, test_points_arm) -> np.ndarray:
+    points = np.array(test_points_arm, dtype=float).reshape(-1, 3)
+    if len(points) < 2:
+        raise ValueError(f"need at least 2 test points on the axis, got {len(points)}")
+    if noise.dim() != len(points):
+        raise ValueError(f"noise model has dimension {noise.dim()} but there are {len(points)} test points")
+    points.setflags(write=False)
+    return points
+
+
+def make_axis_to_line_factor(noise, pose_key: int, test_points_arm, line, K) -> gtsam.CustomFactor:
+    """Distances of projected FK axis test points to a measured image line.
+
+    Args:
+        noise: gtsam noise model of dimension M (e.g. ``noiseModel.Gaussian.Covariance`` built with
+            :func:`.geometry.line_distance_covariance`).
+        pose_key: key of the ``gtsam.Pose3`` ``arm_T_camera``.
+        test_points_arm: (M, 3) points on the FK wrist axis, arm frame.
+        line: (3,) measured homogeneous image line; normalised here to ``l1^2 + l2^2 = 1``.
+        K: (3, 3) intrinsic matrix.
+
+    Returns:
+        ``gtsam.CustomFactor`` with an (M, 6) Jacobian wrt the Pose3 tangent (rotation, translation).
+    """
+    points_arm = _checked_points(noise, test_points_arm)
+    line = np.array(line, dtype=float).reshape(3)
+    line = line / np.hypot(line[0], line[1])
+    K = np.array(K, dtype=float).reshape(3, 3)
+    line.setflags(write=False)
+    K.setflags(write=False)
+
+    def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
+        arm_T_camera = values.atPose3(this.keys()[0])
+        e, H_pose, _ = axis_point_residuals(K, arm_T_camera, points_arm, line)
+        if H is not None:
+            H[0] = H_pose
+        return e
+
+    return gtsam.CustomFactor(noise, [pose_key], error_func)
+
+
+def make_axis_to_line_variable_factor(noise, pose_key: int, line_key: int, test_points_arm, K) -> gtsam.CustomFactor:
+    """Distances of projected FK axis test points to the image of a Rot3 line variable.
+
+    Args:
+        noise: gtsam noise model of dimension M.
+        pose_key: key of the ``gtsam.Pose3`` ``arm_T_camera``.
+        line_key: key of the measurement's ``gtsam.Rot3`` line variable.
+        test_points_arm: (M, 3) points on the FK wrist axis, arm frame.
+        K: (3, 3) intrinsic matrix.
+
+    Returns:
+        ``gtsam.CustomFactor`` with Jacobians (M, 6) wrt the Pose3 tangent and (M, 3) wrt the Rot3 tangent.
+    """
+    points_arm = _checked_points(noise, test_points_arm)
+    K = np.array(K, dtype=float).reshape(3, 3)
+    K.setflags(write=False)
+
+    def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
+        keys = this.keys()
+        arm_T_camera = values.atPose3(keys[0])
+        line, J_line = image_line_from_rot3(K, values.atRot3(keys[1]))
+        e, H_pose, H_l = axis_point_residuals(K, arm_T_camera, points_arm, line)
+        if H is not None:
+            H[0] = H_pose
+            H[1] = H_l @ J_line
+        return e
+
+    return gtsam.CustomFactor(noise, [pose_key, line_key], error_func)

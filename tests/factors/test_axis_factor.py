@@ -1,0 +1,119 @@
+"""Projected-axis distance factors: zero at the truth, Jacobians, distance covariance, tiny pose solve."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+from factor_scene import assert_jacobians_match, unit, values_with
+from gtsam.symbol_shorthand import L, T
+
+from gtsam_rotid.factors import (
+    image_line_from_rot3,
+    line_distance_covariance,
+    make_axis_to_line_factor,
+    make_axis_to_line_variable_factor,
+    project,
+    rot3_from_line,
+)
+
+
+def axis_test_points(scene, offsets=(-0.05, 0.15)) -> np.ndarray:
+    """FK-style test points on the wrist axis, arm frame: (M, 3)."""
+    return scene.axis_point_arm + np.outer(offsets, scene.axis_direction_arm)
+
+
+def random_pose_near(arm_T_camera, rng) -> gtsam.Pose3:
+    """A random Pose3 close enough to the truth to keep the wrist test points in front of the camera."""
+    return arm_T_camera.retract(np.concatenate([rng.normal(scale=0.1, size=3), rng.normal(scale=0.05, size=3)]))
+
+
+def test_distances_are_zero_at_the_truth(scene):
+    line_cam, _ = scene.unit_circles()
+    measured_line, _ = image_line_from_rot3(scene.K, line_cam)
+    points_arm = axis_test_points(scene, (-0.1, 0.0, 0.1, 0.25))
+    noise = gtsam.noiseModel.Isotropic.Sigma(4, 1.0)
+    fixed = make_axis_to_line_factor(noise, T(0), points_arm, 7.0 * measured_line, scene.K)
+    variable = make_axis_to_line_variable_factor(noise, T(0), L(0), points_arm, scene.K)
+    values = values_with([(T(0), scene.arm_T_camera), (L(0), line_cam)])
+    np.testing.assert_allclose(fixed.unwhitenedError(values), 0.0, atol=1e-9)
+    np.testing.assert_allclose(variable.unwhitenedError(values), 0.0, atol=1e-9)
+    # ...and the measured line itself is the one through the independently projected test points.
+    pixels = scene.pixels(points_arm)
+    np.testing.assert_allclose(pixels @ measured_line[:2] + measured_line[2], 0.0, atol=1e-9)
+    # Off the truth the distances are signed pixels.
+    moved = values_with([(T(0), scene.arm_T_camera.retract(np.array([0, 0, 0, 0.01, 0, 0]))), (L(0), line_cam)])
+    assert np.max(np.abs(fixed.unwhitenedError(moved))) > 1.0
+
+
+@pytest.mark.parametrize("trial", range(5))
+def test_fixed_line_jacobian_matches_numerical(trial, scene):
+    rng = np.random.default_rng(100 + trial)
+    line_cam, _ = scene.unit_circles()
+    measured_line, _ = image_line_from_rot3(scene.K, line_cam.retract(rng.normal(scale=0.05, size=3)))
+    factor = make_axis_to_line_factor(
+        gtsam.noiseModel.Isotropic.Sigma(3, 2.0), T(0), axis_test_points(scene, (-0.1, 0.05, 0.2)), measured_line,
+        scene.K,
+    )
+    assert_jacobians_match(factor, [(T(0), random_pose_near(scene.arm_T_camera, rng))])
+
+
+@pytest.mark.parametrize("trial", range(5))
+def test_variable_line_jacobians_match_numerical(trial, scene):
+    rng = np.random.default_rng(200 + trial)
+    line_cam, _ = scene.unit_circles()
+    factor = make_axis_to_line_variable_factor(
+        gtsam.noiseModel.Isotropic.Sigma(2, 1.0), T(0), L(4), axis_test_points(scene), scene.K
+    )
+    assert_jacobians_match(factor, [
+        (T(0), random_pose_near(scene.arm_T_camera, rng)),
+        (L(4), line_cam.retract(rng.normal(scale=0.1, size=3))),
+    ])
+
+
+def test_line_distance_covariance_matches_the_line_variable_jacobian(scene):
+    """Sigma_d from a Rot3 line covariance equals H_line Sigma_R H_line^T of the variable-line factor."""
+    rng = np.random.default_rng(3)
+    line_cam, _ = scene.unit_circles()
+    points_arm = axis_test_points(scene)
+    factor = make_axis_to_line_variable_factor(gtsam.noiseModel.Unit.Create(2), T(0), L(0), points_arm, scene.K)
+    values = values_with([(T(0), scene.arm_T_camera), (L(0), line_cam)])
+    A, _ = factor.linearize(values).jacobianUnweighted()
+    H_line = A[:, 6:]
+    half = rng.normal(scale=1e-3, size=(3, 3))
+    rot_cov = half @ half.T
+    _, J_line = image_line_from_rot3(scene.K, line_cam)
+    test_pixels, _ = project(scene.K, scene.arm_T_camera.transformTo(points_arm.T).T)
+    cov = line_distance_covariance(J_line @ rot_cov @ J_line.T, test_pixels)
+    np.testing.assert_allclose(cov, H_line @ rot_cov @ H_line.T, rtol=1e-9, atol=1e-15)
+    gtsam.noiseModel.Gaussian.Covariance(cov + 1e-6 * np.eye(2))  # usable as a noise model
+
+
+def test_factories_validate_their_inputs(scene):
+    with pytest.raises(ValueError, match="at least 2"):
+        make_axis_to_line_factor(gtsam.noiseModel.Unit.Create(1), T(0), np.zeros((1, 3)), [1, 0, 0], scene.K)
+    with pytest.raises(ValueError, match="dimension"):
+        make_axis_to_line_variable_factor(gtsam.noiseModel.Unit.Create(3), T(0), L(0), np.zeros((2, 3)), scene.K)
+
+
+def test_lm_recovers_pose_from_measured_lines(scene):
+    """Six wrist axes (not through one point), two test points each: LM on arm_T_camera returns to the truth."""
+    rng = np.random.default_rng(8)
+    graph = gtsam.NonlinearFactorGraph()
+    camera_T_arm = scene.camera_T_arm
+    for _ in range(6):
+        point_arm = scene.axis_point_arm + rng.normal(scale=0.1, size=3)
+        direction_arm = unit(rng.normal(size=3))
+        point_cam = camera_T_arm.transformFrom(point_arm)
+        line_cam, _ = rot3_from_line(point_cam, camera_T_arm.rotation().matrix() @ direction_arm)
+        measured_line, _ = image_line_from_rot3(scene.K, line_cam)
+        points_arm = point_arm + np.outer([-0.05, 0.05], direction_arm)
+        graph.add(make_axis_to_line_factor(gtsam.noiseModel.Isotropic.Sigma(2, 1.0), T(0), points_arm,
+                                           measured_line, scene.K))
+    initial = gtsam.Values()
+    initial.insert(T(0), scene.arm_T_camera.retract(np.array([0.03, -0.02, 0.02, 0.02, 0.03, -0.02])))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setRelativeErrorTol(1e-14)
+    params.setAbsoluteErrorTol(1e-20)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+    np.testing.assert_allclose(scene.arm_T_camera.localCoordinates(result.atPose3(T(0))), 0.0, atol=1e-7)
