@@ -1,0 +1,117 @@
+"""Information, observability and covariance of ``arm_T_camera`` (DESIGN.md §5).
+
+The information matrix of the pose is the Schur complement of the whole linearised graph onto the
+Pose3 block (every other variable marginalised). Its eigen-decomposition, in the Pose3 tangent
+(rotation rad, translation m in the camera frame), names the directions the data do not determine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+#: A direction whose 1σ exceeds these (rad for rotation-dominated, m for translation-dominated
+#: directions) is reported as not determined by the data.
+UNOBSERVABLE_SIGMA_RAD = np.radians(5.0)
+UNOBSERVABLE_SIGMA_M = 0.05
+#: Eigenvalues below this fraction of the largest are numerically zero.
+RELATIVE_ZERO = 1e-10
+
+
+def pose_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, pose_key: int) -> np.ndarray:
+    """6x6 information of the Pose3 ``pose_key``, all other variables marginalised (Schur complement)."""
+    linear = graph.linearize(values)
+    ordering = gtsam.Ordering()
+    ordering.push_back(pose_key)
+    for key in values.keys():
+        if key != pose_key:
+            ordering.push_back(key)
+    H, _ = linear.hessian(ordering)
+    H = 0.5 * (H + H.T)
+    if H.shape[0] == 6:
+        return H
+    H_pp, H_po, H_oo = H[:6, :6], H[:6, 6:], H[6:, 6:]
+    w, V = np.linalg.eigh(H_oo)
+    keep = w > RELATIVE_ZERO * max(w.max(), 1e-300)
+    H_oo_inv = (V[:, keep] / w[keep]) @ V[:, keep].T
+    S = H_pp - H_po @ H_oo_inv @ H_po.T
+    return 0.5 * (S + S.T)
+
+
+@dataclass
+class Observability:
+    """Eigen-analysis of the pose information. ``unobservable_directions`` is empty when all is determined."""
+
+    eigenvalues: np.ndarray  # ascending
+    eigenvectors: np.ndarray  # columns, Pose3 tangent
+    unobservable_directions: list[np.ndarray]
+    arm_R_camera: np.ndarray
+    condition_number: float
+    words: list[str] = field(default_factory=list)
+
+    @property
+    def is_observable(self) -> bool:
+        return not self.unobservable_directions
+
+    def describe(self) -> list[str]:
+        return list(self.words)
+
+    def covariance(self, information: np.ndarray) -> np.ndarray:
+        """Inverse of the information; undetermined directions get a variance of 1e12 (σ = 1000 km or rad)."""
+        w, V = np.linalg.eigh(0.5 * (information + information.T))
+        w = np.where(w > RELATIVE_ZERO * max(w.max(), 1e-300), w, 1e-12)
+        for direction in self.unobservable_directions:
+            i = int(np.argmax(np.abs(V.T @ direction)))
+            w[i] = 1e-12
+        return (V / w) @ V.T
+
+    def to_dict(self) -> dict:
+        return {
+            "eigenvalues": self.eigenvalues.tolist(),
+            "eigenvectors": self.eigenvectors.tolist(),
+            "unobservable_directions": [d.tolist() for d in self.unobservable_directions],
+            "arm_R_camera": self.arm_R_camera.tolist(),
+            "condition_number": self.condition_number,
+            "words": self.words,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Observability:
+        return cls(np.array(data["eigenvalues"]), np.array(data["eigenvectors"]),
+                   [np.array(d) for d in data["unobservable_directions"]], np.array(data["arm_R_camera"]),
+                   float(data["condition_number"]), list(data["words"]))
+
+
+def analyse_observability(information: np.ndarray, arm_T_camera: gtsam.Pose3) -> Observability:
+    """Find the pose directions the information does not determine and say so in words."""
+    w, V = np.linalg.eigh(0.5 * (information + information.T))
+    w_max = max(w.max(), 1e-300)
+    R = arm_T_camera.rotation().matrix()
+    unobservable, words = [], []
+    for i, (value, v) in enumerate(zip(w, V.T, strict=True)):
+        rotation_part = np.linalg.norm(v[:3])
+        limit = UNOBSERVABLE_SIGMA_RAD if rotation_part >= np.linalg.norm(v[3:]) else UNOBSERVABLE_SIGMA_M
+        sigma = np.inf if value <= RELATIVE_ZERO * w_max else 1.0 / np.sqrt(value)
+        if sigma <= limit:
+            continue
+        v = v if v[np.argmax(np.abs(v))] > 0 else -v
+        unobservable.append(v)
+        t_arm = R @ v[3:]
+        r_arm = R @ v[:3]
+        what = "not determined at all" if not np.isfinite(sigma) else f"poorly determined (1-sigma {sigma:.3g})"
+        if rotation_part < 0.1:
+            direction = np.round(t_arm / np.linalg.norm(t_arm), 3)
+            words.append(f"the camera position along the arm-frame direction {direction} is {what}")
+        else:
+            words.append(f"a combined rotation (arm-frame axis {np.round(r_arm, 3)}) and translation "
+                         f"({np.round(t_arm, 3)}) of the camera is {what} (eigenvector {i})")
+    positive = w[w > RELATIVE_ZERO * w_max]
+    condition = float(w_max / positive.min()) if len(positive) == 6 else float("inf")
+    if not unobservable:
+        words.append(f"all six degrees of freedom of arm_T_camera are determined (condition number {condition:.3g})")
+    else:
+        words.insert(0, "DEGENERATE: the chosen arm poses do not determine the calibration; add a pose whose "
+                        "wrist axis is not like the others (e.g. one that misses their common point)")
+    return Observability(w, V, unobservable, R, condition, words)
