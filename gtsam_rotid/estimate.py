@@ -31,6 +31,7 @@ from .errors import InputError, RotIdError
 from .factors import image_line_from_rot3, line_distance_covariance, make_axis_to_line_factor
 from .graph import MIN_ELLIPSE_POINTS, RotIdGraph, axis_test_points
 from .initialise import fit_ellipse, initial_image_axis, plane_normal, pose_candidates
+from .jsonio import write_json_atomic
 from .uncertainty import Observability, analyse_observability, pose_information
 
 MIN_MEASUREMENTS = 3
@@ -182,13 +183,7 @@ class CalibrationResult:
         )
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
-        path = os.fspath(path)
-        if os.path.exists(path) and not overwrite:
-            raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
-        tmp = path + ".tmp"
-        with open(tmp, "w", encoding="utf-8") as handle:
-            json.dump(self.to_dict(), handle, indent=1)
-        os.replace(tmp, path)
+        write_json_atomic(path, self.to_dict(), overwrite=overwrite, indent=1)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> CalibrationResult:

@@ -25,6 +25,7 @@ from .camera import Camera
 from .dataset import Dataset, Measurement, Track
 from .errors import ArmError, InputError, SimulationError
 from .geometry import Line3, circle_points, look_at, perpendicular_basis, unit
+from .jsonio import write_json_atomic
 
 
 @dataclass(frozen=True)
@@ -154,13 +155,7 @@ class GroundTruth:
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
         """Write as JSON (atomically; refuses to overwrite unless asked)."""
-        path = os.fspath(path)
-        if os.path.exists(path) and not overwrite:
-            raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
-        tmp = path + ".tmp"
-        with open(tmp, "w", encoding="utf-8") as handle:
-            json.dump(self.to_dict(), handle)
-        os.replace(tmp, path)
+        write_json_atomic(path, self.to_dict(), overwrite=overwrite)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> GroundTruth:
