@@ -381,16 +381,21 @@ def _joint(arm, camera, measurements, options, init_pose):
     skip: list[set] = [set() for _ in measurements]
     outlier_reason: list[dict] = [{} for _ in measurements]
     sigmas: list[dict | None] = [None] * len(measurements)
-    previous = None
-    iterations_total = 0
-    for _round in range(3):
+
+    def solve(previous):
+        """Build the joint graph with the current weights and rejections; LM from ``previous`` if given."""
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         values.insert(pose_key, init_pose if previous is None else previous.atPose3(pose_key))
         all_keys = [builder.add_measurement(graph, values, k, m, track_sigmas=sigmas[k], skip_tracks=skip[k])
                     for k, m in enumerate(measurements)]
         if previous is not None:
             _copy_values(values, previous)
-        result, iterations, error, converged = _lm(graph, values, options.max_iterations)
+        return (graph, all_keys, *_lm(graph, values, options.max_iterations))
+
+    previous = None
+    iterations_total = 0
+    for _round in range(3):
+        graph, all_keys, result, iterations, error, converged = solve(previous)
         iterations_total += iterations
         previous = result
         # residuals per track (in pixels) at the solution
@@ -421,12 +426,7 @@ def _joint(arm, camera, measurements, options, init_pose):
             break
     # final solve with the last weights and rejections already applied above (loop exits after a stable round)
     if changed or rescaled:
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        values.insert(pose_key, previous.atPose3(pose_key))
-        all_keys = [builder.add_measurement(graph, values, k, m, track_sigmas=sigmas[k], skip_tracks=skip[k])
-                    for k, m in enumerate(measurements)]
-        _copy_values(values, previous)
-        result, iterations, error, converged = _lm(graph, values, options.max_iterations)
+        graph, all_keys, result, iterations, error, converged = solve(previous)
         iterations_total += iterations
     pose = result.atPose3(pose_key)
     info = pose_information(graph, result, pose_key)
