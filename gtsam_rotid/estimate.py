@@ -29,10 +29,18 @@ from .camera import Camera
 from .dataset import Dataset, Measurement
 from .errors import InputError, RotIdError
 from .factors import image_line_from_rot3, line_distance_covariance, make_axis_to_line_factor
-from .graph import MIN_ELLIPSE_POINTS, RotIdGraph, axis_test_points
-from .initialise import fit_ellipse, initial_image_axis, plane_normal, pose_candidates
+from .graph import (
+    MIN_TRACK_EXTENT_PX,
+    MIN_TRACK_POINTS,
+    MeasurementKeys,
+    PreparedMeasurement,
+    RotIdGraph,
+    axis_test_points,
+    track_huber,
+)
+from .initialise import initial_image_axis, plane_normal, pose_candidates
 from .jsonio import write_json_atomic
-from .uncertainty import Observability, analyse_observability, pose_information
+from .uncertainty import Observability, analyse_observability, marginal_information, pose_information
 
 MIN_MEASUREMENTS = 3
 
@@ -57,11 +65,16 @@ class CalibrationOptions:
     #: Extra random restarts around the best start (the paper's method).
     restarts: int = 5
     seed: int = 0
-    min_track_points: int = 10
+    min_track_points: int = MIN_TRACK_POINTS
+    #: Tracks whose pixels span less than this image extent (px) are rejected (a few degrees of arc).
+    min_track_extent_px: float = MIN_TRACK_EXTENT_PX
     #: A track whose residual RMS exceeds this multiple of its measurement's median track RMS is rejected.
     outlier_track_ratio: float = 3.0
     #: A measurement whose residual scale exceeds this multiple of the median is reported as an outlier.
     outlier_measurement_ratio: float = 3.0
+    #: A measurement whose stage-1 image axis and the FK axis projected by the estimate disagree beyond this
+    #: chi-square (2 dof) value is an outlier (e.g. a wrong joint reading) and is left out (weighted, joint).
+    outlier_measurement_chi2: float = 20.0
     #: Initial stage-2 RMS (px) above which the start is declared a poor minimum.
     max_initial_rms_px: float = 25.0
     tie_sigma_px: float = 1e-3
@@ -194,6 +207,8 @@ class CalibrationResult:
 # ---------------------------------------------------------------------------------------------------
 # helpers
 
+POSE_KEY = gtsam.symbol("T", 0)
+
 
 def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int):
     params = gtsam.LevenbergMarquardtParams()
@@ -208,64 +223,52 @@ def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations:
     return result, optimizer.iterations(), graph.error(result), converged
 
 
-def _copy_values(dst: gtsam.Values, src: gtsam.Values) -> None:
-    """Overwrite the entries of ``dst`` that ``src`` also holds (Pose3, Rot3 or vector)."""
-    for key in dst.keys():
-        if not src.exists(key):
-            continue
-        for getter in (src.atPose3, src.atRot3, src.atVector):
-            try:
-                dst.update(key, getter(key))
-                break
-            except RuntimeError:
-                continue
+def _builder(arm: Arm, camera: Camera, options: CalibrationOptions, **kwargs) -> RotIdGraph:
+    return RotIdGraph(arm, camera, pose_key=POSE_KEY, tie_sigma_px=options.tie_sigma_px,
+                      min_track_points=options.min_track_points, min_track_extent_px=options.min_track_extent_px,
+                      **kwargs)
 
 
 @dataclass
-class _Prepared:
-    axes: list
-    lines: list[np.ndarray]  # initial image axes from the ellipse centres
-    n_points: list[int]
+class _Setup:
+    axes: list  # FK wrist axes (Line3, arm frame)
+    prepared: list[PreparedMeasurement]
+    lines: list[np.ndarray]  # initial image axes through the ellipse centres
 
 
-def _prepare(arm: Arm, camera: Camera, measurements: list[Measurement], options: CalibrationOptions) -> _Prepared:
+def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: CalibrationOptions) -> _Setup:
     if len(measurements) < MIN_MEASUREMENTS:
         raise InputError(f"need at least {MIN_MEASUREMENTS} measurements (arm poses) to calibrate, "
                          f"got {len(measurements)}")
-    axes, lines, n_points = [], [], []
-    min_points = max(options.min_track_points, MIN_ELLIPSE_POINTS)
+    builder = _builder(arm, camera, options)
+    axes, prepared, lines = [], [], []
     for k, m in enumerate(measurements):
         axes.append(arm.wrist_axis(m.joint_angles))
-        ellipses = []
-        for track in m.tracks:
-            pixels = track.pixels if hasattr(track, "pixels") else np.asarray(track)
-            if len(pixels) >= min_points:
-                ellipse = fit_ellipse(camera.undistort_pixels(pixels))
-                if ellipse is not None:
-                    ellipses.append(ellipse)
-        if len(ellipses) < 2:
-            raise InputError(f"measurement {k}: only {len(ellipses)} usable track(s) (>= {min_points} points "
-                             "and an ellipse fit), need at least 2")
-        lines.append(initial_image_axis(ellipses))
-        n_points.append(sum(len(t) for t in m.tracks))
-    return _Prepared(axes, lines, n_points)
+        prep = builder.prepare(m, k)
+        if len(prep.usable) < 2:
+            reasons = "; ".join(f"track {j}: {why}" for j, why in prep.rejected.items())
+            raise InputError(f"measurement {k}: only {len(prep.usable)} usable track(s), need at least 2 "
+                             f"(rejected: {reasons})")
+        prepared.append(prep)
+        lines.append(initial_image_axis([t.ellipse for t in prep.usable.values()]))
+    return _Setup(axes, prepared, lines)
 
 
-def _stage2_graph(pose_key, axes, lines, K, noises) -> gtsam.NonlinearFactorGraph:
+def _stage2_graph(axes, lines, K, noises) -> gtsam.NonlinearFactorGraph:
     graph = gtsam.NonlinearFactorGraph()
     for axis, line, noise in zip(axes, lines, noises, strict=True):
-        graph.add(make_axis_to_line_factor(noise, pose_key, axis_test_points(axis), line, K))
+        graph.add(make_axis_to_line_factor(noise, POSE_KEY, axis_test_points(axis), line, K))
     return graph
 
 
-def _best_stage2(graph, pose_key, starts, options) -> tuple[gtsam.Pose3, float, int]:
+def _best_stage2(graph, starts, options) -> tuple[gtsam.Pose3, float, int]:
     best = None
     for start in starts:
         values = gtsam.Values()
-        values.insert(pose_key, start)
+        values.insert(POSE_KEY, start)
         result, iterations, error, _ = _lm(graph, values, options.max_iterations)
         if best is None or error < best[1]:
-            best = (result.atPose3(pose_key), error, iterations)
+            best = (result.atPose3(POSE_KEY), error, iterations)
     return best
 
 
@@ -284,166 +287,250 @@ def initial_pose(arm: Arm, camera: Camera, measurements: list[Measurement],
     return _initial(arm, camera, measurements, options)[0]
 
 
-def _initial(arm, camera, measurements, options):
-    prepared = _prepare(arm, camera, measurements, options)
+def _initial(arm, camera, measurements, options) -> tuple[gtsam.Pose3, _Setup]:
+    setup = _setup(arm, camera, measurements, options)
     K = camera.K
-    normals = np.array([plane_normal(K, line) for line in prepared.lines])
-    candidates = pose_candidates(normals, prepared.axes, n_best=options.n_candidates)
+    normals = np.array([plane_normal(K, line) for line in setup.lines])
+    candidates = pose_candidates(normals, setup.axes, n_best=options.n_candidates)
     if not candidates:
-        raise CalibrationError("no pose candidate puts the wrist in front of the camera")
-    key = gtsam.symbol("T", 0)
-    unit = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(prepared.axes)
-    graph = _stage2_graph(key, prepared.axes, prepared.lines, K, unit)
-    pose, error, _ = _best_stage2(graph, key, candidates, options)
-    rms = np.sqrt(2.0 * error / (2 * len(prepared.axes)))
+        raise CalibrationError("no pose candidate puts the wrist in front of the camera; check the joint angles "
+                               "and that the tracks belong to the wrist")
+    unit = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(setup.axes)
+    graph = _stage2_graph(setup.axes, setup.lines, K, unit)
+    pose, error, _ = _best_stage2(graph, candidates, options)
+    rms = np.sqrt(2.0 * error / (2 * len(setup.axes)))
     if rms > options.max_initial_rms_px:
         raise CalibrationError(
             f"initialisation ended in a poor minimum: the FK axes miss the image axes by {rms:.1f} px RMS "
             f"(limit {options.max_initial_rms_px} px); check joint angles, camera intrinsics and tracks")
-    return pose, prepared
+    return pose, setup
 
 
 # ---------------------------------------------------------------------------------------------------
-# estimators
+# stage 1: coaxial circles per measurement
 
 
-def _stage1(arm, camera, measurements, pose, options):
-    """Per-measurement coaxial circle fits: image line, its 3x3 covariance, residual scale, reports."""
-    builder = RotIdGraph(arm, camera, min_track_points=options.min_track_points)
-    out = []
-    for k, m in enumerate(measurements):
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        keys = builder.add_measurement(graph, values, k, m, arm_T_camera=pose, tie=False)
-        result, iterations, error, _ = _lm(graph, values, options.max_iterations)
-        n = sum(graph.at(i).dim() for i in keys.circle_factors)
-        dof = max(n - 3 - 2 * len(keys.circles), 1)
-        sigma2 = max(2.0 * error / dof, options.min_sigma_px**2)
-        R = result.atRot3(keys.line)
-        line, J = image_line_from_rot3(camera.K, R)
-        cov_R = gtsam.Marginals(graph, result).marginalCovariance(keys.line)  # unit pixel noise
-        out.append(dict(line=line, line_cov=J @ cov_R @ J.T, sigma2=sigma2, keys=keys, n=n))
+@dataclass
+class _Stage1:
+    keys: MeasurementKeys
+    rotation: gtsam.Rot3  # the line variable at the solution
+    circles: dict[int, np.ndarray]  # track -> (d, r) at the solution
+    line: np.ndarray  # (3,) image axis
+    line_cov: np.ndarray  # (3, 3) its covariance at unit pixel noise
+    sigma2: float  # pixel noise variance from the residuals (chi2 / dof)
+    n_points: int
+    outliers: dict[int, str]  # track -> reason
+    iterations: int
+
+
+def _track_stats(graph, keys: MeasurementKeys, values) -> dict[int, tuple[float, int]]:
+    """Per track: (residual sum of squares in px^2, number of points)."""
+    out = {}
+    for j, fi in zip(keys.tracks, keys.circle_factors, strict=True):
+        e = graph.at(fi).unwhitenedError(values)
+        out[j] = (float(e @ e), len(e))
     return out
 
 
-def _two_stage(arm, camera, measurements, method, options, init_pose, prepared):
-    K = camera.K
-    stage1 = _stage1(arm, camera, measurements, init_pose, options)
-    key = gtsam.symbol("T", 0)
-    lines = [s["line"] for s in stage1]
-    rng = np.random.default_rng(options.seed)
-    if method is Method.PAPER:
-        noises = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(lines)
-        graph = _stage2_graph(key, prepared.axes, lines, K, noises)
-        starts = [init_pose, *_random_restarts(init_pose, options.restarts, rng)]
-        pose, error, iterations = _best_stage2(graph, key, starts, options)
-        weights = np.ones(len(lines))
-    else:
-        pose, iterations = init_pose, 0
-        for _ in range(2):  # the distance covariance depends on where the test points project
-            camera_T_arm = pose.inverse()
-            noises = []
-            for axis, s in zip(prepared.axes, stage1, strict=True):
-                pts = np.array([camera_T_arm.transformFrom(p) for p in axis_test_points(axis)])
-                cov = line_distance_covariance(s["line_cov"] * s["sigma2"], camera.project(pts, distort=False))
-                base = gtsam.noiseModel.Gaussian.Covariance(cov + 1e-12 * np.eye(2))
-                noises.append(gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(3.0), base))
-            graph = _stage2_graph(key, prepared.axes, lines, K, noises)
-            pose, error, it = _best_stage2(graph, key, [pose], options)
-            iterations += it
-        sig = np.array([np.sqrt(s["sigma2"]) for s in stage1])
-        weights = np.median(sig) ** 2 / sig**2
-    values = gtsam.Values()
-    values.insert(key, pose)
-    info = pose_information(graph, values, key)
+def _outlier_tracks(stats: dict[int, tuple[float, int]], options: CalibrationOptions) -> dict[int, str]:
+    rms = {j: np.sqrt(sse / n) for j, (sse, n) in stats.items()}
+    median = max(float(np.median(list(rms.values()))), options.min_sigma_px)
+    limit = options.outlier_track_ratio * median
+    return {j: f"residual RMS {value:.2f} px > {options.outlier_track_ratio:g}x the median {median:.2f} px"
+            for j, value in rms.items() if value > limit}
+
+
+def _noise_variance(stats: dict[int, tuple[float, int]], line_dof: int, options: CalibrationOptions) -> float:
+    sse = sum(v[0] for v in stats.values())
+    n = sum(v[1] for v in stats.values())
+    dof = max(n - line_dof - 2 * len(stats), 1)
+    return max(sse / dof, options.min_sigma_px**2)
+
+
+def _stage1_measurement(builder: RotIdGraph, measurement, k, pose, prepared, options) -> _Stage1:
+    skip: dict[int, str] = {}
+    iterations = 0
+    for _round in range(4):
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False,
+                                       prepared=prepared, skip_tracks=skip)
+        result, it, _, _ = _lm(graph, values, options.max_iterations)
+        iterations += it
+        stats = _track_stats(graph, keys, result)
+        new = _outlier_tracks(stats, options)
+        if not new or len(stats) - len(new) < 2:
+            break
+        skip.update(new)
+    R = result.atRot3(keys.line)
+    line, J = image_line_from_rot3(builder.camera.K, R)
+    info = marginal_information(graph, result, keys.line, 3)  # unit pixel noise
+    w, V = np.linalg.eigh(info)
+    cov_R = (V / np.maximum(w, 1e-12 * max(w.max(), 1e-300))) @ V.T
+    circles = {j: result.atVector(c) for j, c in zip(keys.tracks, keys.circles, strict=True)}
+    return _Stage1(keys, R, circles, line, J @ cov_R @ J.T, _noise_variance(stats, 3, options),
+                   sum(n for _, n in stats.values()), skip, iterations)
+
+
+def _stage1(arm, camera, measurements, pose, setup: _Setup, options) -> list[_Stage1]:
+    builder = _builder(arm, camera, options)
+    return [_stage1_measurement(builder, m, k, pose, setup.prepared[k], options) for k, m in enumerate(measurements)]
+
+
+# ---------------------------------------------------------------------------------------------------
+# stage 2 and the estimators
+
+
+def _axis_distances(camera: Camera, axis, stage1: _Stage1, pose: gtsam.Pose3) -> tuple[np.ndarray, np.ndarray]:
+    """Distances of the projected FK test points to the stage-1 image axis, and their covariance."""
+    points = np.array([pose.transformTo(p) for p in axis_test_points(axis)])
+    pixels = camera.project(points, distort=False)
+    e = pixels @ stage1.line[:2] + stage1.line[2]
+    cov = line_distance_covariance(stage1.line_cov * stage1.sigma2, pixels) + 1e-12 * np.eye(len(e))
+    return e, cov
+
+
+def _chi2(camera, axes, stage1, pose) -> np.ndarray:
+    """Per measurement: chi-square (2 dof) of its stage-1 image axis against the FK axis projected by ``pose``."""
+    out = []
+    for axis, s in zip(axes, stage1, strict=True):
+        e, cov = _axis_distances(camera, axis, s, pose)
+        out.append(float(e @ np.linalg.solve(cov, e)))
+    return np.array(out)
+
+
+def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsam.Pose3, options):
+    """Stage 2 weighted by the stage-1 line covariances, Huber on whole measurements; returns (pose, its, graph)."""
+    pose, iterations, graph = start, 0, None
+    for _round in range(3):  # the distance covariance depends on where the test points project
+        noises = []
+        for k in used:
+            _, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose)
+            base = gtsam.noiseModel.Gaussian.Covariance(cov)
+            noises.append(gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(3.0), base))
+        graph = _stage2_graph([setup.axes[k] for k in used], [stage1[k].line for k in used], camera.K, noises)
+        previous = pose
+        pose, _, it = _best_stage2(graph, [pose], options)
+        iterations += it
+        step = previous.localCoordinates(pose)
+        if np.max(np.abs(step[:3])) < 1e-9 and np.max(np.abs(step[3:])) < 1e-9:
+            break
+    return pose, iterations, graph
+
+
+def _robust_weighted(camera, setup, stage1, start, options) -> tuple[gtsam.Pose3, int, gtsam.NonlinearFactorGraph,
+                                                                       list[int], dict[int, float]]:
+    """Weighted stage 2 that leaves out measurements whose image axis disagrees with the FK axis."""
+    n = len(stage1)
+    used = list(range(n))
+    iterations = 0
+    while True:
+        pose, it, graph = _weighted_stage2(camera, setup, stage1, used, start, options)
+        iterations += it
+        chi2 = _chi2(camera, setup.axes, stage1, pose)
+        bad = [k for k in used if chi2[k] > options.outlier_measurement_chi2]
+        if not bad or len(used) - 1 < MIN_MEASUREMENTS:
+            break
+        used.remove(max(bad, key=lambda k: chi2[k]))  # one at a time: the worst may hide the others
+        start = pose
+    if len([k for k in used if chi2[k] > options.outlier_measurement_chi2]) > len(used) // 2:
+        raise CalibrationError(
+            "the estimate ended in a poor minimum: most measurements' image axes disagree with the FK axes "
+            f"(chi-square per measurement {np.round(chi2, 1).tolist()}); check joint angles and intrinsics")
+    return pose, iterations, graph, used, {k: float(chi2[k]) for k in range(n)}
+
+
+def _finish(pose, covariance, info, method, converged, iterations, error, reports, sigma_px) -> CalibrationResult:
     observability = analyse_observability(info, pose)
-    covariance = observability.covariance(info)
-    reports, sigmas = [], []
+    if covariance is None or not observability.is_observable:
+        covariance = observability.covariance(info)
+    return CalibrationResult(pose, covariance, method.value, bool(converged), int(iterations), float(error),
+                             reports, observability, float(sigma_px))
+
+
+def _reports(stage1: list[_Stage1], sigmas: dict[int, float], used: list[int], options) -> list[MeasurementReport]:
+    median = float(np.median([sigmas[k] for k in used]))
+    reports = []
     for k, s in enumerate(stage1):
-        sigmas.append(np.sqrt(s["sigma2"]))
-        reports.append(MeasurementReport(k, len(s["keys"].circles), s["n"], float(np.sqrt(s["sigma2"])),
-                                         float(weights[k]), False, dict(s["keys"].rejected)))
+        rejected = {**s.keys.rejected, **s.outliers}
+        excluded = k not in used
+        sigma = sigmas.get(k, np.sqrt(s.sigma2))
+        reports.append(MeasurementReport(k, len(s.keys.tracks) - len(s.outliers), s.n_points, float(sigma),
+                                         0.0 if excluded else median**2 / sigma**2, excluded, rejected))
     _flag_outlier_measurements(reports, options)
-    return CalibrationResult(pose, covariance, method.value, True, iterations, float(error), reports, observability,
-                             float(np.median(sigmas)))
+    return reports
 
 
 def _flag_outlier_measurements(reports: list[MeasurementReport], options: CalibrationOptions) -> None:
-    rms = np.array([r.residual_rms_px for r in reports])
-    median = np.median(rms)
+    median = np.median([r.residual_rms_px for r in reports])
     for r in reports:
-        r.outlier = bool(r.residual_rms_px > options.outlier_measurement_ratio * median)
+        r.outlier = bool(r.outlier or r.residual_rms_px > options.outlier_measurement_ratio * median)
 
 
-def _joint(arm, camera, measurements, options, init_pose):
-    pose_key = gtsam.symbol("T", 0)
-    builder = RotIdGraph(arm, camera, pose_key=pose_key, tie_sigma_px=options.tie_sigma_px,
-                         min_track_points=options.min_track_points)
-    skip: list[set] = [set() for _ in measurements]
-    outlier_reason: list[dict] = [{} for _ in measurements]
-    sigmas: list[dict | None] = [None] * len(measurements)
+def _paper(camera, setup, stage1, init_pose, options) -> CalibrationResult:
+    """The seed's stage 2: unweighted, random restarts, covariance (J^T J)^-1 at unit noise."""
+    rng = np.random.default_rng(options.seed)
+    noises = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(stage1)
+    graph = _stage2_graph(setup.axes, [s.line for s in stage1], camera.K, noises)
+    starts = [init_pose, *_random_restarts(init_pose, options.restarts, rng)]
+    pose, error, iterations = _best_stage2(graph, starts, options)
+    values = gtsam.Values()
+    values.insert(POSE_KEY, pose)
+    sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
+    reports = _reports(stage1, sigmas, list(range(len(stage1))), options)
+    for r in reports:
+        r.weight = 1.0
+    return _finish(pose, None, pose_information(graph, values, POSE_KEY), Method.PAPER, True, iterations, error,
+                   reports, np.median(list(sigmas.values())))
 
-    def solve(previous):
-        """Build the joint graph with the current weights and rejections; LM from ``previous`` if given."""
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        values.insert(pose_key, init_pose if previous is None else previous.atPose3(pose_key))
-        all_keys = [builder.add_measurement(graph, values, k, m, track_sigmas=sigmas[k], skip_tracks=skip[k])
-                    for k, m in enumerate(measurements)]
-        if previous is not None:
-            _copy_values(values, previous)
-        return (graph, all_keys, *_lm(graph, values, options.max_iterations))
 
-    previous = None
-    iterations_total = 0
+def _weighted(camera, setup, stage1, init_pose, options) -> CalibrationResult:
+    pose, iterations, graph, used, _ = _robust_weighted(camera, setup, stage1, init_pose, options)
+    values = gtsam.Values()
+    values.insert(POSE_KEY, pose)
+    sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
+    reports = _reports(stage1, sigmas, used, options)
+    return _finish(pose, None, pose_information(graph, values, POSE_KEY), Method.WEIGHTED, True, iterations,
+                   graph.error(values), reports, np.median([sigmas[k] for k in used]))
+
+
+def _joint(arm, camera, measurements, setup, stage1, init_pose, options) -> CalibrationResult:
+    """One graph: every circle-point factor (Huber per track) tied to the pose; Marginals of the whole graph.
+
+    It starts from the weighted two-stage pose with the stage-1 circles: the tie is stiff (the kinematics are
+    taken as exact), so LM from a distant start would crawl along it.
+    """
+    pose, iterations, _, used, _ = _robust_weighted(camera, setup, stage1, init_pose, options)
+    builder = _builder(arm, camera, options, robust=track_huber)
+    sigmas = {k: float(np.sqrt(stage1[k].sigma2)) for k in used}
+    circles = {k: dict(stage1[k].circles) for k in used}
+    lines = {k: stage1[k].rotation for k in used}
+    converged = True
     for _round in range(3):
-        graph, all_keys, result, iterations, error, converged = solve(previous)
-        iterations_total += iterations
-        previous = result
-        # residuals per track (in pixels) at the solution
-        changed = False
-        per_measurement_sigma = []
-        for k, keys in enumerate(all_keys):
-            track_rms = {}
-            for j, fi in zip(keys.tracks, keys.circle_factors, strict=True):
-                e = graph.at(fi).unwhitenedError(result)
-                track_rms[j] = float(np.sqrt(np.mean(e**2)))
-            median = np.median(list(track_rms.values()))
-            for j, value in track_rms.items():
-                if value > options.outlier_track_ratio * max(median, options.min_sigma_px):
-                    skip[k].add(j)
-                    outlier_reason[k][j] = f"residual RMS {value:.2f} px > {options.outlier_track_ratio}x the median"
-                    changed = True
-            n = sum(graph.at(fi).dim() for j, fi in zip(keys.tracks, keys.circle_factors, strict=True)
-                    if j not in skip[k])
-            sse = sum((track_rms[j] ** 2) * graph.at(fi).dim()
-                      for j, fi in zip(keys.tracks, keys.circle_factors, strict=True) if j not in skip[k])
-            dof = max(n - 3 - 2 * (len(keys.tracks) - len(skip[k] & set(keys.tracks))), 1)
-            per_measurement_sigma.append(max(np.sqrt(sse / dof), options.min_sigma_px))
-        new_sigmas = [{j: s for j in keys.tracks} for keys, s in zip(all_keys, per_measurement_sigma, strict=True)]
-        rescaled = any(old is None or abs(next(iter(old.values())) / s - 1.0) > 0.05
-                       for old, s in zip(sigmas, per_measurement_sigma, strict=True))
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        values.insert(POSE_KEY, pose)
+        keys = {k: builder.add_measurement(graph, values, k, measurements[k], track_sigmas=dict.fromkeys(
+                    setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
+                    prepared=setup.prepared[k], initial_circles=circles[k], initial_line=lines[k]) for k in used}
+        result, it, error, converged = _lm(graph, values, options.max_iterations)
+        iterations += it
+        pose = result.atPose3(POSE_KEY)
+        new_sigmas = {k: float(np.sqrt(_noise_variance(_track_stats(graph, keys[k], result), 1, options)))
+                      for k in used}
+        circles = {k: {j: result.atVector(c) for j, c in zip(keys[k].tracks, keys[k].circles, strict=True)}
+                   for k in used}
+        lines = {k: result.atRot3(keys[k].line) for k in used}
+        stable = all(abs(new_sigmas[k] / sigmas[k] - 1.0) < 0.05 for k in used)
         sigmas = new_sigmas
-        if not changed and not rescaled:
+        if stable:
             break
-    # final solve with the last weights and rejections already applied above (loop exits after a stable round)
-    if changed or rescaled:
-        graph, all_keys, result, iterations, error, converged = solve(previous)
-        iterations_total += iterations
-    pose = result.atPose3(pose_key)
-    info = pose_information(graph, result, pose_key)
-    observability = analyse_observability(info, pose)
-    if observability.is_observable:
-        covariance = gtsam.Marginals(graph, result).marginalCovariance(pose_key)
-    else:
-        covariance = observability.covariance(info)
-    sig = np.array(per_measurement_sigma)
-    reports = []
-    for k, keys in enumerate(all_keys):
-        rejected = {**keys.rejected, **outlier_reason[k]}
-        reports.append(MeasurementReport(k, len(keys.tracks), sum(graph.at(fi).dim() for fi in keys.circle_factors),
-                                         float(sig[k]), float(np.median(sig) ** 2 / sig[k] ** 2), False, rejected))
-    _flag_outlier_measurements(reports, options)
-    return CalibrationResult(pose, covariance, Method.JOINT.value, bool(converged), iterations_total, float(error),
-                             reports, observability, float(np.median(sig)))
+    info = pose_information(graph, result, POSE_KEY)
+    try:
+        covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
+    except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
+        covariance = None
+    reports = _reports(stage1, sigmas, used, options)
+    return _finish(pose, covariance, info, Method.JOINT, converged, iterations, error, reports,
+                   np.median(list(sigmas.values())))
 
 
 def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: list[Measurement] | None = None,
@@ -463,7 +550,10 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
         raise InputError(f"unknown method {method!r}; choose one of {[m.value for m in Method]}") from None
     options = CalibrationOptions() if options is None else options
     measurements = [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements]
-    init_pose, prepared = _initial(arm, camera, measurements, options)
-    if method is Method.JOINT:
-        return _joint(arm, camera, measurements, options, init_pose)
-    return _two_stage(arm, camera, measurements, method, options, init_pose, prepared)
+    init_pose, setup = _initial(arm, camera, measurements, options)
+    stage1 = _stage1(arm, camera, measurements, init_pose, setup, options)
+    if method is Method.PAPER:
+        return _paper(camera, setup, stage1, init_pose, options)
+    if method is Method.WEIGHTED:
+        return _weighted(camera, setup, stage1, init_pose, options)
+    return _joint(arm, camera, measurements, setup, stage1, init_pose, options)

@@ -29,17 +29,73 @@ from .camera import Camera
 from .dataset import Measurement, Track
 from .errors import InputError
 from .factors import make_axis_to_line_variable_factor, make_circle_point_factor, rot3_from_line
-from .initialise import MIN_ELLIPSE_POINTS, fit_ellipse
+from .initialise import MIN_ELLIPSE_POINTS, Ellipse, fit_ellipse
 
 #: Distance (m) between the two FK test points on each wrist axis.
 TEST_POINT_SPACING = 0.1
 #: Circle variable index stride: circle key of (k, j) is symbol(c, k * CIRCLE_STRIDE + j).
 CIRCLE_STRIDE = 100_000
+#: Default fewest points of a usable track.
+MIN_TRACK_POINTS = 10
+#: Default smallest image extent (bounding-box diagonal, px) of a usable track. A shorter arc spans a few
+#: degrees of phase only: its circle's (d, r) is nearly indeterminate and it carries almost no information.
+MIN_TRACK_EXTENT_PX = 10.0
+
+
+def chi2_quantile(dof: int, z: float = 3.09) -> float:
+    """Upper chi-square quantile (Wilson-Hilferty); z = 3.09 is the 99.9 % point of the normal."""
+    h = 2.0 / (9.0 * dof)
+    return float(dof * (1.0 - h + z * np.sqrt(h)) ** 3)
+
+
+def track_huber(n_points: int):
+    """Huber kernel on a whole track: full weight while its chi-square is below the 99.9 % quantile."""
+    return gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(chi2_quantile(n_points)))
 
 
 def axis_test_points(axis) -> np.ndarray:
     """Two FK test points on a wrist axis (arm frame): its origin and one ``TEST_POINT_SPACING`` along it."""
     return axis.points_at([0.0, TEST_POINT_SPACING])
+
+
+@dataclass
+class PreparedTrack:
+    """A usable track: its ideal (undistorted) pixels and its ellipse."""
+
+    ideal: np.ndarray
+    ellipse: Ellipse
+
+
+@dataclass
+class PreparedMeasurement:
+    """Tracks of one measurement sorted into usable ones (by track index) and rejected ones (with reasons)."""
+
+    usable: dict[int, PreparedTrack]
+    rejected: dict[int, str]
+
+
+def prepare_tracks(camera: Camera, measurement: Measurement, k: int = 0, *,
+                   min_points: int = MIN_TRACK_POINTS,
+                   min_extent_px: float = MIN_TRACK_EXTENT_PX) -> PreparedMeasurement:
+    """Undistort every track, fit its ellipse, and reject tracks too short, too still, or without an ellipse."""
+    min_points = max(int(min_points), MIN_ELLIPSE_POINTS)
+    usable, rejected = {}, {}
+    for j, track in enumerate(measurement.tracks):
+        track = Track.from_any(track, measurement=k, track=j)
+        if len(track) < min_points:
+            rejected[j] = f"too short ({len(track)} < {min_points} points)"
+            continue
+        ideal = camera.undistort_pixels(track.pixels)
+        extent = float(np.hypot(*np.ptp(ideal, axis=0)))
+        if extent < min_extent_px:
+            rejected[j] = f"barely moves (extent {extent:.1f} px < {min_extent_px:g} px)"
+            continue
+        ellipse = fit_ellipse(ideal)
+        if ellipse is None:
+            rejected[j] = "no ellipse fits its points"
+            continue
+        usable[j] = PreparedTrack(ideal, ellipse)
+    return PreparedMeasurement(usable, rejected)
 
 
 @dataclass
@@ -77,6 +133,18 @@ def initial_circle(camera_point: np.ndarray, camera_direction: np.ndarray, rays:
     return float(s), radius
 
 
+def align_line(line: gtsam.Rot3, plane_normal: np.ndarray) -> gtsam.Rot3:
+    """The smallest rotation of a line variable that makes its projection-plane normal ``+-plane_normal``."""
+    c2 = line.matrix()[:, 2]
+    n = np.asarray(plane_normal, dtype=float)
+    n = n / np.linalg.norm(n) * (1.0 if c2 @ n >= 0 else -1.0)
+    axis = np.cross(c2, n)
+    angle = np.arctan2(np.linalg.norm(axis), c2 @ n)
+    if angle < 1e-15:
+        return line
+    return gtsam.Rot3.AxisAngle(gtsam.Point3(axis / np.linalg.norm(axis)), angle).compose(line)
+
+
 class RotIdGraph:
     """Adds rotation-identification variables and factors to a user's graph.
 
@@ -86,15 +154,22 @@ class RotIdGraph:
         line_symbol, circle_symbol: symbol characters for the line and circle variables.
         track_sigma_px: pixel noise of the circle-point factors (an estimator rescales it).
         tie_sigma_px: stiffness of the projected-axis tie (the kinematics are taken as exact).
-        min_track_points: tracks with fewer points are rejected.
-        robust: optional ``gtsam.noiseModel.mEstimator`` applied per track (whole-track weighting).
+        min_track_points, min_track_extent_px: tracks with fewer points, or whose pixels span a smaller
+            image extent, are rejected.
+        robust: optional ``gtsam.noiseModel.mEstimator`` applied per track (whole-track weighting: GTSAM
+            evaluates it on the track's whole whitened norm), or a callable ``n_points -> mEstimator`` so that
+            its threshold can follow the track length (see :func:`track_huber`).
     """
 
     def __init__(self, arm: Arm, camera: Camera, *, pose_key: int = gtsam.symbol("T", 0), line_symbol: str = "l",
                  circle_symbol: str = "c", track_sigma_px: float = 1.0, tie_sigma_px: float = 1e-3,
-                 min_track_points: int = 10, robust=None):
+                 min_track_points: int = MIN_TRACK_POINTS, min_track_extent_px: float = MIN_TRACK_EXTENT_PX,
+                 robust=None):
         if line_symbol == circle_symbol:
             raise InputError("line_symbol and circle_symbol must differ")
+        for name, value in (("track_sigma_px", track_sigma_px), ("tie_sigma_px", tie_sigma_px)):
+            if not np.isfinite(value) or value <= 0:
+                raise InputError(f"{name} must be a positive number of pixels, got {value!r}")
         self.arm = arm
         self.camera = camera
         self.pose_key = pose_key
@@ -103,6 +178,7 @@ class RotIdGraph:
         self.track_sigma_px = float(track_sigma_px)
         self.tie_sigma_px = float(tie_sigma_px)
         self.min_track_points = max(int(min_track_points), MIN_ELLIPSE_POINTS)
+        self.min_track_extent_px = float(min_track_extent_px)
         self.robust = robust
 
     def line_key(self, k: int) -> int:
@@ -114,20 +190,35 @@ class RotIdGraph:
         return gtsam.symbol(self.circle_symbol, k * CIRCLE_STRIDE + j)
 
     def track_noise(self, n: int, sigma: float | None = None):
+        """Noise model of an n-point track: isotropic, wrapped in the robust kernel if there is one."""
         base = gtsam.noiseModel.Isotropic.Sigma(n, self.track_sigma_px if sigma is None else sigma)
-        return base if self.robust is None else gtsam.noiseModel.Robust.Create(self.robust, base)
+        if self.robust is None:
+            return base
+        estimator = self.robust if isinstance(self.robust, gtsam.noiseModel.mEstimator.Base) else self.robust(n)
+        return gtsam.noiseModel.Robust.Create(estimator, base)
+
+    def prepare(self, measurement: Measurement, k: int = 0) -> PreparedMeasurement:
+        """Undistorted pixels and ellipses of the usable tracks (pass to :meth:`add_measurement` to reuse)."""
+        return prepare_tracks(self.camera, measurement, k, min_points=self.min_track_points,
+                              min_extent_px=self.min_track_extent_px)
 
     def add_measurement(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k: int,
                         measurement: Measurement, *, arm_T_camera: gtsam.Pose3 | None = None,
-                        track_sigmas: dict[int, float] | None = None, skip_tracks=(),
-                        tie: bool = True) -> MeasurementKeys:
+                        track_sigmas: dict[int, float] | None = None, skip_tracks=(), tie: bool = True,
+                        prepared: PreparedMeasurement | None = None,
+                        initial_circles: dict[int, np.ndarray] | None = None,
+                        initial_line: gtsam.Rot3 | None = None) -> MeasurementKeys:
         """Add measurement k's variables (with initial values) and factors.
 
         Initial values come from ``arm_T_camera`` (default: the pose already in ``values``): the FK axis
-        in the camera frame gives the line, each track's ellipse gives its circle. Tracks that are too
-        short or whose ellipse cannot be fitted are skipped and listed in ``rejected``; tracks in
+        in the camera frame gives the line, each track's ellipse gives its circle (unless
+        ``initial_circles`` gives ``(d, r)`` for track j, e.g. from an earlier solve). Tracks that are too
+        short, too still or without an ellipse are skipped and listed in ``rejected``; tracks in
         ``skip_tracks`` are left out silently. ``tie=False`` leaves out the projected-axis tie (stage 1
-        of the two-stage methods: the line and circles alone).
+        of the two-stage methods: the line and circles alone). ``prepared`` reuses :meth:`prepare`'s work.
+        ``initial_line`` (a line variable from an earlier solve, e.g. stage 1, whose circles are
+        ``initial_circles``) keeps its tilt within its projection plane, which the tie leaves free, and is
+        turned minimally so that its image is the FK axis' image (the tie starts satisfied).
         """
         if arm_T_camera is None:
             if not values.exists(self.pose_key):
@@ -136,43 +227,49 @@ class RotIdGraph:
         line_key = self.line_key(k)
         if values.exists(line_key):
             raise InputError(f"measurement {k}: key {gtsam.DefaultKeyFormatter(line_key)} already exists in values")
+        prepared = self.prepare(measurement, k) if prepared is None else prepared
         axis = self.arm.wrist_axis(measurement.joint_angles)
         camera_T_arm = arm_T_camera.inverse()
         point_cam = camera_T_arm.transformFrom(axis.point)
         direction_cam = camera_T_arm.rotation().matrix() @ axis.direction
         line_cam, scale = rot3_from_line(point_cam, direction_cam)
+        if initial_line is not None:
+            line_cam = align_line(initial_line, line_cam.matrix()[:, 2])
         foot_offset = point_cam @ direction_cam  # foot = point_cam - foot_offset * direction
         K = self.camera.K
-        keys = MeasurementKeys(k, line_key, [], [], [], -1, scale)
-        for j, track in enumerate(measurement.tracks):
+        K_inv = np.linalg.inv(K)
+        keys = MeasurementKeys(k, line_key, [], [], [], -1, scale, dict(prepared.rejected))
+        new_values = gtsam.Values()
+        new_factors = []
+        for j, track in prepared.usable.items():
             if j in skip_tracks:
-                continue
-            track = Track.from_any(track, measurement=k, track=j)
-            if len(track) < self.min_track_points:
-                keys.rejected[j] = f"too short ({len(track)} < {self.min_track_points} points)"
-                continue
-            ideal = self.camera.undistort_pixels(track.pixels)
-            ellipse = fit_ellipse(ideal)
-            if ellipse is None:
-                keys.rejected[j] = "no ellipse fits its points"
                 continue
             circle_key = self.circle_key(k, j)
             if values.exists(circle_key):
                 raise InputError(f"measurement {k}, track {j}: key {gtsam.DefaultKeyFormatter(circle_key)} "
                                  "already exists in values")
-            centre_ray = np.linalg.solve(K, np.append(ellipse.centre, 1.0))
-            rays = np.column_stack([ideal, np.ones(len(ideal))]) @ np.linalg.inv(K).T
-            offset, radius = initial_circle(point_cam, direction_cam, rays, centre_ray)
-            values.insert(circle_key, np.array([(offset + foot_offset) / scale, radius / scale]))
+            if initial_circles is not None and j in initial_circles:
+                circle = np.asarray(initial_circles[j], dtype=float).reshape(2)
+            else:
+                centre_ray = K_inv @ np.append(track.ellipse.centre, 1.0)
+                rays = np.column_stack([track.ideal, np.ones(len(track.ideal))]) @ K_inv.T
+                offset, radius = initial_circle(point_cam, direction_cam, rays, centre_ray)
+                circle = np.array([(offset + foot_offset) / scale, radius / scale])
+            new_values.insert(circle_key, circle)
             sigma = None if track_sigmas is None else track_sigmas.get(j)
-            graph.add(make_circle_point_factor(self.track_noise(len(ideal), sigma), line_key, circle_key, ideal, K))
+            new_factors.append(make_circle_point_factor(self.track_noise(len(track.ideal), sigma), line_key,
+                                                        circle_key, track.ideal, K))
             keys.circles.append(circle_key)
             keys.tracks.append(j)
-            keys.circle_factors.append(graph.size() - 1)
         if len(keys.circles) < 2:
             raise InputError(f"measurement {k}: only {len(keys.circles)} usable track(s), need at least 2 "
                              f"(rejected: {keys.rejected})")
-        values.insert(line_key, line_cam)
+        # nothing is added to the caller's graph or values before every check has passed
+        for factor in new_factors:
+            graph.add(factor)
+            keys.circle_factors.append(graph.size() - 1)
+        new_values.insert(line_key, line_cam)
+        values.insert(new_values)
         if not tie:
             return keys
         tie_noise = gtsam.noiseModel.Isotropic.Sigma(2, self.tie_sigma_px)

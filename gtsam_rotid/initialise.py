@@ -115,11 +115,28 @@ def so3_grid(n: int = 30000, seed: int = 7) -> np.ndarray:
     )
 
 
-def _translations(m: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Batched least-squares t with m_k . t = m_k . p_k; m (G, n, 3), points (n, 3) -> (G, 3)."""
+#: Relative weight of the depth regulariser in the batched t-solve.
+_DEPTH_WEIGHT = 1e-4
+#: Depth (m) at which a camera position is placed along a direction the data leave undetermined.
+NOMINAL_DEPTH = 1.0
+
+
+def _translations(m: np.ndarray, points: np.ndarray, forward: np.ndarray) -> np.ndarray:
+    """Batched least-squares t with m_k . t = m_k . p_k; m (G, n, 3), points (n, 3) -> (G, 3).
+
+    When every axis passes through one point P the system is rank-deficient: t slides along the ray through
+    P. A weak regulariser (relative weight ``_DEPTH_WEIGHT``) asks for the wrist centroid to be
+    ``NOMINAL_DEPTH`` in front of the camera (``forward``: (G, 3) camera z-axes in the arm frame), which picks
+    a point on that ray and barely moves a well-determined t (LM refines it without the regulariser; the
+    observability analysis reports an undetermined direction).
+    """
     rhs = np.einsum("gki,ki->gk", m, points)
-    A = np.einsum("gki,gkj->gij", m, m) + 1e-12 * np.eye(3)
+    A = np.einsum("gki,gkj->gij", m, m)
     b = np.einsum("gki,gk->gi", m, rhs)
+    eps = _DEPTH_WEIGHT * np.trace(A, axis1=1, axis2=2)
+    target = forward @ points.mean(axis=0) - NOMINAL_DEPTH
+    A = A + eps[:, None, None] * np.einsum("gi,gj->gij", forward, forward) + 1e-12 * np.eye(3)
+    b = b + (eps * target)[:, None] * forward
     return np.linalg.solve(A, b[..., None])[..., 0]
 
 
@@ -138,7 +155,7 @@ def pose_candidates(normals_camera: np.ndarray, axes_arm: list[Line3], *, n_best
     directions = np.array([a.direction for a in axes_arm])
     rotations = so3_grid() if grid is None else grid
     m = np.einsum("gij,kj->gki", rotations, normals)  # plane normals in the arm frame
-    t = _translations(m, points)
+    t = _translations(m, points, rotations[:, :, 2])
     depth_scale = max(np.median(np.linalg.norm(points - points.mean(axis=0), axis=1)), 0.1)
     rot_cost = np.einsum("gki,ki->gk", m, directions) ** 2
     dist_cost = (np.einsum("gki,gki->gk", m, points[None] - t[:, None]) / depth_scale) ** 2

@@ -20,24 +20,34 @@ UNOBSERVABLE_SIGMA_M = 0.05
 RELATIVE_ZERO = 1e-10
 
 
-def pose_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, pose_key: int) -> np.ndarray:
-    """6x6 information of the Pose3 ``pose_key``, all other variables marginalised (Schur complement)."""
+def marginal_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, key: int, dim: int) -> np.ndarray:
+    """Information (dim x dim) of one variable with every other variable marginalised (Schur complement).
+
+    Unlike ``gtsam.Marginals`` this never throws on an indeterminate nuisance variable: directions of the
+    other variables with (numerically) zero information are dropped, so a degenerate pose shows up as
+    small eigenvalues of the result instead of an exception.
+    """
     linear = graph.linearize(values)
     ordering = gtsam.Ordering()
-    ordering.push_back(pose_key)
-    for key in values.keys():
-        if key != pose_key:
-            ordering.push_back(key)
+    ordering.push_back(key)
+    for other in values.keys():
+        if other != key:
+            ordering.push_back(other)
     H, _ = linear.hessian(ordering)
     H = 0.5 * (H + H.T)
-    if H.shape[0] == 6:
+    if H.shape[0] == dim:
         return H
-    H_pp, H_po, H_oo = H[:6, :6], H[:6, 6:], H[6:, 6:]
+    H_pp, H_po, H_oo = H[:dim, :dim], H[:dim, dim:], H[dim:, dim:]
     w, V = np.linalg.eigh(H_oo)
     keep = w > RELATIVE_ZERO * max(w.max(), 1e-300)
     H_oo_inv = (V[:, keep] / w[keep]) @ V[:, keep].T
     S = H_pp - H_po @ H_oo_inv @ H_po.T
     return 0.5 * (S + S.T)
+
+
+def pose_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, pose_key: int) -> np.ndarray:
+    """6x6 information of the Pose3 ``pose_key``, all other variables marginalised (Schur complement)."""
+    return marginal_information(graph, values, pose_key, 6)
 
 
 @dataclass
