@@ -1,16 +1,26 @@
-"""Command line: ``gtsam-rotid {simulate,demo} ...``. Thin: it parses and calls library functions."""
+"""Command line: ``gtsam-rotid {simulate,calibrate,demo} ...``. Thin: it parses and calls library functions."""
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+import time
 from pathlib import Path
 
 from . import __version__
 from .errors import RotIdError
 
 SCENES = ("reference", "single-crossing")
+#: ``gtsam_rotid.estimate.Method`` values (kept literal so that ``--help`` does not import the estimator).
+METHODS = ("joint", "weighted", "paper")
 TRUTH_FILE = "truth.json"
+DATASET_FILE = "dataset.json"
+RESULT_FILE = "result.json"
+
+
+class OutputError(RotIdError):
+    """An output file the command should write exists (without --overwrite) or cannot be written."""
 
 
 def _simulate_scene(scene: str, seed: int, **changes):
@@ -29,6 +39,94 @@ def _scene_changes(args) -> dict:
     return changes
 
 
+def _check_output_file(path: Path, overwrite: bool, parent_must_exist: bool = True) -> None:
+    """Fail before the (slow) calibration if its result could not be written."""
+    if path.is_dir():
+        raise OutputError(f"{path} is a directory; give a file name for the result")
+    if path.exists() and not overwrite:
+        raise OutputError(f"{path} exists; pass --overwrite to replace it")
+    if parent_must_exist and not path.parent.is_dir():
+        raise OutputError(f"cannot write {path}: the directory {path.parent} does not exist")
+
+
+def _save_result(result, path: Path, overwrite: bool) -> None:
+    """``result.save`` with its refusal and OS errors turned into one-line messages (the old file stays intact)."""
+    try:
+        result.save(path, overwrite=overwrite)
+    except FileExistsError:
+        raise OutputError(f"{path} exists; pass --overwrite to replace it") from None
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+    print(f"wrote {path}")
+
+
+def _calibrate_timed(dataset, method: str):
+    from .estimate import calibrate
+
+    print(f"calibrating ({method})...", flush=True)
+    start = time.perf_counter()
+    result = calibrate(dataset, method=method)
+    print(f"calibrated in {time.perf_counter() - start:.1f} s")
+    return result
+
+
+def _in_sigmas(error, sigma) -> str:
+    return " ".join(f"{e / s:+7.2f}" if s > 0 else "    n/a" for e, s in zip(error, sigma, strict=True))
+
+
+def print_error_vs_truth(result, arm_T_camera_true) -> None:
+    """Print the estimate's error against a known ``arm_T_camera``, per axis and in units of the reported 1σ.
+
+    Rotation and camera-frame translation are ``result.error_to`` (the Pose3 tangent, in which the covariance
+    is expressed); the arm-frame position error is the difference of the camera centres, against
+    ``result.sigma_mm_arm``.
+    """
+    import numpy as np
+
+    error = result.error_to(arm_T_camera_true)
+    rot_deg = np.degrees(error[:3])
+    trans_mm = 1000.0 * error[3:]
+    pos_mm = 1000.0 * (result.arm_T_camera.translation() - arm_T_camera_true.translation())
+    usable = result.covariance_usable
+    rows = [
+        ("rotation, camera axes (deg)", rot_deg, "{:+10.4f}", result.sigma_deg),
+        ("translation, camera frame (mm)", trans_mm, "{:+10.3f}", result.sigma_mm),
+        ("position, arm frame (mm)", pos_mm, "{:+10.3f}", result.sigma_mm_arm),
+    ]
+    print("error vs truth (estimate - truth, per axis" + (", and in reported 1-sigma units)" if usable else ")"))
+    for label, values, fmt, sigma in rows:
+        line = f"  {label:<31}" + "".join(fmt.format(v) for v in values)
+        if usable:
+            line += f"   = {_in_sigmas(values, sigma)} sigma"
+        print(line)
+    total = f"  total: rotation {np.linalg.norm(rot_deg):.3g} deg, position {np.linalg.norm(pos_mm):.3g} mm"
+    if usable:
+        try:
+            chi2 = float(error @ np.linalg.solve(result.covariance, error))
+        except np.linalg.LinAlgError:
+            chi2 = math.nan
+        total += f", Mahalanobis chi2 {chi2:.3g} (6 dof: about 6 if the 1-sigma is right)"
+    else:
+        total += " (covariance unusable: no comparison with a 1-sigma)"
+    print(total)
+
+
+def _load_truth(dataset_path: Path):
+    """The ground truth ``simulate`` wrote next to the dataset, or None (with a warning if it is unreadable)."""
+    from .simulate import GroundTruth
+
+    root = dataset_path.parent if dataset_path.name == DATASET_FILE and dataset_path.is_file() else dataset_path
+    path = root / TRUTH_FILE
+    if not path.is_file():
+        return None
+    try:
+        return GroundTruth.load(path)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        print(f"gtsam-rotid: warning: ignoring {path}, which cannot be read as ground truth: {exc}",
+              file=sys.stderr)
+        return None
+
+
 def cmd_simulate(args) -> int:
     dataset, truth = _simulate_scene(args.scene, args.seed, **_scene_changes(args))
     out = Path(args.output)
@@ -39,19 +137,52 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def cmd_calibrate(args) -> int:
+    from .dataset import Dataset
+
+    path = Path(args.dataset)
+    output = Path(args.output) if args.output else None
+    if output is not None:
+        _check_output_file(output, args.overwrite)
+    dataset = Dataset.load(path)
+    truth = _load_truth(path)
+    print(dataset.summary())
+    result = _calibrate_timed(dataset, args.method)
+    print(result.summary())
+    if truth is not None:
+        print_error_vs_truth(result, truth.arm_T_camera)
+    if output is not None:
+        _save_result(result, output, args.overwrite)
+    return 0
+
+
 def cmd_demo(args) -> int:
+    import numpy as np
+
+    out = Path(args.out) if args.out else None
+    if out is not None:  # refuse before simulating and calibrating, not after
+        if out.exists() and not out.is_dir():
+            raise OutputError(f"{out} exists and is not a directory")
+        if (out / "dataset").exists() and not args.overwrite:
+            raise OutputError(f"{out / 'dataset'} exists; pass --overwrite to replace it")
+        _check_output_file(out / RESULT_FILE, args.overwrite, parent_must_exist=False)
+    print("gtsam-rotid demo: the paper's reference scene (Kinova Jaco2, Xtion-like camera)")
+    print("simulating...", flush=True)
     dataset, truth = _simulate_scene("reference", args.seed, **_scene_changes(args))
-    print("gtsam-rotid demo: the paper's reference scene (Kinova Jaco2, Xtion-like camera), simulated")
     print(dataset.summary())
     T = truth.arm_T_camera
     x, y, z = T.translation() * 1000.0
-    r, p, yaw = T.rotation().rpy() * 180.0 / 3.141592653589793
+    r, p, yaw = np.degrees(T.rotation().rpy())
     print(f"true arm_T_camera: t = ({x:.1f}, {y:.1f}, {z:.1f}) mm, rpy = ({r:.2f}, {p:.2f}, {yaw:.2f}) deg")
-    if args.out:
-        out = Path(args.out) / "dataset"
-        dataset.save(out, overwrite=args.overwrite)
-        truth.save(out / TRUTH_FILE, overwrite=True)
-        print(f"wrote {out}")
+    if out is not None:
+        dataset.save(out / "dataset", overwrite=args.overwrite)
+        truth.save(out / "dataset" / TRUTH_FILE, overwrite=True)
+        print(f"wrote {out / 'dataset'}")
+    result = _calibrate_timed(dataset, args.method)
+    print(result.summary())
+    print_error_vs_truth(result, truth.arm_T_camera)
+    if out is not None:
+        _save_result(result, out / RESULT_FILE, args.overwrite)
     return 0
 
 
@@ -61,6 +192,11 @@ def _add_scene_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, help="seconds of wrist spin per measurement (default 60)")
     parser.add_argument("--n-measurements", type=int, help="number of arm poses (default 6)")
     parser.add_argument("--outlier-fraction", type=float, help="fraction of tracks replaced by wrong arcs")
+
+
+def _add_method_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--method", choices=METHODS, default="joint",
+                        help="estimator: joint (default), weighted or paper (the seed paper's two stages)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -78,9 +214,19 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scene_options(p)
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("demo", help="run the main job on the built-in reference scene")
-    p.add_argument("--out", help="also write the dataset into this directory")
+    p = sub.add_parser("calibrate", help="estimate arm_T_camera from a dataset directory",
+                       description="Estimate arm_T_camera from a dataset directory. If the directory holds the "
+                                   f"{TRUTH_FILE} that `simulate` writes, also print the error against it.")
+    p.add_argument("dataset", metavar="DATASET", help="dataset directory (as written by `simulate`)")
+    _add_method_option(p)
+    p.add_argument("-o", "--output", metavar="RESULT_JSON", help="write the result as JSON to this file")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing result file")
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("demo", help="simulate the reference scene and calibrate it")
+    p.add_argument("--out", metavar="DIR", help=f"also write DIR/dataset and DIR/{RESULT_FILE}")
     p.add_argument("--overwrite", action="store_true", help="replace existing output")
+    _add_method_option(p)
     _add_scene_options(p)
     p.set_defaults(func=cmd_demo)
     return parser

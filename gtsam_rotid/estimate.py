@@ -149,9 +149,10 @@ class CalibrationResult:
         lines.extend("  " + line for line in self.observability.describe())
         for m in self.measurements:
             flag = "  OUTLIER" if m.outlier else ""
+            n_rejected = len(m.rejected_tracks)
             lines.append(f"  measurement {m.index}: {m.n_tracks} tracks, {m.n_points} points, residual RMS "
-                         f"{m.residual_rms_px:.3f} px, weight {m.weight:.2f}, {len(m.rejected_tracks)} tracks "
-                         f"rejected{flag}")
+                         f"{m.residual_rms_px:.3f} px, weight {m.weight:.2f}, {n_rejected} "
+                         f"track{'' if n_rejected == 1 else 's'} rejected{flag}")
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
@@ -208,12 +209,35 @@ class CalibrationResult:
 # helpers
 
 POSE_KEY = gtsam.symbol("T", 0)
+#: Sigma (rad and m) of the weak prior that holds the pose at its start, in the joint graph, along
+#: directions the data leave undetermined (information 1 against >= 1e7 for a determined direction at
+#: pixel noise: no measurable pull otherwise). Stage 2 needs none: its LM damps isotropically.
+ANCHOR_SIGMA = 1.0
+#: A twin pose (see :func:`twin_pose`) is kept as a second start when LM leaves it at least this far (deg)
+#: from the best start and its image-axis error is below this multiple of the best (+ 1 px^2).
+TWIN_MIN_ANGLE_DEG = 10.0
+TWIN_ERROR_RATIO = 4.0
 
 
-def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int):
+def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int, anchor: bool = False,
+        diagonal_damping: bool = True):
+    """LM; with ``anchor`` a weak prior at the start of ``POSE_KEY`` keeps undetermined directions still.
+
+    Diagonal damping suits the graphs with line and circle variables (their Jacobians differ in scale by
+    orders of magnitude); isotropic damping never steps along a direction of exactly zero information,
+    which keeps a degenerate stage 2 where it started. The returned error is that of ``graph`` alone.
+    """
+    if anchor:
+        anchored = gtsam.NonlinearFactorGraph()
+        anchored.push_back(graph)
+        anchored.add(gtsam.PriorFactorPose3(POSE_KEY, values.atPose3(POSE_KEY),
+                                            gtsam.noiseModel.Isotropic.Sigma(6, ANCHOR_SIGMA)))
+        result, iterations, _, converged = _lm(anchored, values, max_iterations,
+                                               diagonal_damping=diagonal_damping)
+        return result, iterations, graph.error(result), converged
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
-    params.setDiagonalDamping(True)  # pixel-scale Jacobians: scale-invariant damping
+    params.setDiagonalDamping(diagonal_damping)
     params.setlambdaUpperBound(1e15)
     params.setRelativeErrorTol(1e-12)
     params.setAbsoluteErrorTol(0.0)
@@ -266,7 +290,7 @@ def _best_stage2(graph, starts, options) -> tuple[gtsam.Pose3, float, int]:
     for start in starts:
         values = gtsam.Values()
         values.insert(POSE_KEY, start)
-        result, iterations, error, _ = _lm(graph, values, options.max_iterations)
+        result, iterations, error, _ = _lm(graph, values, options.max_iterations, diagonal_damping=False)
         if best is None or error < best[1]:
             best = (result.atPose3(POSE_KEY), error, iterations)
     return best
@@ -280,14 +304,37 @@ def _random_restarts(pose: gtsam.Pose3, n: int, rng: np.random.Generator) -> lis
     return out
 
 
+def closest_point(axes) -> np.ndarray:
+    """The point with the least summed squared distance to all the (non-parallel) lines ``axes``."""
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    for axis in axes:
+        P = np.eye(3) - np.outer(axis.direction, axis.direction)
+        A += P
+        b += P @ axis.point
+    return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def twin_pose(arm_T_camera: gtsam.Pose3, point) -> gtsam.Pose3:
+    """The camera turned half a turn about its ray to ``point`` (centre fixed).
+
+    When every wrist axis passes through ``point`` the two see the same image lines: image axes alone
+    cannot tell them apart, the circles can.
+    """
+    t = np.asarray(arm_T_camera.translation(), dtype=float)
+    ray = np.asarray(point, dtype=float) - t
+    half_turn = gtsam.Rot3.AxisAngle(gtsam.Point3(ray / np.linalg.norm(ray)), np.pi)
+    return gtsam.Pose3(half_turn.compose(arm_T_camera.rotation()), t)
+
+
 def initial_pose(arm: Arm, camera: Camera, measurements: list[Measurement],
                  options: CalibrationOptions | None = None) -> gtsam.Pose3:
     """Guess-free initial ``arm_T_camera`` from ellipse-centre lines and FK axes (DESIGN.md §5)."""
     options = CalibrationOptions() if options is None else options
-    return _initial(arm, camera, measurements, options)[0]
+    return _initial(arm, camera, measurements, options)[0][0]
 
 
-def _initial(arm, camera, measurements, options) -> tuple[gtsam.Pose3, _Setup]:
+def _initial(arm, camera, measurements, options) -> tuple[list[gtsam.Pose3], _Setup]:
+    """Starting poses (one, or a pose and its twin when the image axes cannot tell them apart) and the setup."""
     setup = _setup(arm, camera, measurements, options)
     K = camera.K
     normals = np.array([plane_normal(K, line) for line in setup.lines])
@@ -303,7 +350,12 @@ def _initial(arm, camera, measurements, options) -> tuple[gtsam.Pose3, _Setup]:
         raise CalibrationError(
             f"initialisation ended in a poor minimum: the FK axes miss the image axes by {rms:.1f} px RMS "
             f"(limit {options.max_initial_rms_px} px); check joint angles, camera intrinsics and tracks")
-    return pose, setup
+    # Near a single crossing the half-turned twin explains the image axes as well: keep it for the circles
+    # to decide (elsewhere LM takes the twin back to ``pose``).
+    twin, twin_error, _ = _best_stage2(graph, [twin_pose(pose, closest_point(setup.axes))], options)
+    distinct = np.linalg.norm(pose.localCoordinates(twin)[:3]) > np.radians(TWIN_MIN_ANGLE_DEG)
+    starts = [pose, twin] if distinct and twin_error < TWIN_ERROR_RATIO * error + 1.0 else [pose]
+    return starts, setup
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -439,8 +491,10 @@ def _robust_weighted(camera, setup, stage1, start, options) -> tuple[gtsam.Pose3
     return pose, iterations, graph, used, {k: float(chi2[k]) for k in range(n)}
 
 
-def _finish(pose, covariance, info, method, converged, iterations, error, reports, sigma_px) -> CalibrationResult:
-    observability = analyse_observability(info, pose)
+def _finish(pose, covariance, info, method, converged, iterations, error, reports, sigma_px,
+            info_scale: float = 1.0) -> CalibrationResult:
+    """Result with the observability of ``info * info_scale`` (the scale makes it a real information)."""
+    observability = analyse_observability(info * info_scale, pose)
     if covariance is None or not observability.is_observable:
         covariance = observability.covariance(info)
     return CalibrationResult(pose, covariance, method.value, bool(converged), int(iterations), float(error),
@@ -479,8 +533,11 @@ def _paper(camera, setup, stage1, init_pose, options) -> CalibrationResult:
     reports = _reports(stage1, sigmas, list(range(len(stage1))), options)
     for r in reports:
         r.weight = 1.0
+    # The paper's covariance assumes 1 px line errors; judge what is determined with the residual scale.
+    dof = 2 * len(stage1) - 6
+    line_var = max(2.0 * error / dof, options.min_sigma_px**2) if dof > 0 else 1.0
     return _finish(pose, None, pose_information(graph, values, POSE_KEY), Method.PAPER, True, iterations, error,
-                   reports, np.median(list(sigmas.values())))
+                   reports, np.median(list(sigmas.values())), info_scale=1.0 / line_var)
 
 
 def _weighted(camera, setup, stage1, init_pose, options) -> CalibrationResult:
@@ -511,7 +568,7 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options) -> Cali
         keys = {k: builder.add_measurement(graph, values, k, measurements[k], track_sigmas=dict.fromkeys(
                     setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
                     prepared=setup.prepared[k], initial_circles=circles[k], initial_line=lines[k]) for k in used}
-        result, it, error, converged = _lm(graph, values, options.max_iterations)
+        result, it, error, converged = _lm(graph, values, options.max_iterations, anchor=True)
         iterations += it
         pose = result.atPose3(POSE_KEY)
         new_sigmas = {k: float(np.sqrt(_noise_variance(_track_stats(graph, keys[k], result), 1, options)))
@@ -550,8 +607,15 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
         raise InputError(f"unknown method {method!r}; choose one of {[m.value for m in Method]}") from None
     options = CalibrationOptions() if options is None else options
     measurements = [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements]
-    init_pose, setup = _initial(arm, camera, measurements, options)
-    stage1 = _stage1(arm, camera, measurements, init_pose, setup, options)
+    starts, setup = _initial(arm, camera, measurements, options)
+    runs = [(start, _stage1(arm, camera, measurements, start, setup, options)) for start in starts]
+    if len(runs) > 1:  # image axes cannot choose between twin starts: the joint fit of the circles does
+        joints = [_joint(arm, camera, measurements, setup, stage1, start, options) for start, stage1 in runs]
+        best = int(np.argmin([r.sigma_px for r in joints]))
+        if method is Method.JOINT:
+            return joints[best]
+        runs = [runs[best]]
+    init_pose, stage1 = runs[0]
     if method is Method.PAPER:
         return _paper(camera, setup, stage1, init_pose, options)
     if method is Method.WEIGHTED:

@@ -1,14 +1,21 @@
 """Smoke tests: run the installed ``gtsam-rotid`` command as a user would."""
 
+import json
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import gtsam
+import numpy as np
 import pytest
 
-from gtsam_rotid import Dataset, simulate
+from gtsam_rotid import Dataset, cli, simulate
+from gtsam_rotid.estimate import CalibrationResult, Method
 from gtsam_rotid.simulate import GroundTruth
+
+#: A noise-free scene that simulates in ~2 s and calibrates in a few seconds.
+FAST_SCENE = ("--duration", "6", "--noise-var", "0", "--n-measurements", "5")
 
 
 def gtsam_rotid_command() -> list[str]:
@@ -30,7 +37,7 @@ def run(*args, check=True):
 
 def test_help_lists_commands():
     out = run("--help").stdout
-    for command in ("simulate", "demo"):
+    for command in ("simulate", "calibrate", "demo"):
         assert command in out
 
 
@@ -71,7 +78,141 @@ def test_bad_arguments_give_clear_errors(tmp_path):
     assert not (tmp_path / "x").exists()
 
 
-def test_demo_runs():
-    result = run("demo", "--duration", "3")
-    assert "reference scene" in result.stdout
-    assert "true arm_T_camera" in result.stdout
+
+
+# ---------------------------------------------------------------------------------------------------
+# calibrate and demo
+
+
+@pytest.fixture(scope="module")
+def noise_free_dataset(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("cli") / "noise_free"
+    run("simulate", *FAST_SCENE, "-o", str(out))
+    return out
+
+
+def error_to_truth(result_path: Path, truth_path: Path) -> tuple[CalibrationResult, float, float]:
+    """Rotation (rad) and translation (m) error of a saved result, from the files alone."""
+    result = CalibrationResult.load(result_path)
+    truth = GroundTruth.load(truth_path).arm_T_camera
+    rotation = np.linalg.norm(gtsam.Rot3.Logmap(truth.rotation().between(result.arm_T_camera.rotation())))
+    translation = np.linalg.norm(result.arm_T_camera.translation() - truth.translation())
+    return result, float(rotation), float(translation)
+
+
+def assert_prints_error_vs_truth(stdout: str) -> None:
+    assert "error vs truth" in stdout
+    for label in ("rotation, camera axes (deg)", "translation, camera frame (mm)", "position, arm frame (mm)"):
+        line = next((line for line in stdout.splitlines() if label in line), None)
+        assert line is not None, f"no {label!r} line in:\n{stdout}"
+        assert "sigma" in line
+    assert "Mahalanobis chi2" in stdout
+
+
+def test_cli_methods_are_the_estimators():
+    assert set(cli.METHODS) == {m.value for m in Method}
+
+
+@pytest.mark.parametrize("method", ["joint", "paper"])
+def test_calibrate_noise_free_recovers_truth(noise_free_dataset, method, tmp_path):
+    out = tmp_path / "result.json"
+    result = run("calibrate", str(noise_free_dataset), "--method", method, "-o", str(out))
+    assert f"calibrating ({method})" in result.stdout
+    assert f"arm_T_camera ({method}, converged" in result.stdout
+    assert_prints_error_vs_truth(result.stdout)
+    assert f"wrote {out}" in result.stdout
+    loaded, rotation, translation = error_to_truth(out, noise_free_dataset / "truth.json")
+    assert loaded.method == method
+    assert loaded.converged
+    assert rotation < 1e-6
+    assert translation < 1e-6
+
+
+def test_calibrate_refuses_to_overwrite_and_keeps_the_old_file(noise_free_dataset, tmp_path):
+    dataset = tmp_path / "without_truth"
+    shutil.copytree(noise_free_dataset, dataset)
+    (dataset / "truth.json").unlink()
+    out = tmp_path / "result.json"
+    out.write_bytes(b'{"an": "older result"}\n')
+    before = out.read_bytes()
+    result = run("calibrate", str(dataset), "-o", str(out), check=False)
+    assert result.returncode == 1
+    assert str(out) in result.stderr and "--overwrite" in result.stderr
+    assert "Traceback" not in result.stderr
+    assert out.read_bytes() == before
+    result = run("calibrate", str(dataset), "--method", "weighted", "-o", str(out), "--overwrite")
+    assert "error vs truth" not in result.stdout  # no truth.json next to this dataset
+    loaded, rotation, translation = error_to_truth(out, noise_free_dataset / "truth.json")
+    assert loaded.method == "weighted"
+    assert rotation < 1e-6
+    assert translation < 1e-6
+
+
+class _StubResult:
+    """Stands in for a calibration (no truth is compared against it); saved by the real CalibrationResult.save."""
+
+    save = CalibrationResult.save
+
+    def summary(self) -> str:
+        return "stub result"
+
+    def to_dict(self) -> dict:
+        return {"stub": True}
+
+
+def test_calibrate_keeps_a_result_file_that_appears_while_it_runs(noise_free_dataset, tmp_path, monkeypatch,
+                                                                    capsys):
+    """The output is checked before calibrating, but a file written meanwhile must not be replaced either."""
+    import gtsam_rotid.estimate as estimate
+
+    dataset = tmp_path / "without_truth"
+    shutil.copytree(noise_free_dataset, dataset)
+    (dataset / "truth.json").unlink()
+    out = tmp_path / "result.json"
+    theirs = b'{"written": "by someone else during the calibration"}\n'
+
+    def calibrate_while_someone_writes(dataset, method):
+        out.write_bytes(theirs)
+        return _StubResult()
+
+    monkeypatch.setattr(estimate, "calibrate", calibrate_while_someone_writes)
+    assert cli.main(["calibrate", str(dataset), "-o", str(out)]) == 1
+    assert f"{out} exists; pass --overwrite" in capsys.readouterr().err
+    assert out.read_bytes() == theirs
+    assert cli.main(["calibrate", str(dataset), "-o", str(out), "--overwrite"]) == 0
+    assert json.loads(out.read_text()) == {"stub": True}
+
+
+def test_calibrate_missing_dataset_is_a_clear_error(tmp_path):
+    missing = tmp_path / "no_such_dataset"
+    out = tmp_path / "result.json"
+    result = run("calibrate", str(missing), "-o", str(out), check=False)
+    assert result.returncode == 1
+    assert str(missing) in result.stderr
+    assert "Traceback" not in result.stderr
+    assert not out.exists()
+    result = run("calibrate", str(tmp_path), check=False)  # a directory, but not a dataset
+    assert result.returncode == 1 and "dataset.json is missing" in result.stderr
+
+
+def test_calibrate_bad_method_is_a_usage_error(noise_free_dataset):
+    result = run("calibrate", str(noise_free_dataset), "--method", "best", check=False)
+    assert result.returncode == 2 and "invalid choice" in result.stderr
+
+
+def test_demo_calibrates_and_prints_the_true_error(tmp_path):
+    out = tmp_path / "demo"
+    result = run("demo", *FAST_SCENE, "--out", str(out))
+    stdout = result.stdout
+    assert "reference scene" in stdout and "true arm_T_camera" in stdout
+    assert "simulating..." in stdout and "calibrating (joint)..." in stdout and "calibrated in" in stdout
+    assert "1-sigma position, arm frame (mm)" in stdout and "1-sigma rotation (deg)" in stdout
+    assert_prints_error_vs_truth(stdout)
+    loaded, rotation, translation = error_to_truth(out / "result.json", out / "dataset" / "truth.json")
+    assert loaded.method == "joint"
+    assert rotation < 1e-6
+    assert translation < 1e-6
+    before = (out / "result.json").read_bytes()
+    again = run("demo", *FAST_SCENE, "--out", str(out), check=False)  # refused before simulating
+    assert again.returncode == 1 and "--overwrite" in again.stderr
+    assert (out / "result.json").read_bytes() == before
