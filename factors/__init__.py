@@ -18,14 +18,18 @@ line variable and the scale (camera-to-axis distance) that converts metric offse
 
 Factories (thin ``gtsam.CustomFactor`` wrappers over the pure functions in :mod:`.geometry`):
 
-- :func:`make_circle_point_factor` — one track's pixels vs. its projected circle (keys: line, circle).
+- :func:`make_circle_point_factor` — one track's pixels vs. its projected circle (keys: line, circle); its maths is
+  :class:`CircleTrack` (closed-form residuals and Jacobians, warm-started closest phases).
 - :func:`make_axis_to_line_factor` — projected FK axis test points vs. a measured image line (key: pose).
 - :func:`make_axis_to_line_variable_factor` — the same vs. a line variable's image (keys: pose, line).
+- :func:`make_pose_circle_point_factor` — one track's pixels vs. its projected circle about the FK axis mapped
+  by the pose (keys: pose, circle): the joint model with exact kinematics, no line variable.
 """
 
 from .axis import make_axis_to_line_factor, make_axis_to_line_variable_factor
 from .circle import make_circle_point_factor
 from .geometry import (
+    CircleTrack,
     axis_point_residuals,
     circle_coordinates,
     circle_point_residuals,
@@ -40,8 +44,11 @@ from .geometry import (
     rot3_from_line,
     transform_to_camera,
 )
+from .pose_circle import FKAxis, line_from_pose, make_pose_circle_point_factor
 
 __all__ = [
+    "CircleTrack",
+    "FKAxis",
     "axis_point_residuals",
     "circle_coordinates",
     "circle_point_residuals",
@@ -50,10 +57,12 @@ __all__ = [
     "image_line_from_rot3",
     "line_distance_covariance",
     "line_distances",
+    "line_from_pose",
     "line_points",
     "make_axis_to_line_factor",
     "make_axis_to_line_variable_factor",
     "make_circle_point_factor",
+    "make_pose_circle_point_factor",
     "project",
     "projected_circle",
     "rot3_from_line",
