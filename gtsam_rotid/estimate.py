@@ -33,6 +33,7 @@ from .graph import (
     MIN_TRACK_EXTENT_PX,
     MIN_TRACK_POINTS,
     MeasurementKeys,
+    Model,
     PreparedMeasurement,
     RotIdGraph,
     axis_test_points,
@@ -78,6 +79,12 @@ class CalibrationOptions:
     #: Initial stage-2 RMS (px) above which the start is declared a poor minimum.
     max_initial_rms_px: float = 25.0
     tie_sigma_px: float = 1e-3
+    #: Joint graph: ``"pose"`` (circles bound to the pose through the FK axis) or ``"line"`` (DESIGN.md §4:
+    #: line variables with a projected-axis tie), see :class:`gtsam_rotid.graph.Model`.
+    joint_model: str = "pose"
+    #: Features farther than this (m, median over tracks) from the wrist axis are not on an end effector: an
+    #: estimate that implies them is a poor minimum (typically a camera put metres away by wrong joint angles).
+    max_feature_radius_m: float = 0.5
     #: Floor of the estimated pixel noise (px), so noise-free data keeps finite weights.
     min_sigma_px: float = 1e-3
 
@@ -239,7 +246,7 @@ def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations:
     params.setMaxIterations(max_iterations)
     params.setDiagonalDamping(diagonal_damping)
     params.setlambdaUpperBound(1e15)
-    params.setRelativeErrorTol(1e-12)
+    params.setRelativeErrorTol(1e-8)
     params.setAbsoluteErrorTol(0.0)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     result = optimizer.optimize()
@@ -405,7 +412,7 @@ def _stage1_measurement(builder: RotIdGraph, measurement, k, pose, prepared, opt
     for _round in range(4):
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False,
-                                       prepared=prepared, skip_tracks=skip)
+                                       prepared=prepared, skip_tracks=skip, refine_circles=False)
         result, it, _, _ = _lm(graph, values, options.max_iterations)
         iterations += it
         stats = _track_stats(graph, keys, result)
@@ -469,26 +476,64 @@ def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsa
     return pose, iterations, graph
 
 
+def _poor_minimum(chi2: np.ndarray, limit: float, what: str) -> CalibrationError:
+    listing = ", ".join(f"{k}: {value:.3g}" for k, value in enumerate(chi2))
+    return CalibrationError(
+        f"the estimate ended in a poor minimum or the data are inconsistent: {what} (chi-square of each "
+        f"measurement's image axis against the projected FK axis, 2 dof, limit {limit:g}: {listing}); check "
+        "the joint angles, the intrinsics and the wrist joint (if the kinematics are known to be inaccurate, "
+        "raise CalibrationOptions.outlier_measurement_chi2)")
+
+
 def _robust_weighted(camera, setup, stage1, start, options) -> tuple[gtsam.Pose3, int, gtsam.NonlinearFactorGraph,
                                                                        list[int], dict[int, float]]:
-    """Weighted stage 2 that leaves out measurements whose image axis disagrees with the FK axis."""
+    """Weighted stage 2 that leaves out measurements whose image axis disagrees with the FK axis.
+
+    At most ``(n - 3) // 2`` measurements are left out, so that the rest still over-determine the pose and
+    the test stays meaningful; more disagreement than that is reported as a poor minimum.
+    """
     n = len(stage1)
     used = list(range(n))
+    max_excluded = max(0, (n - MIN_MEASUREMENTS) // 2)
+    limit = options.outlier_measurement_chi2
     iterations = 0
     while True:
         pose, it, graph = _weighted_stage2(camera, setup, stage1, used, start, options)
         iterations += it
         chi2 = _chi2(camera, setup.axes, stage1, pose)
-        bad = [k for k in used if chi2[k] > options.outlier_measurement_chi2]
-        if not bad or len(used) - 1 < MIN_MEASUREMENTS:
+        bad = [k for k in used if chi2[k] > limit]
+        if not bad:
             break
+        if n - len(used) >= max_excluded:
+            left_out = f", after leaving out {sorted(set(range(n)) - set(used))}" if len(used) < n else ""
+            raise _poor_minimum(chi2, limit, f"measurement(s) {bad} disagree{left_out}")
         used.remove(max(bad, key=lambda k: chi2[k]))  # one at a time: the worst may hide the others
         start = pose
-    if len([k for k in used if chi2[k] > options.outlier_measurement_chi2]) > len(used) // 2:
-        raise CalibrationError(
-            "the estimate ended in a poor minimum: most measurements' image axes disagree with the FK axes "
-            f"(chi-square per measurement {np.round(chi2, 1).tolist()}); check joint angles and intrinsics")
     return pose, iterations, graph, used, {k: float(chi2[k]) for k in range(n)}
+
+
+def _check_scale(result: CalibrationResult, setup: _Setup, stage1: list[_Stage1], options: CalibrationOptions) -> None:
+    """Raise if the estimate implies features implausibly far from the wrist axis (metric scale check).
+
+    The stage-1 circles are known in units of the camera-to-axis distance; the estimate fixes that distance
+    (unless it is degenerate: then the report already says the position is not determined).
+    """
+    if not result.covariance_usable:
+        return
+    pose = result.arm_T_camera
+    radii = []
+    for axis, s in zip(setup.axes, stage1, strict=True):
+        point = pose.transformTo(axis.point)
+        direction = pose.rotation().unrotate(axis.direction)
+        distance = np.linalg.norm(point - (point @ direction) * direction)
+        radii.extend(abs(c[1]) * distance for c in s.circles.values())
+    median = float(np.median(radii))
+    if median > options.max_feature_radius_m:
+        distance_to_wrist = np.median([np.linalg.norm(pose.transformTo(a.point)) for a in setup.axes])
+        raise CalibrationError(
+            f"the estimate ended in a poor minimum: it puts the camera {distance_to_wrist:.2f} m from the wrist, "
+            f"so the tracked features would lie {median:.2f} m from the wrist axis (median; limit "
+            f"{options.max_feature_radius_m} m); check the joint angles, the intrinsics and the wrist joint")
 
 
 def _finish(pose, covariance, info, method, converged, iterations, error, reports, sigma_px,
@@ -527,6 +572,9 @@ def _paper(camera, setup, stage1, init_pose, options) -> CalibrationResult:
     graph = _stage2_graph(setup.axes, [s.line for s in stage1], camera.K, noises)
     starts = [init_pose, *_random_restarts(init_pose, options.restarts, rng)]
     pose, error, iterations = _best_stage2(graph, starts, options)
+    chi2 = _chi2(camera, setup.axes, stage1, pose)
+    if np.median(chi2) > options.outlier_measurement_chi2:  # the unweighted fit is suboptimal: judge loosely
+        raise _poor_minimum(chi2, options.outlier_measurement_chi2, "most measurements disagree")
     values = gtsam.Values()
     values.insert(POSE_KEY, pose)
     sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
@@ -553,13 +601,14 @@ def _weighted(camera, setup, stage1, init_pose, options) -> CalibrationResult:
 def _joint(arm, camera, measurements, setup, stage1, init_pose, options) -> CalibrationResult:
     """One graph: every circle-point factor (Huber per track) tied to the pose; Marginals of the whole graph.
 
-    It starts from the weighted two-stage pose with the stage-1 circles: the tie is stiff (the kinematics are
-    taken as exact), so LM from a distant start would crawl along it.
+    It starts from the weighted two-stage pose, within the joint problem's basin (from a few degrees off,
+    circles of short arcs can run off to degenerate solutions that LM cannot leave), with the circles
+    fitted at that pose (``"line"`` model: the stage-1 lines and circles, see RotIdGraph.add_measurement).
     """
     pose, iterations, _, used, _ = _robust_weighted(camera, setup, stage1, init_pose, options)
-    builder = _builder(arm, camera, options, robust=track_huber)
+    builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model)
     sigmas = {k: float(np.sqrt(stage1[k].sigma2)) for k in used}
-    circles = {k: dict(stage1[k].circles) for k in used}
+    circles = {k: None if builder.model is Model.POSE else dict(stage1[k].circles) for k in used}
     lines = {k: stage1[k].rotation for k in used}
     converged = True
     for _round in range(3):
@@ -575,7 +624,7 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options) -> Cali
                       for k in used}
         circles = {k: {j: result.atVector(c) for j, c in zip(keys[k].tracks, keys[k].circles, strict=True)}
                    for k in used}
-        lines = {k: result.atRot3(keys[k].line) for k in used}
+        lines = {k: None if keys[k].line is None else result.atRot3(keys[k].line) for k in used}
         stable = all(abs(new_sigmas[k] / sigmas[k] - 1.0) < 0.05 for k in used)
         sigmas = new_sigmas
         if stable:
@@ -610,12 +659,27 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
     starts, setup = _initial(arm, camera, measurements, options)
     runs = [(start, _stage1(arm, camera, measurements, start, setup, options)) for start in starts]
     if len(runs) > 1:  # image axes cannot choose between twin starts: the joint fit of the circles does
-        joints = [_joint(arm, camera, measurements, setup, stage1, start, options) for start, stage1 in runs]
-        best = int(np.argmin([r.sigma_px for r in joints]))
+        joints, failures = [], []
+        for start, stage1 in runs:
+            try:
+                joints.append(_joint(arm, camera, measurements, setup, stage1, start, options))
+            except CalibrationError as failure:  # the wrong twin's circles cannot fit: its estimate is a poor one
+                joints.append(None)
+                failures.append(failure)
+        if len(failures) == len(runs):
+            raise failures[0]
+        best = int(np.argmin([np.inf if r is None else r.sigma_px for r in joints]))
         if method is Method.JOINT:
+            _check_scale(joints[best], setup, runs[best][1], options)
             return joints[best]
         runs = [runs[best]]
     init_pose, stage1 = runs[0]
+    result = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options)
+    _check_scale(result, setup, stage1, options)
+    return result
+
+
+def _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options) -> CalibrationResult:
     if method is Method.PAPER:
         return _paper(camera, setup, stage1, init_pose, options)
     if method is Method.WEIGHTED:

@@ -20,6 +20,7 @@ Example::
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import gtsam
 import numpy as np
@@ -28,7 +29,13 @@ from .arm import Arm
 from .camera import Camera
 from .dataset import Measurement, Track
 from .errors import InputError
-from .factors import make_axis_to_line_variable_factor, make_circle_point_factor, rot3_from_line
+from .factors import (
+    FKAxis,
+    make_axis_to_line_variable_factor,
+    make_circle_point_factor,
+    make_pose_circle_point_factor,
+    rot3_from_line,
+)
 from .initialise import MIN_ELLIPSE_POINTS, Ellipse, fit_ellipse
 
 #: Distance (m) between the two FK test points on each wrist axis.
@@ -40,6 +47,8 @@ MIN_TRACK_POINTS = 10
 #: Default smallest image extent (bounding-box diagonal, px) of a usable track. A shorter arc spans a few
 #: degrees of phase only: its circle's (d, r) is nearly indeterminate and it carries almost no information.
 MIN_TRACK_EXTENT_PX = 10.0
+#: LM iterations of the circle refinement in :meth:`RotIdGraph.add_measurement` (a start, not a solution).
+REFINE_ITERATIONS = 8
 
 
 def chi2_quantile(dof: int, z: float = 3.09) -> float:
@@ -103,11 +112,11 @@ class MeasurementKeys:
     """What :meth:`RotIdGraph.add_measurement` made for one measurement."""
 
     index: int
-    line: int
+    line: int | None  # None in the pose-bound model (no line variable)
     circles: list[int]
     tracks: list[int]  # track index (in the measurement) of each circle
     circle_factors: list[int]  # factor index in the graph of each track's circle-point factor
-    tie_factor: int
+    tie_factor: int  # -1 when there is none
     scale: float  # camera-to-axis distance (m) of the initial line: metric = unit * scale
     rejected: dict[int, str] = field(default_factory=dict)  # track index -> reason
 
@@ -145,15 +154,27 @@ def align_line(line: gtsam.Rot3, plane_normal: np.ndarray) -> gtsam.Rot3:
     return gtsam.Rot3.AxisAngle(gtsam.Point3(axis / np.linalg.norm(axis)), angle).compose(line)
 
 
+class Model(StrEnum):
+    """How a measurement is tied to ``arm_T_camera``."""
+
+    #: Circle-point factors on (pose, circle): the axis is the FK axis mapped by the pose (exact
+    #: kinematics, all observable axis DOF inform the pose, nothing stiff to crawl along). The default.
+    POSE = "pose"
+    #: DESIGN.md §4's joint graph: a Rot3 line variable per measurement with circle-point factors, tied to
+    #: the pose by a stiff projected-axis factor (2 of the line's 3 DOF; about 2-3 % weaker).
+    LINE = "line"
+
+
 class RotIdGraph:
     """Adds rotation-identification variables and factors to a user's graph.
 
     Args:
         arm, camera: the arm model and the calibrated camera.
+        model: ``"pose"`` (default) or ``"line"``, see :class:`Model`.
         pose_key: key of the ``gtsam.Pose3`` ``arm_T_camera`` (may already be the user's variable).
         line_symbol, circle_symbol: symbol characters for the line and circle variables.
         track_sigma_px: pixel noise of the circle-point factors (an estimator rescales it).
-        tie_sigma_px: stiffness of the projected-axis tie (the kinematics are taken as exact).
+        tie_sigma_px: stiffness of the projected-axis tie of the ``"line"`` model (kinematics taken as exact).
         min_track_points, min_track_extent_px: tracks with fewer points, or whose pixels span a smaller
             image extent, are rejected.
         robust: optional ``gtsam.noiseModel.mEstimator`` applied per track (whole-track weighting: GTSAM
@@ -164,9 +185,13 @@ class RotIdGraph:
     def __init__(self, arm: Arm, camera: Camera, *, pose_key: int = gtsam.symbol("T", 0), line_symbol: str = "l",
                  circle_symbol: str = "c", track_sigma_px: float = 1.0, tie_sigma_px: float = 1e-3,
                  min_track_points: int = MIN_TRACK_POINTS, min_track_extent_px: float = MIN_TRACK_EXTENT_PX,
-                 robust=None):
+                 robust=None, model: str | Model = Model.POSE):
         if line_symbol == circle_symbol:
             raise InputError("line_symbol and circle_symbol must differ")
+        try:
+            self.model = Model(model)
+        except ValueError:
+            raise InputError(f"unknown model {model!r}; choose one of {[m.value for m in Model]}") from None
         for name, value in (("track_sigma_px", track_sigma_px), ("tie_sigma_px", tie_sigma_px)):
             if not np.isfinite(value) or value <= 0:
                 raise InputError(f"{name} must be a positive number of pixels, got {value!r}")
@@ -207,25 +232,31 @@ class RotIdGraph:
                         track_sigmas: dict[int, float] | None = None, skip_tracks=(), tie: bool = True,
                         prepared: PreparedMeasurement | None = None,
                         initial_circles: dict[int, np.ndarray] | None = None,
-                        initial_line: gtsam.Rot3 | None = None) -> MeasurementKeys:
-        """Add measurement k's variables (with initial values) and factors.
+                        initial_line: gtsam.Rot3 | None = None, refine_circles: bool = True) -> MeasurementKeys:
+        """Add measurement k's variables (with initial values) and factors; return the keys it made.
 
         Initial values come from ``arm_T_camera`` (default: the pose already in ``values``): the FK axis
         in the camera frame gives the line, each track's ellipse gives its circle (unless
-        ``initial_circles`` gives ``(d, r)`` for track j, e.g. from an earlier solve). Tracks that are too
-        short, too still or without an ellipse are skipped and listed in ``rejected``; tracks in
-        ``skip_tracks`` are left out silently. ``tie=False`` leaves out the projected-axis tie (stage 1
-        of the two-stage methods: the line and circles alone). ``prepared`` reuses :meth:`prepare`'s work.
-        ``initial_line`` (a line variable from an earlier solve, e.g. stage 1, whose circles are
-        ``initial_circles``) keeps its tilt within its projection plane, which the tie leaves free, and is
-        turned minimally so that its image is the FK axis' image (the tie starts satisfied).
+        ``initial_circles`` gives ``(d, r)`` for track j). With ``refine_circles`` (default) the circles are
+        then fitted to the tracks with that pose held fixed (a small solve per measurement), so that the
+        caller's optimisation starts consistent. Tracks that are too short, too still or without an ellipse
+        are skipped and listed in ``rejected``; tracks in ``skip_tracks`` are left out silently.
+
+        ``tie=False`` adds a free line variable and its circles only (stage 1 of the two-stage methods).
+        Otherwise the measurement is tied to the pose as the builder's ``model`` says; in the ``"line"``
+        model, ``initial_line`` (a line variable from an earlier solve whose circles are ``initial_circles``)
+        keeps its tilt within its projection plane, which the tie leaves free, and is turned minimally so
+        that its image is the FK axis' image. ``prepared`` reuses :meth:`prepare`'s work.
+
+        Nothing is added to ``graph`` or ``values`` unless every check passes.
         """
         if arm_T_camera is None:
             if not values.exists(self.pose_key):
                 raise InputError("insert an initial arm_T_camera into values (or pass arm_T_camera=) first")
             arm_T_camera = values.atPose3(self.pose_key)
-        line_key = self.line_key(k)
-        if values.exists(line_key):
+        bound = tie and self.model is Model.POSE
+        line_key = None if bound else self.line_key(k)
+        if line_key is not None and values.exists(line_key):
             raise InputError(f"measurement {k}: key {gtsam.DefaultKeyFormatter(line_key)} already exists in values")
         prepared = self.prepare(measurement, k) if prepared is None else prepared
         axis = self.arm.wrist_axis(measurement.joint_angles)
@@ -233,12 +264,13 @@ class RotIdGraph:
         point_cam = camera_T_arm.transformFrom(axis.point)
         direction_cam = camera_T_arm.rotation().matrix() @ axis.direction
         line_cam, scale = rot3_from_line(point_cam, direction_cam)
-        if initial_line is not None:
+        if initial_line is not None and not bound:
             line_cam = align_line(initial_line, line_cam.matrix()[:, 2])
         foot_offset = point_cam @ direction_cam  # foot = point_cam - foot_offset * direction
         K = self.camera.K
         K_inv = np.linalg.inv(K)
         keys = MeasurementKeys(k, line_key, [], [], [], -1, scale, dict(prepared.rejected))
+        fk_axis = FKAxis(axis.point, axis.direction)  # one line_from_pose per pose tried, for all tracks
         new_values = gtsam.Values()
         new_factors = []
         for j, track in prepared.usable.items():
@@ -257,22 +289,53 @@ class RotIdGraph:
                 circle = np.array([(offset + foot_offset) / scale, radius / scale])
             new_values.insert(circle_key, circle)
             sigma = None if track_sigmas is None else track_sigmas.get(j)
-            new_factors.append(make_circle_point_factor(self.track_noise(len(track.ideal), sigma), line_key,
-                                                        circle_key, track.ideal, K))
+            noise = self.track_noise(len(track.ideal), sigma)
+            if bound:
+                factor = make_pose_circle_point_factor(noise, self.pose_key, circle_key, track.ideal, K, fk_axis)
+            else:
+                factor = make_circle_point_factor(noise, line_key, circle_key, track.ideal, K)
+            new_factors.append(factor)
             keys.circles.append(circle_key)
             keys.tracks.append(j)
         if len(keys.circles) < 2:
             raise InputError(f"measurement {k}: only {len(keys.circles)} usable track(s), need at least 2 "
                              f"(rejected: {keys.rejected})")
+        if refine_circles:
+            new_values = self._refined_circles(new_factors, new_values, keys, line_key, line_cam, arm_T_camera)
         # nothing is added to the caller's graph or values before every check has passed
         for factor in new_factors:
             graph.add(factor)
             keys.circle_factors.append(graph.size() - 1)
-        new_values.insert(line_key, line_cam)
+        if line_key is not None:
+            new_values.insert(line_key, line_cam)
         values.insert(new_values)
-        if not tie:
+        if not tie or bound:
             return keys
         tie_noise = gtsam.noiseModel.Isotropic.Sigma(2, self.tie_sigma_px)
         graph.add(make_axis_to_line_variable_factor(tie_noise, self.pose_key, line_key, axis_test_points(axis), K))
         keys.tie_factor = graph.size() - 1
         return keys
+
+    def _refined_circles(self, factors, circles: gtsam.Values, keys: MeasurementKeys, line_key, line_cam,
+                         arm_T_camera) -> gtsam.Values:
+        """The circles fitted to their tracks with the line (or pose) held at its initial value."""
+        graph = gtsam.NonlinearFactorGraph()
+        for factor in factors:
+            graph.add(factor)
+        values = gtsam.Values(circles)
+        if line_key is None:
+            graph.add(gtsam.NonlinearEqualityPose3(self.pose_key, arm_T_camera))
+            values.insert(self.pose_key, arm_T_camera)
+        else:
+            graph.add(gtsam.NonlinearEqualityRot3(line_key, line_cam))
+            values.insert(line_key, line_cam)
+        params = gtsam.LevenbergMarquardtParams()
+        params.setDiagonalDamping(True)
+        params.setlambdaUpperBound(1e15)
+        params.setMaxIterations(REFINE_ITERATIONS)
+        params.setRelativeErrorTol(1e-4)
+        result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        refined = gtsam.Values()
+        for key in keys.circles:
+            refined.insert(key, result.atVector(key))
+        return refined

@@ -38,6 +38,14 @@ def marginal_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     if H.shape[0] == dim:
         return H
     H_pp, H_po, H_oo = H[:dim, :dim], H[:dim, dim:], H[dim:, dim:]
+    try:  # the usual case: the other variables are determined given this one
+        L = np.linalg.cholesky(H_oo)
+        if np.min(np.diag(L)) ** 2 > RELATIVE_ZERO * np.max(np.diag(H_oo)):
+            B = np.linalg.solve(L, H_po.T)
+            S = H_pp - B.T @ B
+            return 0.5 * (S + S.T)
+    except np.linalg.LinAlgError:
+        pass
     w, V = np.linalg.eigh(H_oo)
     keep = w > RELATIVE_ZERO * max(w.max(), 1e-300)
     H_oo_inv = (V[:, keep] / w[keep]) @ V[:, keep].T

@@ -1,0 +1,143 @@
+"""Monte Carlo accuracy of the estimators on the reference scene, against the Cramér–Rao bound (issue 3).
+
+Each trial simulates the reference scene (DESIGN.md §6: Kinova Jaco2, six 60 s spins, sigma^2 = 1.5 px^2) with its
+own seed, calibrates it with every method, and records the error against the truth (which the estimators never
+see) and the reported covariance. The Cramér–Rao bound of the trial is the inverse of the pose information
+(every circle marginalised) of the joint graph evaluated at the true pose and true circles with the true noise
+(:func:`crlb`); the table compares the RMSE per axis with the bound averaged over the trials.
+
+Printed per method:
+- RMSE per axis (rotation in degrees about the camera axes, translation in mm in the camera frame, i.e. the Pose3
+  tangent in which the covariance is reported) and its ratio to the bound (target <= 1.1 for joint and weighted);
+- mean error per axis in units of the RMSE (a bias shows as |mean| >> 1/sqrt(trials));
+- NEES = mean of e^T Sigma^-1 e with the reported Sigma (6 is ideal) and its 95 % interval for this many trials.
+
+Run: ``python benchmarks/accuracy.py [--trials 50] [--jobs 2] [--duration 60] [--noise-var 1.5]``.
+Trials run in separate processes (CustomFactors cannot be pickled: each process builds its own graphs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import gtsam
+import numpy as np
+from tqdm import tqdm
+
+METHODS = ("joint", "weighted", "paper")
+AXES = ("rx deg", "ry deg", "rz deg", "tx mm", "ty mm", "tz mm")
+#: tangent (rad, m) -> (deg, mm)
+UNITS = np.array([np.degrees(1.0)] * 3 + [1000.0] * 3)
+
+
+def crlb(dataset, truth, noise_var: float) -> np.ndarray:
+    """Cramér–Rao bound (6x6, Pose3 tangent) of ``arm_T_camera`` for this scene's tracks at the truth.
+
+    The joint graph (pose-bound circles, free phase per observation) is linearised at the true pose and the true
+    circles; the pose information is its Schur complement over the circles, at the true pixel noise.
+    """
+    from gtsam_rotid.graph import RotIdGraph
+    from gtsam_rotid.uncertainty import pose_information
+
+    pose = truth.arm_T_camera
+    builder = RotIdGraph(dataset.arm, dataset.camera, track_sigma_px=float(np.sqrt(noise_var)))
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(builder.pose_key, pose)
+    for k, (measurement, m_truth) in enumerate(zip(dataset, truth.measurements, strict=True)):
+        point_cam = pose.transformTo(m_truth.axis_point)
+        direction_cam = pose.rotation().unrotate(m_truth.axis_direction)
+        along = point_cam @ direction_cam
+        scale = np.linalg.norm(point_cam - along * direction_cam)
+        circles = {j: np.array([(t.offset + along) / scale, t.radius / scale])
+                   for j, t in enumerate(m_truth.tracks)}
+        builder.add_measurement(graph, values, k, measurement, initial_circles=circles, refine_circles=False)
+    return np.linalg.inv(pose_information(graph, values, builder.pose_key))
+
+
+def trial(seed: int, duration: float, noise_var: float) -> dict:
+    from gtsam_rotid import simulate
+    from gtsam_rotid.errors import RotIdError
+    from gtsam_rotid.estimate import calibrate
+
+    dataset, truth = simulate.reference_scene(seed=seed, noise_var=noise_var, duration=duration)
+    out = {"seed": seed, "crlb": crlb(dataset, truth, noise_var), "points": sum(m.n_observations for m in dataset)}
+    for method in METHODS:
+        start = time.perf_counter()
+        try:
+            result = calibrate(dataset, method=method)
+        except RotIdError as error:
+            out[method] = {"failed": str(error)}
+            continue
+        out[method] = {
+            "error": result.error_to(truth.arm_T_camera),
+            "covariance": result.covariance,
+            "usable": result.covariance_usable,
+            "seconds": time.perf_counter() - start,
+        }
+    return out
+
+
+def chi2_mean_interval(dof: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """95 % interval of the mean of n chi-square(dof) samples (Wilson–Hilferty on chi-square(n dof))."""
+    k = n * dof
+    h = 2.0 / (9.0 * k)
+    return tuple(k * (1.0 - h + s * z * np.sqrt(h)) ** 3 / n for s in (-1.0, 1.0))
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--trials", type=int, default=50)
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--duration", type=float, default=60.0, help="seconds of spin per measurement")
+    parser.add_argument("--noise-var", type=float, default=1.5, help="pixel noise variance, px^2")
+    parser.add_argument("--first-seed", type=int, default=1000)
+    parser.add_argument("--save", help="also write every trial's errors and covariances to this .npz file")
+    args = parser.parse_args(argv)
+
+    seeds = range(args.first_seed, args.first_seed + args.trials)
+    start = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        futures = [pool.submit(trial, s, args.duration, args.noise_var) for s in seeds]
+        results = [f.result() for f in tqdm(futures, desc="trials", unit="trial")]
+    wall = time.perf_counter() - start
+    if args.save:
+        arrays = {"seeds": np.array([r["seed"] for r in results]), "crlb": np.array([r["crlb"] for r in results])}
+        for method in METHODS:
+            ok = [(r["seed"], r[method]) for r in results if "error" in r[method]]
+            arrays[f"{method}_seeds"] = np.array([seed for seed, _ in ok])
+            arrays[f"{method}_errors"] = np.array([o["error"] for _, o in ok])
+            arrays[f"{method}_covariances"] = np.array([o["covariance"] for _, o in ok])
+        np.savez(args.save, **arrays)
+
+    bound = np.mean([r["crlb"] for r in results], axis=0)
+    bound_sigma = np.sqrt(np.diag(bound)) * UNITS
+    print(f"\nreference scene, {args.trials} trials, {args.duration:g} s spins, sigma^2 = {args.noise_var} px^2, "
+          f"~{int(np.mean([r['points'] for r in results]))} points per trial ({wall:.0f} s wall, {args.jobs} jobs)")
+    print(f"{'':24}" + "".join(f"{a:>10}" for a in AXES))
+    print(f"{'CRLB (1 sigma)':24}" + "".join(f"{v:10.4f}" for v in bound_sigma))
+    low, high = chi2_mean_interval(6, args.trials)
+    for method in METHODS:
+        ok = [r[method] for r in results if "error" in r[method]]
+        failed = args.trials - len(ok)
+        if not ok:
+            print(f"{method}: every trial failed ({results[0][method]['failed']})")
+            continue
+        errors = np.array([o["error"] for o in ok])
+        rmse = np.sqrt(np.mean(errors**2, axis=0)) * UNITS
+        mean = np.mean(errors, axis=0) * UNITS
+        usable = [o for o in ok if o["usable"]]
+        nees = np.mean([o["error"] @ np.linalg.solve(o["covariance"], o["error"]) for o in usable])
+        seconds = np.median([o["seconds"] for o in ok])
+        print(f"\n{method} ({len(ok)} trials{f', {failed} FAILED' if failed else ''}, median {seconds:.1f} s)")
+        print(f"{'  RMSE':24}" + "".join(f"{v:10.4f}" for v in rmse))
+        print(f"{'  RMSE / bound':24}" + "".join(f"{v:10.3f}" for v in rmse / bound_sigma))
+        print(f"{'  mean error / RMSE':24}" + "".join(f"{v:10.2f}" for v in mean / rmse))
+        verdict = "inside" if low <= nees <= high else "OUTSIDE"
+        print(f"  NEES {nees:.2f} (ideal 6; 95 % interval for {len(usable)} trials [{low:.2f}, {high:.2f}]: {verdict})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

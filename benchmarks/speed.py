@@ -1,0 +1,105 @@
+"""Wall time of ``calibrate`` per method on the reference scene, and the cost per observation of our factors.
+
+1. ``calibrate(dataset, method=...)`` on the reference scene (DESIGN.md §6: six 60 s spins, ~56k pixel
+   observations), best of ``--repeats`` runs after one warm-up (imports, first-call overheads).
+2. One linearisation of the joint graph (one pose-bound circle-point CustomFactor per track, vectorised over its
+   pixels) against the same maths with one CustomFactor per pixel, timed on a subset of the tracks and given per
+   observation; the per-pixel cost is extrapolated to the whole scene. The issue's target: the whole joint
+   calibration should take less than one linearisation of the per-pixel graph.
+
+Run: ``python benchmarks/speed.py [--seed 0] [--repeats 3] [--pixel-subset 3000]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import gtsam
+
+from gtsam_rotid import simulate
+from gtsam_rotid.estimate import calibrate
+from gtsam_rotid.factors import FKAxis, make_pose_circle_point_factor
+from gtsam_rotid.graph import RotIdGraph
+
+METHODS = ("joint", "weighted", "paper")
+
+
+def best_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def joint_graph_at_truth(dataset, truth):
+    """The joint graph (one factor per track) at the true pose, with the circles fitted there."""
+    builder = RotIdGraph(dataset.arm, dataset.camera)
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(builder.pose_key, truth.arm_T_camera)
+    made = [builder.add_measurement(graph, values, k, m) for k, m in enumerate(dataset)]
+    return builder, graph, values, made
+
+
+def per_pixel_graph(builder, dataset, values, made, max_pixels: int):
+    """The same factors with one CustomFactor per pixel, on the first tracks up to ``max_pixels`` pixels."""
+    graph = gtsam.NonlinearFactorGraph()
+    noise = gtsam.noiseModel.Isotropic.Sigma(1, 1.0)
+    count = 0
+    for k, keys in enumerate(made):
+        measurement = dataset[k]
+        axis = dataset.arm.wrist_axis(measurement.joint_angles)
+        fk_axis = FKAxis(axis.point, axis.direction)
+        for j, circle_key in zip(keys.tracks, keys.circles, strict=True):
+            ideal = dataset.camera.undistort_pixels(measurement.tracks[j].pixels)
+            for pixel in ideal:
+                graph.add(make_pose_circle_point_factor(noise, builder.pose_key, circle_key, pixel[None],
+                                                        dataset.camera.K, fk_axis))
+                count += 1
+                if count >= max_pixels:
+                    return graph, count
+    return graph, count
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--pixel-subset", type=int, default=3000, help="pixels in the per-pixel comparison")
+    args = parser.parse_args(argv)
+
+    dataset, truth = simulate.reference_scene(seed=args.seed)
+    n_points = sum(m.n_observations for m in dataset)
+    print(f"reference scene (seed {args.seed}): {len(dataset)} measurements, "
+          f"{sum(m.n_tracks for m in dataset)} tracks, {n_points} observations; {os.cpu_count()} CPUs")
+
+    print(f"\ncalibrate (best of {args.repeats} after a warm-up)")
+    calibrate(dataset, method="paper")  # warm-up
+    seconds = {}
+    for method in METHODS:
+        seconds[method] = best_time(lambda method=method: calibrate(dataset, method=method), args.repeats)
+        print(f"  {method:9} {seconds[method]:7.2f} s  ({1e6 * seconds[method] / n_points:.1f} us per observation)")
+
+    builder, graph, values, made = joint_graph_at_truth(dataset, truth)
+    n_graph = sum(graph.at(i).dim() for i in range(graph.size()))
+    graph.linearize(values)  # warm the closest-phase caches, as inside LM
+    t_track = best_time(lambda: graph.linearize(values), args.repeats) / n_graph
+    pixel_graph, n_pixel = per_pixel_graph(builder, dataset, values, made, args.pixel_subset)
+    pixel_graph.linearize(values)
+    t_pixel = best_time(lambda: pixel_graph.linearize(values), args.repeats) / n_pixel
+    print(f"\none linearisation of the joint graph ({graph.size()} factors, {n_graph} residuals)")
+    print(f"  one CustomFactor per track: {1e6 * t_track:7.2f} us per observation, "
+          f"{1e3 * t_track * n_points:7.1f} ms for the scene")
+    print(f"  one CustomFactor per pixel: {1e6 * t_pixel:7.2f} us per observation, "
+          f"{1e3 * t_pixel * n_points:7.1f} ms for the scene (measured on {n_pixel} pixels)")
+    print(f"  per-pixel / per-track: {t_pixel / t_track:.0f}x")
+    print(f"  joint calibrate / one per-pixel linearisation: {seconds['joint'] / (t_pixel * n_points):.2f} "
+          "(target < 1)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
