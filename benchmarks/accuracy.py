@@ -35,14 +35,14 @@ UNITS = np.array([np.degrees(1.0)] * 3 + [1000.0] * 3)
 def crlb(dataset, truth, noise_var: float) -> np.ndarray:
     """Cramér–Rao bound (6x6, Pose3 tangent) of ``arm_T_camera`` for this scene's tracks at the truth.
 
-    The joint graph (pose-bound circles, free phase per observation) is linearised at the true pose and the true
-    circles; the pose information is its Schur complement over the circles, at the true pixel noise.
+    The pose-bound joint graph (exact kinematics, free phase per observation) is linearised at the true pose and
+    the true circles; the pose information is its Schur complement over the circles, at the true pixel noise.
     """
     from gtsam_rotid.graph import RotIdGraph
     from gtsam_rotid.uncertainty import pose_information
 
     pose = truth.arm_T_camera
-    builder = RotIdGraph(dataset.arm, dataset.camera, track_sigma_px=float(np.sqrt(noise_var)))
+    builder = RotIdGraph(dataset.arm, dataset.camera, track_sigma_px=float(np.sqrt(noise_var)), model="pose")
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(builder.pose_key, pose)
     for k, (measurement, m_truth) in enumerate(zip(dataset, truth.measurements, strict=True)):
@@ -56,17 +56,17 @@ def crlb(dataset, truth, noise_var: float) -> np.ndarray:
     return np.linalg.inv(pose_information(graph, values, builder.pose_key))
 
 
-def trial(seed: int, duration: float, noise_var: float) -> dict:
+def trial(seed: int, duration: float, noise_var: float, joint_model: str) -> dict:
     from gtsam_rotid import simulate
     from gtsam_rotid.errors import RotIdError
-    from gtsam_rotid.estimate import calibrate
+    from gtsam_rotid.estimate import CalibrationOptions, calibrate
 
     dataset, truth = simulate.reference_scene(seed=seed, noise_var=noise_var, duration=duration)
     out = {"seed": seed, "crlb": crlb(dataset, truth, noise_var), "points": sum(m.n_observations for m in dataset)}
     for method in METHODS:
         start = time.perf_counter()
         try:
-            result = calibrate(dataset, method=method)
+            result = calibrate(dataset, method=method, options=CalibrationOptions(joint_model=joint_model))
         except RotIdError as error:
             out[method] = {"failed": str(error)}
             continue
@@ -93,13 +93,15 @@ def main(argv=None) -> int:
     parser.add_argument("--duration", type=float, default=60.0, help="seconds of spin per measurement")
     parser.add_argument("--noise-var", type=float, default=1.5, help="pixel noise variance, px^2")
     parser.add_argument("--first-seed", type=int, default=1000)
+    parser.add_argument("--joint-model", default="line", choices=("line", "pose"),
+                        help="graph of the joint method (CalibrationOptions.joint_model)")
     parser.add_argument("--save", help="also write every trial's errors and covariances to this .npz file")
     args = parser.parse_args(argv)
 
     seeds = range(args.first_seed, args.first_seed + args.trials)
     start = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futures = [pool.submit(trial, s, args.duration, args.noise_var) for s in seeds]
+        futures = [pool.submit(trial, s, args.duration, args.noise_var, args.joint_model) for s in seeds]
         results = [f.result() for f in tqdm(futures, desc="trials", unit="trial")]
     wall = time.perf_counter() - start
     if args.save:

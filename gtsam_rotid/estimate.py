@@ -79,9 +79,11 @@ class CalibrationOptions:
     #: Initial stage-2 RMS (px) above which the start is declared a poor minimum.
     max_initial_rms_px: float = 25.0
     tie_sigma_px: float = 1e-3
-    #: Joint graph: ``"pose"`` (circles bound to the pose through the FK axis) or ``"line"`` (DESIGN.md §4:
-    #: line variables with a projected-axis tie), see :class:`gtsam_rotid.graph.Model`.
-    joint_model: str = "pose"
+    #: LM stops when the relative decrease of the error falls below these (stage 1; everything else).
+    stage1_tolerance: float = 1e-8
+    #: Joint graph: ``"line"`` (DESIGN.md §4: line variables with a projected-axis tie) or ``"pose"`` (circles
+    #: bound to the pose through the FK axis; biased tilt with free phases), see :class:`gtsam_rotid.graph.Model`.
+    joint_model: str = "line"
     #: Features farther than this (m, median over tracks) from the wrist axis are not on an end effector: an
     #: estimate that implies them is a poor minimum (typically a camera put metres away by wrong joint angles).
     max_feature_radius_m: float = 0.5
@@ -227,7 +229,7 @@ TWIN_ERROR_RATIO = 4.0
 
 
 def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int, anchor: bool = False,
-        diagonal_damping: bool = True):
+        diagonal_damping: bool = True, relative_tolerance: float = 1e-8):
     """LM; with ``anchor`` a weak prior at the start of ``POSE_KEY`` keeps undetermined directions still.
 
     Diagonal damping suits the graphs with line and circle variables (their Jacobians differ in scale by
@@ -240,13 +242,14 @@ def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations:
         anchored.add(gtsam.PriorFactorPose3(POSE_KEY, values.atPose3(POSE_KEY),
                                             gtsam.noiseModel.Isotropic.Sigma(6, ANCHOR_SIGMA)))
         result, iterations, _, converged = _lm(anchored, values, max_iterations,
-                                               diagonal_damping=diagonal_damping)
+                                               diagonal_damping=diagonal_damping,
+                                               relative_tolerance=relative_tolerance)
         return result, iterations, graph.error(result), converged
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
     params.setDiagonalDamping(diagonal_damping)
     params.setlambdaUpperBound(1e15)
-    params.setRelativeErrorTol(1e-8)
+    params.setRelativeErrorTol(relative_tolerance)
     params.setAbsoluteErrorTol(0.0)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     result = optimizer.optimize()
@@ -413,7 +416,8 @@ def _stage1_measurement(builder: RotIdGraph, measurement, k, pose, prepared, opt
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False,
                                        prepared=prepared, skip_tracks=skip, refine_circles=False)
-        result, it, _, _ = _lm(graph, values, options.max_iterations)
+        result, it, _, _ = _lm(graph, values, options.max_iterations,
+                               relative_tolerance=options.stage1_tolerance)
         iterations += it
         stats = _track_stats(graph, keys, result)
         new = _outlier_tracks(stats, options)

@@ -97,6 +97,10 @@ def test_builder_starts_from_calibrate_on_noisy_spins():
     first = calibrate(dataset)
     graph, values = user_graph(first.arm_T_camera, first.arm_T_camera, np.full(6, 1.0))  # a vague prior
     builder = RotIdGraph(dataset.arm, dataset.camera, pose_key=X(0), track_sigma_px=first.sigma_px)
+    with pytest.raises(InputError, match="key l0 already exists"):  # the user's landmark L(0) is symbol l0
+        builder.add_measurement(graph, values, 0, dataset[0])
+    builder = RotIdGraph(dataset.arm, dataset.camera, pose_key=X(0), line_symbol="a",
+                         track_sigma_px=first.sigma_px)
     for k, m in enumerate(dataset):
         builder.add_measurement(graph, values, k, m)
     result = lm(graph, values)
