@@ -37,6 +37,7 @@ from .graph import (
     PreparedMeasurement,
     RotIdGraph,
     axis_test_points,
+    chi2_quantile,
     track_huber,
 )
 from .initialise import initial_image_axis, plane_normal, pose_candidates
@@ -71,6 +72,9 @@ class CalibrationOptions:
     min_track_extent_px: float = MIN_TRACK_EXTENT_PX
     #: A track whose residual RMS exceeds this multiple of its measurement's median track RMS is rejected.
     outlier_track_ratio: float = 3.0
+    #: ...or whose chi-square (at the median track RMS) exceeds the upper quantile at this normal z
+    #: (3.09: the 99.9 % point).
+    outlier_track_z: float = 3.09
     #: A measurement whose residual scale exceeds this multiple of the median is reported as an outlier.
     outlier_measurement_ratio: float = 3.0
     #: A measurement whose stage-1 image axis and the FK axis projected by the estimate disagree beyond this
@@ -100,6 +104,8 @@ class MeasurementReport:
     weight: float  # 1 / sigma^2 applied to its pixels (joint) or its line (two-stage), relative to the median
     outlier: bool
     rejected_tracks: dict[int, str] = field(default_factory=dict)
+    #: why the measurement is an outlier ("" when it is not)
+    outlier_reason: str = ""
 
 
 @dataclass
@@ -157,7 +163,7 @@ class CalibrationResult:
             lines.append("  COVARIANCE UNUSABLE: the arm poses do not determine the calibration")
         lines.extend("  " + line for line in self.observability.describe())
         for m in self.measurements:
-            flag = "  OUTLIER" if m.outlier else ""
+            flag = f"  OUTLIER ({m.outlier_reason})" if m.outlier else ""
             n_rejected = len(m.rejected_tracks)
             lines.append(f"  measurement {m.index}: {m.n_tracks} tracks, {m.n_points} points, residual RMS "
                          f"{m.residual_rms_px:.3f} px, weight {m.weight:.2f}, {n_rejected} "
@@ -395,11 +401,19 @@ def _track_stats(graph, keys: MeasurementKeys, values) -> dict[int, tuple[float,
 
 
 def _outlier_tracks(stats: dict[int, tuple[float, int]], options: CalibrationOptions) -> dict[int, str]:
+    """Tracks that do not fit: a residual RMS far above the measurement's median, or a chi-square beyond its
+    99.9 % point at the median pixel noise (an arc of a wrong circle fits a coaxial one only roughly)."""
     rms = {j: np.sqrt(sse / n) for j, (sse, n) in stats.items()}
     median = max(float(np.median(list(rms.values()))), options.min_sigma_px)
-    limit = options.outlier_track_ratio * median
-    return {j: f"residual RMS {value:.2f} px > {options.outlier_track_ratio:g}x the median {median:.2f} px"
-            for j, value in rms.items() if value > limit}
+    out = {}
+    for j, (sse, n) in stats.items():
+        chi2, limit = sse / median**2, chi2_quantile(max(n - 2, 1), options.outlier_track_z)
+        if rms[j] > options.outlier_track_ratio * median:
+            out[j] = f"residual RMS {rms[j]:.2f} px > {options.outlier_track_ratio:g}x the median {median:.2f} px"
+        elif chi2 > limit:
+            out[j] = (f"does not fit a circle about the axis: chi-square {chi2:.0f} > {limit:.0f} for {n} points "
+                      f"(residual RMS {rms[j]:.2f} px, median {median:.2f} px)")
+    return out
 
 
 def _noise_variance(stats: dict[int, tuple[float, int]], line_dof: int, options: CalibrationOptions) -> float:
@@ -511,8 +525,19 @@ def _robust_weighted(camera, setup, stage1, start, options) -> tuple[gtsam.Pose3
         if n - len(used) >= max_excluded:
             left_out = f", after leaving out {sorted(set(range(n)) - set(used))}" if len(used) < n else ""
             raise _poor_minimum(chi2, limit, f"measurement(s) {bad} disagree{left_out}")
-        used.remove(max(bad, key=lambda k: chi2[k]))  # one at a time: the worst may hide the others
-        start = pose
+        # One at a time, by leave-one-out: a wrong measurement drags the pose, so the largest chi-square may
+        # belong to a good one; leave out the one whose absence best reconciles the others.
+        best = None
+        for k in used:
+            rest = [i for i in used if i != k]
+            rest_pose, it, _ = _weighted_stage2(camera, setup, stage1, rest, pose, options)
+            iterations += it
+            rest_chi2 = _chi2(camera, setup.axes, stage1, rest_pose)
+            score = float(sum(rest_chi2[i] for i in rest))
+            if best is None or score < best[0]:
+                best = (score, k, rest_pose)
+        used.remove(best[1])
+        start = best[2]
     return pose, iterations, graph, used, {k: float(chi2[k]) for k in range(n)}
 
 
@@ -550,15 +575,20 @@ def _finish(pose, covariance, info, method, converged, iterations, error, report
                              reports, observability, float(sigma_px))
 
 
-def _reports(stage1: list[_Stage1], sigmas: dict[int, float], used: list[int], options) -> list[MeasurementReport]:
+def _reports(stage1: list[_Stage1], sigmas: dict[int, float], used: list[int], options,
+             chi2: dict[int, float] | None = None) -> list[MeasurementReport]:
     median = float(np.median([sigmas[k] for k in used]))
     reports = []
     for k, s in enumerate(stage1):
         rejected = {**s.keys.rejected, **s.outliers}
         excluded = k not in used
         sigma = sigmas.get(k, np.sqrt(s.sigma2))
+        reason = ""
+        if excluded:
+            reason = (f"left out: its image axis disagrees with the FK axis projected by the estimate (chi-square "
+                      f"{chi2[k]:.3g} > {options.outlier_measurement_chi2:g}, 2 dof); check its joint angles")
         reports.append(MeasurementReport(k, len(s.keys.tracks) - len(s.outliers), s.n_points, float(sigma),
-                                         0.0 if excluded else median**2 / sigma**2, excluded, rejected))
+                                         0.0 if excluded else median**2 / sigma**2, excluded, rejected, reason))
     _flag_outlier_measurements(reports, options)
     return reports
 
@@ -566,7 +596,10 @@ def _reports(stage1: list[_Stage1], sigmas: dict[int, float], used: list[int], o
 def _flag_outlier_measurements(reports: list[MeasurementReport], options: CalibrationOptions) -> None:
     median = np.median([r.residual_rms_px for r in reports])
     for r in reports:
-        r.outlier = bool(r.outlier or r.residual_rms_px > options.outlier_measurement_ratio * median)
+        if not r.outlier and r.residual_rms_px > options.outlier_measurement_ratio * median:
+            r.outlier = True
+            r.outlier_reason = (f"residual RMS {r.residual_rms_px:.2f} px > {options.outlier_measurement_ratio:g}x "
+                                f"the median {median:.2f} px")
 
 
 def _paper(camera, setup, stage1, init_pose, options) -> CalibrationResult:
@@ -593,11 +626,11 @@ def _paper(camera, setup, stage1, init_pose, options) -> CalibrationResult:
 
 
 def _weighted(camera, setup, stage1, init_pose, options) -> CalibrationResult:
-    pose, iterations, graph, used, _ = _robust_weighted(camera, setup, stage1, init_pose, options)
+    pose, iterations, graph, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options)
     values = gtsam.Values()
     values.insert(POSE_KEY, pose)
     sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
-    reports = _reports(stage1, sigmas, used, options)
+    reports = _reports(stage1, sigmas, used, options, chi2)
     return _finish(pose, None, pose_information(graph, values, POSE_KEY), Method.WEIGHTED, True, iterations,
                    graph.error(values), reports, np.median([sigmas[k] for k in used]))
 
@@ -609,7 +642,7 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options) -> Cali
     circles of short arcs can run off to degenerate solutions that LM cannot leave), with the circles
     fitted at that pose (``"line"`` model: the stage-1 lines and circles, see RotIdGraph.add_measurement).
     """
-    pose, iterations, _, used, _ = _robust_weighted(camera, setup, stage1, init_pose, options)
+    pose, iterations, _, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options)
     builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model)
     sigmas = {k: float(np.sqrt(stage1[k].sigma2)) for k in used}
     circles = {k: None if builder.model is Model.POSE else dict(stage1[k].circles) for k in used}
@@ -638,7 +671,7 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options) -> Cali
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
     except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
         covariance = None
-    reports = _reports(stage1, sigmas, used, options)
+    reports = _reports(stage1, sigmas, used, options, chi2)
     return _finish(pose, covariance, info, Method.JOINT, converged, iterations, error, reports,
                    np.median(list(sigmas.values())))
 

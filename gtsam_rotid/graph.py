@@ -52,7 +52,7 @@ REFINE_ITERATIONS = 8
 
 
 def chi2_quantile(dof: int, z: float = 3.09) -> float:
-    """Upper chi-square quantile (Wilson-Hilferty); z = 3.09 is the 99.9 % point of the normal."""
+    """Chi-square quantile (Wilson-Hilferty) at the normal's z; z = 3.09 gives the 99.9 % point."""
     h = 2.0 / (9.0 * dof)
     return float(dof * (1.0 - h + z * np.sqrt(h)) ** 3)
 

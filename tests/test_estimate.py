@@ -145,3 +145,42 @@ def test_too_few_usable_tracks_names_the_measurement(noise_free_scene):
     short = Measurement(measurements[1].joint_angles, [t.pixels[:5] for t in measurements[1].tracks])
     with pytest.raises(InputError, match=r"measurement 1: only 0 usable track\(s\).*too short \(5 < 10 points\)"):
         calibrate(dataset.arm, dataset.camera, [measurements[0], short, *measurements[2:]])
+
+
+@pytest.fixture(scope="module")
+def outlier_track_scene():
+    return simulate.reference_scene(seed=21, noise_var=1.5, duration=12.0, outlier_fraction=0.15)
+
+
+@pytest.mark.parametrize("method", ["joint", "weighted"])
+def test_outlier_tracks_are_named_and_do_not_bias(outlier_track_scene, method):
+    dataset, truth = outlier_track_scene
+    planted = {(k, j) for k, m in enumerate(truth.measurements) for j, t in enumerate(m.tracks) if t.is_outlier}
+    assert len(planted) >= 10
+    result = calibrate(dataset, method=method)
+    rejected = {(m.index, j): why for m in result.measurements for j, why in m.rejected_tracks.items()}
+    caught = planted & rejected.keys()
+    assert len(caught) >= len(planted) // 2
+    assert all("does not fit" in rejected[t] or "residual RMS" in rejected[t] for t in caught)
+    # good tracks are rejected only for being short or still, or rarely (a 99.9 % test) for their fit
+    wrongly = [why for t, why in rejected.items() if t not in planted and "points)" not in why and "barely" not in why]
+    assert len(wrongly) <= 2
+    error = result.error_to(truth.arm_T_camera)
+    assert np.all(np.abs(error) < 4.0 * np.sqrt(np.diag(result.covariance)))
+
+
+@pytest.mark.parametrize("method", ["joint", "weighted"])
+def test_a_wrong_joint_reading_is_left_out(method):
+    dataset, truth = simulate.reference_scene(seed=22, noise_var=1.5, duration=12.0)
+    measurements = list(dataset)
+    q = np.array(measurements[2].joint_angles, dtype=float)
+    q[1] += np.radians(3.0)  # the shoulder encoder is off by 3 degrees in measurement 2
+    measurements[2] = Measurement(q, measurements[2].tracks)
+    result = calibrate(Dataset(dataset.arm, dataset.camera, measurements), method=method)
+    flagged = [m.index for m in result.measurements if m.outlier]
+    assert flagged == [2]
+    assert result.measurements[2].weight == 0.0
+    assert "disagrees with the FK axis" in result.measurements[2].outlier_reason
+    assert "OUTLIER (left out" in result.summary()
+    error = result.error_to(truth.arm_T_camera)
+    assert np.all(np.abs(error) < 4.0 * np.sqrt(np.diag(result.covariance)))
