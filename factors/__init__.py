@@ -24,6 +24,10 @@ Factories (thin ``gtsam.CustomFactor`` wrappers over the pure functions in :mod:
 - :func:`make_axis_to_line_variable_factor` — the same vs. a line variable's image (keys: pose, line).
 - :func:`make_pose_circle_point_factor` — one track's pixels vs. its projected circle about the FK axis mapped
   by the pose (keys: pose, circle): the joint model with exact kinematics, no line variable.
+- :func:`make_rigid_circle_factor` (:mod:`.rigid`) — the rigid-spin model: one track's 2-D reprojection errors
+  at phase ``theta_f + phi0_j`` with the spin angles ``theta_f`` shared by all tracks of the measurement
+  (keys: line, track ``(d, r, phi0)``, spin-angle chunks); :func:`initial_spin` and :func:`spin_priors` start
+  it and fix its gauge. Not used by the estimators yet.
 """
 
 from .axis import make_axis_to_line_factor, make_axis_to_line_variable_factor
@@ -45,16 +49,28 @@ from .geometry import (
     transform_to_camera,
 )
 from .pose_circle import FKAxis, line_from_pose, make_pose_circle_point_factor
+from .rigid import (
+    SpinInit,
+    chunk_segments,
+    initial_spin,
+    make_rigid_circle_factor,
+    rigid_spin_residuals,
+    spin_chunk_index,
+    spin_priors,
+)
 
 __all__ = [
     "CircleTrack",
     "FKAxis",
+    "SpinInit",
     "axis_point_residuals",
+    "chunk_segments",
     "circle_coordinates",
     "circle_point_residuals",
     "circle_points",
     "closest_phases",
     "image_line_from_rot3",
+    "initial_spin",
     "line_distance_covariance",
     "line_distances",
     "line_from_pose",
@@ -63,8 +79,12 @@ __all__ = [
     "make_axis_to_line_variable_factor",
     "make_circle_point_factor",
     "make_pose_circle_point_factor",
+    "make_rigid_circle_factor",
     "project",
     "projected_circle",
+    "rigid_spin_residuals",
     "rot3_from_line",
+    "spin_chunk_index",
+    "spin_priors",
     "transform_to_camera",
 ]

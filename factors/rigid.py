@@ -42,8 +42,10 @@ components they touch. Note that ``theta`` turns with the sense of ``c1`` (the l
 encoder angle ``q_f`` enters as ``theta_f = ±q_f + const``.
 
 Cost. A factor's Jacobian is stored dense, (2N) x (6 + C * chunks touched): a track spanning a whole 60 s spin at
-30 fps (1800 pixels, 57 chunks of 32) is a 3600 x 1830 matrix (~53 MB) per linearisation. Long tracks should be cut
-into segments of a few chunks (one factor each, same track key; a robust kernel then reweights per segment).
+30 fps (1800 pixels, 57 chunks of 32) is a 3600 x 1830 matrix (~53 MB, ~150 ms per linearisation, and a 1830^2
+Hessian block per track in the solve). Cut long tracks at chunk boundaries with :func:`chunk_segments` (one factor
+per segment, same track key): the same 1800 pixels in segments of 2 chunks linearise in ~9 ms. A robust kernel then
+reweights per segment, not per track.
 """
 
 from __future__ import annotations
@@ -54,7 +56,8 @@ from typing import NamedTuple
 import gtsam
 import numpy as np
 
-from .geometry import _matrix, project
+from .circle import checked_track
+from .geometry import _matrix
 
 #: Default number of frames per chunk variable.
 DEFAULT_CHUNK_SIZE = 32
@@ -99,22 +102,51 @@ def rigid_spin_residuals(K, R, d: float, r: float, phi0: float, theta, pixels, j
         H_track: (2N, 3) wrt ``(d, r, phi0)``, or None.
         H_theta: (2N,) wrt each row's own ``theta_i`` (``du/dphi``; equals ``H_track[:, 2]``), or None.
     """
-    R = _matrix(R)
+    M = np.asarray(K, dtype=float) @ _matrix(R)
     theta = np.asarray(theta, dtype=float).reshape(-1)
     pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
     phi = theta + phi0
     s, c = np.sin(phi), np.cos(phi)
-    v = np.stack([1.0 + r * s, np.full_like(s, d), r * c], axis=-1)
-    u, J = project(K, v @ R.T)
-    e = (u - pixels).reshape(-1)
+    rs, rc = r * s, r * c
+    # y = K X = M v with v = (1 + r s, d, r c); u = y[:2] / y2.
+    y = (M[:, 0] + d * M[:, 1])[:, None] + M[:, 0:1] * rs + M[:, 2:3] * rc  # (3, N)
+    inv_z = 1.0 / y[2]
+    u = y[:2] * inv_z
+    e = (u.T - pixels).reshape(-1)
     if not jacobians:
         return e, None, None, None
-    G = J @ R  # (N, 2, 3): du/dv
-    H_line = np.cross(v[:, None, :], G).reshape(-1, 3)
-    G0, G1, G2 = G[..., 0], G[..., 1], G[..., 2]
-    dphi = r * (G0 * c[:, None] - G2 * s[:, None])
-    H_track = np.stack([G1, G0 * s[:, None] + G2 * c[:, None], dphi], axis=-1).reshape(-1, 3)
-    return e, H_line, H_track, dphi.reshape(-1)
+    # G = du/dv = ([I_2 | -u] / y2) M, rows g_k = (M[k] - u_k M[2]) / y2; column j of G is Gj (N, 2).
+    uz = u.T * inv_z[:, None]
+    n = len(phi)
+    H = np.empty((n, 2, 6))
+    G0, G1, G2 = (np.outer(inv_z, M[:2, j]) - uz * M[2, j] for j in range(3))
+    v0, v2 = (1.0 + rs)[:, None], rc[:, None]
+    H[..., 0] = d * G2 - v2 * G1  # rows v x g (v1 = d)
+    H[..., 1] = v2 * G0 - v0 * G2
+    H[..., 2] = v0 * G1 - d * G0
+    H[..., 3] = G1
+    H[..., 4] = G0 * s[:, None] + G2 * c[:, None]
+    H[..., 5] = G0 * rc[:, None] - G2 * rs[:, None]
+    H = H.reshape(-1, 6)
+    return e, H[:, :3], H[:, 3:], H[:, 5]
+
+
+def chunk_segments(frames, chunk_size: int, chunks_per_segment: int = 2, first_frame: int = 0) -> list[np.ndarray]:
+    """Pixel indices of a track cut at chunk boundaries into segments that touch at most ``chunks_per_segment`` chunks.
+
+    A factor's Jacobian is dense over its chunks (see the module docstring), so a long track should be one
+    :func:`make_rigid_circle_factor` per segment (same track key): ``pixels[idx], frames[idx]`` for each ``idx``.
+
+    Returns:
+        index arrays (ascending), one per non-empty segment, in segment order.
+    """
+    if chunks_per_segment < 1:
+        raise ValueError(f"chunks_per_segment must be positive, got {chunks_per_segment}")
+    ids, _ = spin_chunk_index(frames, chunk_size, first_frame)
+    segment = ids // chunks_per_segment
+    order = np.argsort(segment, kind="stable")
+    bounds = np.flatnonzero(np.diff(segment[order])) + 1
+    return np.split(order, bounds) if len(order) else []
 
 
 def _key_lookup(keys) -> Callable[[int], int]:
@@ -145,23 +177,20 @@ def make_rigid_circle_factor(noise, line_key: int, track_key: int, chunk_keys_by
     Returns:
         ``gtsam.CustomFactor`` with keys ``[line, track, chunk_a, ..., chunk_b]`` (touched chunks, ascending id).
     """
-    pixels = np.array(pixels, dtype=float).reshape(-1, 2)
-    K = np.array(K, dtype=float).reshape(3, 3)
+    pixels, K = checked_track(noise, pixels, K, residuals_per_pixel=2)
     ids, cols = spin_chunk_index(frames, chunk_size, first_frame)
     n = len(pixels)
     if len(ids) != n:
         raise ValueError(f"{len(ids)} frames for {n} pixels")
     if n == 0:
         raise ValueError("a track needs at least one pixel")
-    if noise.dim() != 2 * n:
-        raise ValueError(f"noise model has dimension {noise.dim()} but the track has {n} pixels (needs {2 * n})")
     chunk_ids, local = np.unique(ids, return_inverse=True)
     lookup = _key_lookup(chunk_keys_by_id)
     keys = [line_key, track_key] + [int(lookup(int(c))) for c in chunk_ids]
     n_chunks = len(chunk_ids)
     rows2 = np.arange(2 * n)
     cols2 = np.repeat(local * chunk_size + cols, 2)
-    for a in (pixels, K, cols, local, rows2, cols2):
+    for a in (cols, local, rows2, cols2):
         a.setflags(write=False)
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:

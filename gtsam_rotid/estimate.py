@@ -426,10 +426,12 @@ def _noise_variance(stats: dict[int, tuple[float, int]], line_dof: int, options:
 def _stage1_measurement(builder: RotIdGraph, measurement, k, pose, prepared, options) -> _Stage1:
     skip: dict[int, str] = {}
     iterations = 0
+    line_start, circles_start = None, None
     for _round in range(4):
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False,
-                                       prepared=prepared, skip_tracks=skip, refine_circles=False)
+                                       prepared=prepared, skip_tracks=skip, refine_circles=False,
+                                       initial_line=line_start, initial_circles=circles_start)
         result, it, _, _ = _lm(graph, values, options.max_iterations,
                                relative_tolerance=options.stage1_tolerance)
         iterations += it
@@ -438,6 +440,8 @@ def _stage1_measurement(builder: RotIdGraph, measurement, k, pose, prepared, opt
         if not new or len(stats) - len(new) < 2:
             break
         skip.update(new)
+        line_start = result.atRot3(keys.line)  # the next round starts where this one ended
+        circles_start = {j: result.atVector(c) for j, c in zip(keys.tracks, keys.circles, strict=True)}
     R = result.atRot3(keys.line)
     line, J = image_line_from_rot3(builder.camera.K, R)
     info = marginal_information(graph, result, keys.line, 3)  # unit pixel noise
@@ -471,7 +475,7 @@ def _chi2(camera, axes, stage1, pose) -> np.ndarray:
     out = []
     for axis, s in zip(axes, stage1, strict=True):
         e, cov = _axis_distances(camera, axis, s, pose)
-        out.append(float(e @ np.linalg.solve(cov, e)))
+        out.append(float(e @ np.linalg.pinv(cov, hermitian=True) @ e))  # pinv: test points may project badly
     return np.array(out)
 
 
@@ -653,7 +657,8 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options) -> Cali
         values.insert(POSE_KEY, pose)
         keys = {k: builder.add_measurement(graph, values, k, measurements[k], track_sigmas=dict.fromkeys(
                     setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
-                    prepared=setup.prepared[k], initial_circles=circles[k], initial_line=lines[k]) for k in used}
+                    prepared=setup.prepared[k], initial_circles=circles[k], initial_line=lines[k],
+                    refine_circles=circles[k] is None) for k in used}
         result, it, error, converged = _lm(graph, values, options.max_iterations, anchor=True)
         iterations += it
         pose = result.atPose3(POSE_KEY)

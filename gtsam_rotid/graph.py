@@ -244,11 +244,12 @@ class RotIdGraph:
         caller's optimisation starts consistent. Tracks that are too short, too still or without an ellipse
         are skipped and listed in ``rejected``; tracks in ``skip_tracks`` are left out silently.
 
-        ``tie=False`` adds a free line variable and its circles only (stage 1 of the two-stage methods).
-        Otherwise the measurement is tied to the pose as the builder's ``model`` says; in the ``"line"``
-        model, ``initial_line`` (a line variable from an earlier solve whose circles are ``initial_circles``)
-        keeps its tilt within its projection plane, which the tie leaves free, and is turned minimally so
-        that its image is the FK axis' image. ``prepared`` reuses :meth:`prepare`'s work.
+        ``tie=False`` adds a free line variable and its circles only (stage 1 of the two-stage methods),
+        starting at ``initial_line`` if given. Otherwise the measurement is tied to the pose as the builder's
+        ``model`` says; in the ``"line"`` model, ``initial_line`` (a line variable from an earlier solve whose
+        circles are ``initial_circles``) keeps its tilt within its projection plane, which the tie leaves
+        free, and is turned minimally so that its image is the FK axis' image. ``prepared`` reuses
+        :meth:`prepare`'s work.
 
         Nothing is added to ``graph`` or ``values`` unless every check passes.
         """
@@ -266,7 +267,9 @@ class RotIdGraph:
         point_cam = camera_T_arm.transformFrom(axis.point)
         direction_cam = camera_T_arm.rotation().matrix() @ axis.direction
         line_cam, scale = rot3_from_line(point_cam, direction_cam)
-        if initial_line is not None and not bound:
+        if initial_line is not None and not tie:
+            line_cam = initial_line
+        elif initial_line is not None and not bound:
             line_cam = align_line(initial_line, line_cam.matrix()[:, 2])
         foot_offset = point_cam @ direction_cam  # foot = point_cam - foot_offset * direction
         K = self.camera.K

@@ -10,6 +10,7 @@ from gtsam.symbol_shorthand import L, S, X
 
 from gtsam_rotid.factors import closest_phases
 from gtsam_rotid.factors.rigid import (
+    chunk_segments,
     initial_spin,
     make_entries_prior,
     make_rigid_circle_factor,
@@ -129,6 +130,21 @@ def test_jacobians_match_numerical(scene, trial):
     ids = np.unique(spin_chunk_index(frames[t], CHUNK, FIRST)[0])
     chunks = chunk_values(frames, lambda f: spin(f) + rng.normal(scale=0.1, size=len(f)))
     assert_jacobians_match(factor, [(L(0), line_p), (X(t), track_p)] + [(S(int(c)), chunks[int(c)]) for c in ids])
+
+
+def test_chunk_segments_split_a_track_exactly(scene):
+    line, truth, frames, pixels = scene_tracks(scene)
+    f, p = frames[0], pixels[0] + np.random.default_rng(1).normal(size=pixels[0].shape)  # frames 100..169: chunks 0..2
+    segments = chunk_segments(f, CHUNK, 2, FIRST)
+    assert [len(s) for s in segments] == [64, 6]
+    np.testing.assert_array_equal(np.concatenate(segments), np.arange(len(f)))
+    chunks = chunk_values(frames, spin)
+    values = values_with([(L(0), line), (X(0), truth[0])] + [(S(c), chunks[c]) for c in range(3)])
+    whole = factor_for(scene.K, 0, f, p).error(values)
+    parts = [factor_for(scene.K, 0, f[s], p[s]) for s in segments]
+    assert [len(part.keys()) for part in parts] == [4, 3]
+    assert sum(part.error(values) for part in parts) == pytest.approx(whole, rel=1e-12)
+    assert chunk_segments(np.zeros(0, dtype=int), CHUNK) == []
 
 
 def test_checks_and_robust_noise(scene):
