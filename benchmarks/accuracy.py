@@ -56,17 +56,18 @@ def crlb(dataset, truth, noise_var: float) -> np.ndarray:
     return np.linalg.inv(pose_information(graph, values, builder.pose_key))
 
 
-def trial(seed: int, duration: float, noise_var: float, joint_model: str) -> dict:
+def trial(seed: int, duration: float, noise_var: float, joint_model: str, spin_model: str, methods) -> dict:
     from gtsam_rotid import simulate
     from gtsam_rotid.errors import RotIdError
     from gtsam_rotid.estimate import CalibrationOptions, calibrate
 
     dataset, truth = simulate.reference_scene(seed=seed, noise_var=noise_var, duration=duration)
     out = {"seed": seed, "crlb": crlb(dataset, truth, noise_var), "points": sum(m.n_observations for m in dataset)}
-    for method in METHODS:
+    options = CalibrationOptions(joint_model=joint_model, spin_model=spin_model)
+    for method in methods:
         start = time.perf_counter()
         try:
-            result = calibrate(dataset, method=method, options=CalibrationOptions(joint_model=joint_model))
+            result = calibrate(dataset, method=method, options=options)
         except RotIdError as error:
             out[method] = {"failed": str(error)}
             continue
@@ -95,18 +96,26 @@ def main(argv=None) -> int:
     parser.add_argument("--first-seed", type=int, default=1000)
     parser.add_argument("--joint-model", default="line", choices=("line", "pose"),
                         help="graph of the joint method (CalibrationOptions.joint_model)")
+    parser.add_argument("--spin-model", default="free", choices=("free", "rigid"),
+                        help="phase model of the joint method (CalibrationOptions.spin_model)")
+    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated subset of " + ",".join(METHODS))
     parser.add_argument("--save", help="also write every trial's errors and covariances to this .npz file")
     args = parser.parse_args(argv)
+    methods = [m for m in args.methods.split(",") if m]
+    unknown = set(methods) - set(METHODS)
+    if unknown:
+        parser.error(f"unknown methods {sorted(unknown)}")
 
     seeds = range(args.first_seed, args.first_seed + args.trials)
     start = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futures = [pool.submit(trial, s, args.duration, args.noise_var, args.joint_model) for s in seeds]
+        futures = [pool.submit(trial, s, args.duration, args.noise_var, args.joint_model,
+                               args.spin_model, methods) for s in seeds]
         results = [f.result() for f in tqdm(futures, desc="trials", unit="trial")]
     wall = time.perf_counter() - start
     if args.save:
         arrays = {"seeds": np.array([r["seed"] for r in results]), "crlb": np.array([r["crlb"] for r in results])}
-        for method in METHODS:
+        for method in methods:
             ok = [(r["seed"], r[method]) for r in results if "error" in r[method]]
             arrays[f"{method}_seeds"] = np.array([seed for seed, _ in ok])
             arrays[f"{method}_errors"] = np.array([o["error"] for _, o in ok])
@@ -120,7 +129,7 @@ def main(argv=None) -> int:
     print(f"{'':24}" + "".join(f"{a:>10}" for a in AXES))
     print(f"{'CRLB (1 sigma)':24}" + "".join(f"{v:10.4f}" for v in bound_sigma))
     low, high = chi2_mean_interval(6, args.trials)
-    for method in METHODS:
+    for method in methods:
         ok = [r[method] for r in results if "error" in r[method]]
         failed = args.trials - len(ok)
         if not ok:

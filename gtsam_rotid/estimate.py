@@ -26,10 +26,23 @@ import numpy as np
 
 from .arm import Arm
 from .camera import Camera
-from .dataset import Dataset, Measurement
+from .dataset import Dataset, Measurement, Track
 from .errors import InputError, RotIdError
-from .factors import image_line_from_rot3, line_distance_covariance, make_axis_to_line_factor
+from .factors import (
+    chunk_segments,
+    closest_phases,
+    image_line_from_rot3,
+    initial_spin,
+    line_distance_covariance,
+    make_axis_to_line_factor,
+    make_axis_to_line_variable_factor,
+    make_circle_point_factor,
+    make_rigid_circle_factor,
+    spin_priors,
+)
+from .factors.rigid import DEFAULT_CHUNK_SIZE
 from .graph import (
+    CIRCLE_STRIDE,
     MIN_TRACK_EXTENT_PX,
     MIN_TRACK_POINTS,
     MeasurementKeys,
@@ -83,6 +96,9 @@ class CalibrationOptions:
     #: Initial stage-2 RMS (px) above which the start is declared a poor minimum.
     max_initial_rms_px: float = 25.0
     tie_sigma_px: float = 1e-3
+    #: Joint method: ``"free"`` phase per observation, or ``"rigid"`` spin (one wrist angle per frame and one
+    #: phase per track, DESIGN.md §4; for tracks with frame indices, line model only). Rigid is slower.
+    spin_model: str = "free"
     #: LM stops when the relative decrease of the error falls below these (stage 1; everything else).
     stage1_tolerance: float = 1e-8
     #: Joint graph: ``"line"`` (DESIGN.md §4: line variables with a projected-axis tie) or ``"pose"`` (circles
@@ -672,13 +688,84 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options) -> Cali
         if stable:
             break
     info = pose_information(graph, result, POSE_KEY)
+    reports = _reports(stage1, sigmas, used, options, chi2)
+    if options.spin_model == "rigid" and builder.model is Model.LINE:
+        rigid = _rigid_spin(camera, measurements, setup, keys, result, sigmas, options)
+        if rigid is not None:
+            pose, covariance, it, error, converged = rigid
+            # the free-phase information is the one whose eigen-analysis names undetermined directions; the
+            # rigid graph is too large for a dense Schur complement and has the same null directions
+            return _finish(pose, covariance, info, Method.JOINT, converged, iterations + it, error, reports,
+                           np.median(list(sigmas.values())))
     try:
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
     except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
         covariance = None
-    reports = _reports(stage1, sigmas, used, options, chi2)
     return _finish(pose, covariance, info, Method.JOINT, converged, iterations, error, reports,
                    np.median(list(sigmas.values())))
+
+
+def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options):
+    """The joint graph with the rigid spin (DESIGN.md §4), started from the free-phase joint solution ``free``.
+
+    Every track with frame indices gets a (d, r, phi0) variable and 2-D reprojection factors (one per
+    two-chunk segment, Huber per segment) at phase ``theta_f + phi0``, the spin angles ``theta_f`` being
+    shared by the measurement's tracks; tracks without frames keep their free-phase factor. Returns
+    (pose, covariance or None, iterations, error, converged), or None when no track has frames.
+    """
+    K = camera.K
+    C = DEFAULT_CHUNK_SIZE
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(POSE_KEY, free.atPose3(POSE_KEY))
+    rigid_tracks = 0
+    for k, keys_k in keys.items():
+        R = free.atRot3(keys_k.line)
+        values.insert(keys_k.line, R)
+        graph.add(make_axis_to_line_variable_factor(gtsam.noiseModel.Isotropic.Sigma(2, options.tie_sigma_px),
+                                                    POSE_KEY, keys_k.line, axis_test_points(setup.axes[k]), K))
+        spun = []
+        for j, circle_key in zip(keys_k.tracks, keys_k.circles, strict=True):
+            d, r = free.atVector(circle_key)
+            ideal = setup.prepared[k].usable[j].ideal
+            frames = Track.from_any(measurements[k].tracks[j]).frames
+            if frames is None:
+                values.insert(circle_key, np.array([d, r]))
+                noise = gtsam.noiseModel.Robust.Create(track_huber(len(ideal)),
+                                                       gtsam.noiseModel.Isotropic.Sigma(len(ideal), sigmas[k]))
+                graph.add(make_circle_point_factor(noise, keys_k.line, circle_key, ideal, K))
+                continue
+            spun.append((j, d, r, ideal, frames, closest_phases(K, R, d, r, ideal)))
+        if not spun:
+            continue
+        rigid_tracks += len(spun)
+        first = int(min(t[4].min() for t in spun))
+        init = initial_spin([(t[4], t[5]) for t in spun], C, first)
+
+        def chunk_key(c, k=k):
+            return gtsam.symbol("s", k * CIRCLE_STRIDE + int(c))
+
+        track_keys = [gtsam.symbol("t", k * CIRCLE_STRIDE + t[0]) for t in spun]
+        for c, theta in init.theta.items():
+            values.insert(chunk_key(c), np.asarray(theta, dtype=float))
+        for i, (_, d, r, ideal, frames, _) in enumerate(spun):
+            values.insert(track_keys[i], np.array([d, r, init.phi0[i]]))
+            for idx in chunk_segments(frames, C, 2, first):
+                n = 2 * len(idx)
+                noise = gtsam.noiseModel.Robust.Create(
+                    gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(chi2_quantile(n))),
+                    gtsam.noiseModel.Isotropic.Sigma(n, sigmas[k]))
+                graph.add(make_rigid_circle_factor(noise, keys_k.line, track_keys[i], chunk_key, ideal[idx],
+                                                   frames[idx], K, C, first))
+        for prior in spin_priors(init, chunk_key, track_keys):
+            graph.add(prior)
+    if rigid_tracks == 0:
+        return None
+    result, iterations, error, converged = _lm(graph, values, options.max_iterations, anchor=True)
+    try:
+        covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
+    except RuntimeError:
+        covariance = None
+    return result.atPose3(POSE_KEY), covariance, iterations, error, converged
 
 
 def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: list[Measurement] | None = None,

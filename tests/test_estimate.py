@@ -184,3 +184,20 @@ def test_a_wrong_joint_reading_is_left_out(method):
     assert "OUTLIER (left out" in result.summary()
     error = result.error_to(truth.arm_T_camera)
     assert np.all(np.abs(error) < 4.0 * np.sqrt(np.diag(result.covariance)))
+
+
+def test_rigid_spin_noise_free_and_noisy(noise_free_scene, noisy_scene):
+    """The rigid-spin joint model (one wrist angle per frame, one phase per track) on the same scenes."""
+    from gtsam_rotid.estimate import CalibrationOptions
+
+    options = CalibrationOptions(spin_model="rigid")
+    dataset, truth = noise_free_scene
+    result = calibrate(dataset, options=options)
+    assert np.max(np.abs(result.error_to(truth.arm_T_camera))) < 1e-6
+    dataset, truth = noisy_scene
+    rigid, free = calibrate(dataset, options=options), calibrate(dataset)
+    error = rigid.error_to(truth.arm_T_camera)
+    assert rigid.covariance_usable and rigid.converged
+    assert np.all(np.abs(error) < 4.0 * np.sqrt(np.diag(rigid.covariance)))
+    # tying the phases to one spin adds information: a smaller covariance than the free-phase model's
+    assert np.all(np.diag(rigid.covariance) < np.diag(free.covariance))
