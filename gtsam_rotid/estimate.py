@@ -244,6 +244,11 @@ POSE_KEY = gtsam.symbol("T", 0)
 #: directions the data leave undetermined (information 1 against >= 1e7 for a determined direction at
 #: pixel noise: no measurable pull otherwise). Stage 2 needs none: its LM damps isotropically.
 ANCHOR_SIGMA = 1.0
+#: LM stops once two iterations in a row move the stage-1 image axis (at the corners of the tracks'
+#: bounding box) by less than this (px), or the joint pose by less than WATCH_POSE (rad and m), both per
+#: pixel of residual RMS.
+WATCH_LINE_PX = 1e-4
+WATCH_POSE = 1e-7
 #: A twin pose (see :func:`twin_pose`) is kept as a second start when LM leaves it at least this far (deg)
 #: from the best start and its image-axis error is below this multiple of the best (+ 1 px^2).
 TWIN_MIN_ANGLE_DEG = 10.0
@@ -251,12 +256,16 @@ TWIN_ERROR_RATIO = 4.0
 
 
 def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int, anchor: bool = False,
-        diagonal_damping: bool = True, relative_tolerance: float = 1e-8):
+        diagonal_damping: bool = True, relative_tolerance: float = 1e-8, watch=None, watch_tolerance: float = 0.0):
     """LM; with ``anchor`` a weak prior at the start of ``POSE_KEY`` keeps undetermined directions still.
 
     Diagonal damping suits the graphs with line and circle variables (their Jacobians differ in scale by
     orders of magnitude); isotropic damping never steps along a direction of exactly zero information,
-    which keeps a degenerate stage 2 where it started. The returned error is that of ``graph`` alone.
+    which keeps a degenerate stage 2 where it started. ``watch(values) -> vector`` names what the solve is
+    for (an image line, the pose): LM also stops once two successive iterations change it by less than
+    ``watch_tolerance`` (each axis' tilt within its projection plane, a nuisance, can otherwise crawl on
+    for tens of iterations); the tolerance is scaled by the residual RMS in pixels. The returned error is that
+    of ``graph`` alone.
     """
     if anchor:
         anchored = gtsam.NonlinearFactorGraph()
@@ -265,7 +274,8 @@ def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations:
                                             gtsam.noiseModel.Isotropic.Sigma(6, ANCHOR_SIGMA)))
         result, iterations, _, converged = _lm(anchored, values, max_iterations,
                                                diagonal_damping=diagonal_damping,
-                                               relative_tolerance=relative_tolerance)
+                                               relative_tolerance=relative_tolerance, watch=watch,
+                                               watch_tolerance=watch_tolerance)
         return result, iterations, graph.error(result), converged
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
@@ -274,8 +284,25 @@ def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations:
     params.setRelativeErrorTol(relative_tolerance)
     params.setAbsoluteErrorTol(0.0)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    result = optimizer.optimize()
-    converged = optimizer.iterations() < max_iterations
+    if watch is None:
+        result = optimizer.optimize()
+        converged = optimizer.iterations() < max_iterations
+        return result, optimizer.iterations(), graph.error(result), converged
+    error, watched, quiet = optimizer.error(), watch(values), 0
+    n_residuals = sum(graph.at(i).dim() for i in range(graph.size()))
+    converged = False
+    while optimizer.iterations() < max_iterations:
+        optimizer.iterate()
+        new_error, new_watched = optimizer.error(), watch(optimizer.values())
+        # the tolerance is per pixel of residual RMS, so noise-free data converge to noise-free precision
+        rms = np.sqrt(2.0 * new_error / max(n_residuals, 1))
+        quiet = quiet + 1 if np.max(np.abs(new_watched - watched)) < watch_tolerance * rms else 0
+        small_decrease = error - new_error <= relative_tolerance * max(error, 1e-300)
+        error, watched = new_error, new_watched
+        if quiet >= 2 or small_decrease or optimizer.lambda_() >= params.getlambdaUpperBound():
+            converged = True
+            break
+    result = optimizer.values()
     return result, optimizer.iterations(), graph.error(result), converged
 
 
@@ -448,8 +475,15 @@ def _stage1_measurement(builder: RotIdGraph, measurement, k, pose, prepared, opt
         keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False,
                                        prepared=prepared, skip_tracks=skip, refine_circles=False,
                                        initial_line=line_start, initial_circles=circles_start)
-        result, it, _, _ = _lm(graph, values, options.max_iterations,
-                               relative_tolerance=options.stage1_tolerance)
+        corners = np.array([np.min([t.ideal.min(axis=0) for t in prepared.usable.values()], axis=0),
+                            np.max([t.ideal.max(axis=0) for t in prepared.usable.values()], axis=0)])
+
+        def image_axis_at_corners(v, line_key=keys.line, corners=corners):
+            line, _ = image_line_from_rot3(builder.camera.K, v.atRot3(line_key))
+            return corners @ line[:2] + line[2]
+
+        result, it, _, _ = _lm(graph, values, options.max_iterations, relative_tolerance=options.stage1_tolerance,
+                               watch=image_axis_at_corners, watch_tolerance=WATCH_LINE_PX)
         iterations += it
         stats = _track_stats(graph, keys, result)
         new = _outlier_tracks(stats, options)
@@ -684,7 +718,10 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options) -> Cali
                     setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
                     prepared=setup.prepared[k], initial_circles=circles[k], initial_line=lines[k],
                     refine_circles=circles[k] is None) for k in used}
-        result, it, error, converged = _lm(graph, values, options.max_iterations, anchor=True)
+        start_pose = pose
+        result, it, error, converged = _lm(
+            graph, values, options.max_iterations, anchor=True, watch_tolerance=WATCH_POSE,
+            watch=lambda v, start_pose=start_pose: start_pose.localCoordinates(v.atPose3(POSE_KEY)))
         iterations += it
         pose = result.atPose3(POSE_KEY)
         new_sigmas = {k: float(np.sqrt(_noise_variance(_track_stats(graph, keys[k], result), 1, options)))
