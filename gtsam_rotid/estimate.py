@@ -470,18 +470,19 @@ def _stage1_measurement(builder: RotIdGraph, measurement, k, pose, prepared, opt
     skip: dict[int, str] = {}
     iterations = 0
     line_start, circles_start = None, None
+    # the image axis is watched at the corners of the tracks' bounding box
+    corners = np.array([np.min([t.ideal.min(axis=0) for t in prepared.usable.values()], axis=0),
+                        np.max([t.ideal.max(axis=0) for t in prepared.usable.values()], axis=0)])
+
+    def image_axis_at_corners(v):
+        line, _ = image_line_from_rot3(builder.camera.K, v.atRot3(builder.line_key(k)))
+        return corners @ line[:2] + line[2]
+
     for _round in range(4):
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False,
                                        prepared=prepared, skip_tracks=skip, refine_circles=False,
                                        initial_line=line_start, initial_circles=circles_start)
-        corners = np.array([np.min([t.ideal.min(axis=0) for t in prepared.usable.values()], axis=0),
-                            np.max([t.ideal.max(axis=0) for t in prepared.usable.values()], axis=0)])
-
-        def image_axis_at_corners(v, line_key=keys.line, corners=corners):
-            line, _ = image_line_from_rot3(builder.camera.K, v.atRot3(line_key))
-            return corners @ line[:2] + line[2]
-
         result, it, _, _ = _lm(graph, values, options.max_iterations, relative_tolerance=options.stage1_tolerance,
                                watch=image_axis_at_corners, watch_tolerance=WATCH_LINE_PX)
         iterations += it
