@@ -51,6 +51,7 @@ from .graph import (
     RotIdGraph,
     axis_test_points,
     chi2_quantile,
+    lm_params,
     track_huber,
 )
 from .initialise import initial_image_axis, plane_normal, pose_candidates
@@ -277,12 +278,7 @@ def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations:
                                                relative_tolerance=relative_tolerance, watch=watch,
                                                watch_tolerance=watch_tolerance)
         return result, iterations, graph.error(result), converged
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(max_iterations)
-    params.setDiagonalDamping(diagonal_damping)
-    params.setlambdaUpperBound(1e15)
-    params.setRelativeErrorTol(relative_tolerance)
-    params.setAbsoluteErrorTol(0.0)
+    params = lm_params(max_iterations, relative_tolerance, diagonal_damping)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     if watch is None:
         result = optimizer.optimize()

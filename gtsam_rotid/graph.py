@@ -51,6 +51,23 @@ MIN_TRACK_EXTENT_PX = 10.0
 REFINE_ITERATIONS = 8
 
 
+def lm_params(max_iterations: int = 100, relative_tolerance: float = 1e-8,
+              diagonal_damping: bool = True) -> gtsam.LevenbergMarquardtParams:
+    """Levenberg-Marquardt settings that suit these graphs (use them for your graph with the builder's factors).
+
+    Pixel-scale Jacobians make Hessian entries ~1e8 and line and circle variables differ in scale by orders of
+    magnitude: diagonal (scale-invariant) damping, and a lambda ceiling far above GTSAM's default 1e5, which
+    otherwise gives up early.
+    """
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max_iterations)
+    params.setDiagonalDamping(diagonal_damping)
+    params.setlambdaUpperBound(1e15)
+    params.setRelativeErrorTol(relative_tolerance)
+    params.setAbsoluteErrorTol(0.0)
+    return params
+
+
 def chi2_quantile(dof: int, z: float = 3.09) -> float:
     """Chi-square quantile (Wilson-Hilferty) at the normal's z; z = 3.09 gives the 99.9 % point."""
     h = 2.0 / (9.0 * dof)
@@ -334,11 +351,7 @@ class RotIdGraph:
         else:
             graph.add(gtsam.NonlinearEqualityRot3(line_key, line_cam))
             values.insert(line_key, line_cam)
-        params = gtsam.LevenbergMarquardtParams()
-        params.setDiagonalDamping(True)
-        params.setlambdaUpperBound(1e15)
-        params.setMaxIterations(REFINE_ITERATIONS)
-        params.setRelativeErrorTol(1e-4)
+        params = lm_params(REFINE_ITERATIONS, relative_tolerance=1e-4)
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         refined = gtsam.Values()
         for key in keys.circles:

@@ -7,7 +7,7 @@ from gtsam.symbol_shorthand import L, X
 
 from gtsam_rotid import InputError, simulate
 from gtsam_rotid.estimate import calibrate
-from gtsam_rotid.graph import Model, RotIdGraph
+from gtsam_rotid.graph import Model, RotIdGraph, lm_params
 
 
 @pytest.fixture(scope="module")
@@ -16,12 +16,7 @@ def scene():
 
 
 def lm(graph, values):
-    params = gtsam.LevenbergMarquardtParams()
-    params.setDiagonalDamping(True)
-    params.setlambdaUpperBound(1e15)
-    params.setRelativeErrorTol(1e-12)
-    params.setMaxIterations(100)
-    return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+    return gtsam.LevenbergMarquardtOptimizer(graph, values, lm_params(relative_tolerance=1e-12)).optimize()
 
 
 def user_graph(pose_start, cad_pose, cad_sigmas):
