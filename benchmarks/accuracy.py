@@ -51,7 +51,7 @@ def crlb(dataset, truth, noise_var: float) -> np.ndarray:
         point_cam = pose.transformTo(m_truth.axis_point)
         direction_cam = pose.rotation().unrotate(m_truth.axis_direction)
         along = point_cam @ direction_cam
-        scale = np.linalg.norm(point_cam - along * direction_cam)
+        scale = float(m_truth.axis.distance_to(pose.translation())[0])  # camera centre to the axis
         circles = {j: np.array([(t.offset + along) / scale, t.radius / scale])
                    for j, t in enumerate(m_truth.tracks)}
         builder.add_measurement(graph, values, k, measurement, initial_circles=circles, refine_circles=False)

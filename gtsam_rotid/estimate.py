@@ -34,6 +34,7 @@ from .factors import (
     image_line_from_rot3,
     initial_spin,
     line_distance_covariance,
+    line_distances,
     make_axis_to_line_factor,
     make_axis_to_line_variable_factor,
     make_circle_point_factor,
@@ -472,7 +473,7 @@ def _stage1_measurement(builder: RotIdGraph, measurement, k, pose, prepared, opt
 
     def image_axis_at_corners(v):
         line, _ = image_line_from_rot3(builder.camera.K, v.atRot3(builder.line_key(k)))
-        return corners @ line[:2] + line[2]
+        return line_distances(line, corners)
 
     for _round in range(4):
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -514,7 +515,7 @@ def _axis_distances(camera: Camera, axis, stage1: _Stage1, pose: gtsam.Pose3,
     measurement's own pixel noise variance unless ``sigma2`` is given)."""
     points = np.array([pose.transformTo(p) for p in axis_test_points(axis)])
     pixels = camera.project(points, distort=False)
-    e = pixels @ stage1.line[:2] + stage1.line[2]
+    e = line_distances(stage1.line, pixels)
     sigma2 = stage1.sigma2 if sigma2 is None else sigma2
     cov = line_distance_covariance(stage1.line_cov * sigma2, pixels) + 1e-12 * np.eye(len(e))
     return e, cov
@@ -611,10 +612,9 @@ def _check_scale(result: CalibrationResult, setup: _Setup, stage1: list[_Stage1]
         return
     pose = result.arm_T_camera
     radii = []
+    centre = pose.translation()
     for axis, s in zip(setup.axes, stage1, strict=True):
-        point = pose.transformTo(axis.point)
-        direction = pose.rotation().unrotate(axis.direction)
-        distance = np.linalg.norm(point - (point @ direction) * direction)
+        distance = float(axis.distance_to(centre)[0])  # camera centre to the wrist axis
         radii.extend(abs(c[1]) * distance for c in s.circles.values())
     median = float(np.median(radii))
     if median > options.max_feature_radius_m:
