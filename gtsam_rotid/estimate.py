@@ -255,6 +255,8 @@ WATCH_POSE = 1e-7
 #: from the best start and its image-axis error is below this multiple of the best (+ 1 px^2).
 TWIN_MIN_ANGLE_DEG = 10.0
 TWIN_ERROR_RATIO = 4.0
+#: LM iterations allowed from the twin start.
+TWIN_ITERATIONS = 20
 
 
 def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int, anchor: bool = False,
@@ -341,12 +343,13 @@ def _stage2_graph(axes, lines, K, noises) -> gtsam.NonlinearFactorGraph:
     return graph
 
 
-def _best_stage2(graph, starts, options) -> tuple[gtsam.Pose3, float, int]:
+def _best_stage2(graph, starts, options, max_iterations: int | None = None) -> tuple[gtsam.Pose3, float, int]:
     best = None
     for start in starts:
         values = gtsam.Values()
         values.insert(POSE_KEY, start)
-        result, iterations, error, _ = _lm(graph, values, options.max_iterations, diagonal_damping=False)
+        result, iterations, error, _ = _lm(graph, values, max_iterations or options.max_iterations,
+                                           diagonal_damping=False)
         if best is None or error < best[1]:
             best = (result.atPose3(POSE_KEY), error, iterations)
     return best
@@ -408,7 +411,10 @@ def _initial(arm, camera, measurements, options) -> tuple[list[gtsam.Pose3], _Se
             f"(limit {options.max_initial_rms_px} px); check joint angles, camera intrinsics and tracks")
     # Near a single crossing the half-turned twin explains the image axes as well: keep it for the circles
     # to decide (elsewhere LM takes the twin back to ``pose``).
-    twin, twin_error, _ = _best_stage2(graph, [twin_pose(pose, closest_point(setup.axes))], options)
+    # A genuine twin is a minimum next to its start; elsewhere LM would crawl back to ``pose`` for many
+    # iterations, so it gets few.
+    twin, twin_error, _ = _best_stage2(graph, [twin_pose(pose, closest_point(setup.axes))], options,
+                                       max_iterations=TWIN_ITERATIONS)
     distinct = np.linalg.norm(pose.localCoordinates(twin)[:3]) > np.radians(TWIN_MIN_ANGLE_DEG)
     starts = [pose, twin] if distinct and twin_error < TWIN_ERROR_RATIO * error + 1.0 else [pose]
     return starts, setup
