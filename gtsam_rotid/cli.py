@@ -1,4 +1,4 @@
-"""Command line: ``gtsam-rotid {simulate,calibrate,demo} ...``. Thin: it parses and calls library functions."""
+"""Command line: ``gtsam-rotid {simulate,calibrate,demo,track} ...``. Thin: it parses and calls library functions."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import RotIdError
+from .recordings import add_track_parser
 
 SCENES = ("reference", "single-crossing")
 #: ``gtsam_rotid.estimate.Method`` values (kept literal so that ``--help`` does not import the estimator).
@@ -229,6 +230,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_method_option(p)
     _add_scene_options(p)
     p.set_defaults(func=cmd_demo)
+
+    add_track_parser(sub)
     return parser
 
 

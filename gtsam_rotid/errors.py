@@ -52,3 +52,15 @@ class SimulationError(RotIdError, RuntimeError):
 
 class DatasetNotFoundError(RotIdError, FileNotFoundError):
     """No dataset at the given path (the directory or one of its files is missing)."""
+
+
+class RecordingError(InputError):
+    """A video, image folder, frame range or joint-angle file that cannot be used (the message names it)."""
+
+
+class OutputExistsError(RotIdError, FileExistsError):
+    """Refusing to overwrite an existing video, image folder or truth file (pass ``overwrite=True``)."""
+
+
+class VideoWriteError(RotIdError, OSError):
+    """OpenCV could not open or write the video or an image file."""

@@ -1,0 +1,1205 @@
+"""Real recordings: videos (or image folders), a joint-angle file and a camera file -> a :class:`Dataset`.
+
+One video file or one folder of images per measurement (one wrist spin at a fixed arm pose), plus:
+
+* a **camera file**: OpenCV's calibration YAML (as written by ``cv2.FileStorage``; also its XML and JSON) or a
+  ROS ``camera_info`` YAML (``camera_calibration`` output, or a ``CameraInfo`` message echoed by ``rostopic`` /
+  ``ros2 topic``), read by :func:`load_camera`;
+* a **joint-angle file** (CSV or JSON), read by :func:`load_joints`: either one row of joint angles per
+  measurement, or a time series of joint states from which each spin's still joints are read, after checking
+  that only the wrist moved.
+
+:func:`make_dataset` runs a feature tracker (by default :func:`gtsam_rotid.tracking.track`) on every video and
+builds the dataset; :func:`add_track_parser` / :func:`cmd_track` are the ``gtsam-rotid track`` command.
+
+Angles in files are radians unless ``degrees=True``; the arrays returned are radians, ``arm.joint_names`` order.
+Track frame indices are the video's own frame numbers (a frame range ``(100, 900)`` gives tracks whose frames
+start at 100 or later).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import io
+import json
+import math
+import os
+import re
+import sys
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from .arm import Arm
+from .camera import Camera
+from .dataset import Dataset, Measurement, Track
+from .errors import ArmError, CameraError, DatasetExistsError, InputError, RecordingError
+
+#: File name endings read as images in an image folder (case-insensitive).
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pbm", ".webp", ".jp2")
+#: File name endings taken as videos by ``--videos-dir`` (any file OpenCV can open works with ``--video``).
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".ogv", ".mjpeg")
+#: Column names (case-insensitive) that make a joint CSV a time series.
+TIME_COLUMNS = ("time", "stamp", "stamps", "timestamp", "t", "%time")
+#: Default largest motion (peak to peak, degrees) of a non-wrist joint during a spin.
+STILL_TOLERANCE_DEG = 0.2
+#: Default smallest wrist rotation (peak to peak, degrees) that counts as a spin.
+MIN_SPIN_DEG = 45.0
+
+_CAMERA_MATRIX_KEYS = ("camera_matrix", "cameraMatrix", "K", "k")
+_DISTORTION_KEYS = ("distortion_coefficients", "distCoeffs", "dist_coeffs", "D", "d")
+_WIDTH_KEYS = ("image_width", "width", "imageWidth")
+_HEIGHT_KEYS = ("image_height", "height", "imageHeight")
+_SIZE_KEYS = ("image_size", "imageSize")
+_SUPPORTED_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "")
+
+
+# ---------------------------------------------------------------------------------------------- minimal YAML
+# PyYAML is not a dependency; camera files are small, flat documents. This reads the YAML subset they use:
+# nested block mappings, block sequences (also at the key's own indentation), flow lists / mappings (over
+# several lines), plain and quoted scalars, comments, tags (ignored) and the first document of a stream.
+_INT = re.compile(r"^[-+]?(0|[1-9][0-9_]*)$")
+_FLOAT = re.compile(r"^[-+]?(\d[\d_]*\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+_SPECIAL_FLOATS = {".inf": math.inf, "+.inf": math.inf, "-.inf": -math.inf, ".nan": math.nan}
+
+
+class _YamlSyntaxError(Exception):
+    pass
+
+
+def _scan_quoted(text: str, start: int, line: int) -> tuple[str, int]:
+    """The string of the quoted scalar at ``text[start]`` and the index after its closing quote."""
+    quote = text[start]
+    out = []
+    i = start + 1
+    while i < len(text):
+        c = text[i]
+        if quote == "'" and c == "'":
+            if text[i + 1:i + 2] == "'":
+                out.append("'")
+                i += 2
+                continue
+            return "".join(out), i + 1
+        if quote == '"' and c == "\\" and i + 1 < len(text):
+            out.append({"n": "\n", "t": "\t", "\\": "\\", '"': '"', "/": "/"}.get(text[i + 1], text[i + 1]))
+            i += 2
+            continue
+        if quote == '"' and c == '"':
+            return "".join(out), i + 1
+        out.append(c)
+        i += 1
+    raise _YamlSyntaxError(f"line {line}: unterminated {quote}-quoted string")
+
+
+def _outside_quotes(text: str) -> Iterator[tuple[int, str]]:
+    """(index, character) of the characters of ``text`` outside quoted scalars."""
+    i = 0
+    while i < len(text):
+        c = text[i]
+        if c in "'\"" and (i == 0 or text[i - 1] in " \t[{,:"):
+            try:
+                _, i = _scan_quoted(text, i, 0)
+            except _YamlSyntaxError:
+                return
+            continue
+        yield i, c
+        i += 1
+
+
+def _strip_comment(text: str) -> str:
+    for i, c in _outside_quotes(text):
+        if c == "#" and (i == 0 or text[i - 1] in " \t"):
+            return text[:i]
+    return text
+
+
+def _bracket_depth(text: str) -> int:
+    depth = 0
+    for _, c in _outside_quotes(text):
+        depth += (c in "[{") - (c in "]}")
+    return depth
+
+
+def _plain_scalar(text: str) -> Any:
+    if text in ("~", "null", "Null", "NULL"):
+        return None
+    if text in ("true", "True", "TRUE"):
+        return True
+    if text in ("false", "False", "FALSE"):
+        return False
+    if _INT.match(text):
+        return int(text.replace("_", ""))
+    if _FLOAT.match(text):
+        return float(text.replace("_", ""))
+    if text.lower() in _SPECIAL_FLOATS:
+        return _SPECIAL_FLOATS[text.lower()]
+    return text
+
+
+def _drop_tag(text: str) -> str:
+    """``text`` without a leading tag such as ``!!opencv-matrix``."""
+    if text.startswith("!"):
+        parts = text.split(None, 1)
+        return parts[1] if len(parts) == 2 else ""
+    return text
+
+
+def _parse_flow(text: str, line: int) -> Any:
+    """A block value written on one (joined) line: a flow list / mapping, a quoted or plain scalar."""
+    pos = 0
+
+    def skip() -> None:
+        nonlocal pos
+        while pos < len(text) and text[pos] in " \t":
+            pos += 1
+
+    def value(in_flow: bool) -> Any:
+        nonlocal pos
+        skip()
+        if pos >= len(text):
+            raise _YamlSyntaxError(f"line {line}: a value is missing")
+        c = text[pos]
+        if c in "[{":
+            closing = "]" if c == "[" else "}"
+            pos += 1
+            items: list | dict = [] if c == "[" else {}
+            while True:
+                skip()
+                if pos < len(text) and text[pos] == closing:
+                    pos += 1
+                    return items
+                if c == "[":
+                    items.append(value(True))
+                else:
+                    key = value(True)
+                    skip()
+                    if pos >= len(text) or text[pos] != ":":
+                        raise _YamlSyntaxError(f"line {line}: expected ':' after the key {key!r}")
+                    pos += 1
+                    items[key] = value(True)
+                skip()
+                if pos < len(text) and text[pos] == ",":
+                    pos += 1
+                elif pos >= len(text) or text[pos] != closing:
+                    raise _YamlSyntaxError(f"line {line}: expected ',' or {closing!r} in {text!r}")
+        if c in "'\"":
+            string, pos = _scan_quoted(text, pos, line)
+            return string
+        start = pos
+        if in_flow:
+            while pos < len(text) and text[pos] not in ",]}" and not (text[pos] == ":" and
+                                                                       text[pos + 1:pos + 2] in (" ", "")):
+                pos += 1
+        else:
+            pos = len(text)
+        return _plain_scalar(text[start:pos].strip())
+
+    result = value(False)
+    skip()
+    if pos != len(text):
+        raise _YamlSyntaxError(f"line {line}: unexpected text {text[pos:]!r}")
+    return result
+
+
+def _is_item(text: str) -> bool:
+    return text == "-" or text.startswith("- ")
+
+
+def _key_split(text: str) -> int | None:
+    """Index of the ``:`` that ends the mapping key at the start of ``text``, or None."""
+    if text[:1] in "[{":
+        return None
+    for i, c in _outside_quotes(text):
+        if c == ":" and text[i + 1:i + 2] in (" ", ""):
+            return i
+    return None
+
+
+def _parse_block(lines: list, i: int, indent: int) -> tuple[Any, int]:
+    if _is_item(lines[i][2]):
+        return _parse_sequence(lines, i, indent)
+    return _parse_mapping(lines, i, indent)
+
+
+def _nested_value(lines: list, i: int, indent: int, same_indent_items: bool) -> tuple[Any, int]:
+    if i < len(lines) and (lines[i][1] > indent or (same_indent_items and lines[i][1] == indent
+                                                    and _is_item(lines[i][2]))):
+        return _parse_block(lines, i, lines[i][1])
+    return None, i
+
+
+def _parse_mapping(lines: list, i: int, indent: int) -> tuple[dict, int]:
+    result: dict = {}
+    while i < len(lines):
+        number, ind, text = lines[i]
+        if ind < indent:
+            break
+        if ind > indent:
+            raise _YamlSyntaxError(f"line {number}: unexpected indentation")
+        split = _key_split(text)
+        if split is None:
+            raise _YamlSyntaxError(f"line {number}: expected 'key: value', got {text!r}")
+        key_text = text[:split].strip()
+        key = _scan_quoted(key_text, 0, number)[0] if key_text[:1] in "'\"" else key_text
+        if key in result:
+            raise _YamlSyntaxError(f"line {number}: the key {key!r} appears twice")
+        rest = _drop_tag(text[split + 1:].strip())
+        i += 1
+        if rest:
+            result[key] = _parse_flow(rest, number)
+        else:
+            result[key], i = _nested_value(lines, i, indent, same_indent_items=True)
+    return result, i
+
+
+def _parse_sequence(lines: list, i: int, indent: int) -> tuple[list, int]:
+    items = []
+    while i < len(lines):
+        number, ind, text = lines[i]
+        if ind < indent or (ind == indent and not _is_item(text)):
+            break
+        if ind > indent:
+            raise _YamlSyntaxError(f"line {number}: unexpected indentation")
+        content = _drop_tag(text[1:].strip())
+        if not content:
+            i += 1
+            value, i = _nested_value(lines, i, indent, same_indent_items=False)
+        elif _key_split(content) is not None:  # "- key: value" opens a mapping
+            lines[i] = (number, ind + len(text) - len(text[1:].lstrip()), content)
+            value, i = _parse_mapping(lines, i, lines[i][1])
+        else:
+            value = _parse_flow(content, number)
+            i += 1
+        items.append(value)
+    return items, i
+
+
+def parse_yaml(text: str) -> Any:
+    """Parse the first document of a small YAML file (the subset camera files use; see the comment above).
+
+    Raises ``ValueError`` (with the line number) on text it cannot read.
+    """
+    lines = []
+    started = False
+    for number, raw in enumerate(text.splitlines(), 1):
+        content = _strip_comment(raw).rstrip()
+        stripped = content.strip()
+        if not stripped:
+            continue
+        if not started and stripped.startswith("%"):
+            continue
+        if stripped == "---" or stripped.startswith("--- "):
+            if started:
+                break
+            stripped = content = stripped[3:].strip()
+            if not stripped:
+                continue
+        if stripped == "...":
+            break
+        leading = content[:len(content) - len(content.lstrip())]
+        if "\t" in leading:
+            raise ValueError(f"line {number}: tabs are not allowed in YAML indentation")
+        started = True
+        lines.append((number, len(leading), stripped))
+    joined = []
+    i = 0
+    while i < len(lines):
+        number, indent, text = lines[i]
+        while _bracket_depth(text) > 0 and i + 1 < len(lines):
+            i += 1
+            text += " " + lines[i][2]
+        if _bracket_depth(text) != 0:
+            raise ValueError(f"line {number}: unbalanced brackets")
+        joined.append((number, indent, text))
+        i += 1
+    if not joined:
+        return None
+    try:
+        value, end = _parse_block(joined, 0, joined[0][1])
+        if end != len(joined):
+            raise _YamlSyntaxError(f"line {joined[end][0]}: unexpected text (bad indentation, or a list mixed "
+                                   f"with a mapping)")
+    except _YamlSyntaxError as exc:
+        raise ValueError(str(exc)) from None
+    return value
+
+
+# ---------------------------------------------------------------------------------------------- camera files
+def _filenode_to_python(node) -> Any:
+    """A ``cv2.FileNode`` as plain Python: dicts, lists, numbers and strings (matrices stay {rows, cols, data})."""
+    if node.isMap():
+        return {key: _filenode_to_python(node.getNode(key)) for key in node.keys()}
+    if node.isSeq():
+        return [_filenode_to_python(node.at(i)) for i in range(node.size())]
+    if node.isInt():
+        return int(node.real())
+    if node.isReal():
+        return float(node.real())
+    if node.isString():
+        return node.string()
+    return None
+
+
+def _read_opencv_storage(path: Path) -> Any:
+    if not path.is_file():
+        raise CameraError(f"no camera file at {path}")
+    try:
+        storage = cv2.FileStorage(os.fspath(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as exc:
+        cause = exc.__cause__ if isinstance(exc, SystemError) and exc.__cause__ is not None else exc
+        detail = str(cause).strip().splitlines()[-1] if str(cause).strip() else type(cause).__name__
+        raise CameraError(f"cannot parse the camera file {path} with cv2.FileStorage: {detail}") from None
+    try:
+        if not storage.isOpened():
+            raise CameraError(f"cv2.FileStorage cannot open the camera file {path}")
+        return _filenode_to_python(storage.root())
+    finally:
+        storage.release()
+
+
+def _read_camera_document(path: Path) -> Any:
+    """The camera file's content as plain Python (dicts, lists, numbers, strings)."""
+    if not path.exists():
+        raise CameraError(f"no camera file at {path}")
+    if not path.is_file():
+        raise CameraError(f"the camera file {path} is a directory, not a file")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise CameraError(f"cannot read the camera file {path}: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise CameraError(f"the camera file {path} is not a text file (not UTF-8)") from None
+    head = text.lstrip()
+    if path.suffix.lower() == ".json" or head.startswith("{"):
+        try:
+            return json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise CameraError(f"the camera file {path} is not valid JSON: {exc.msg} (line {exc.lineno})") from None
+    if head.startswith("%YAML:") or head.startswith("<?xml") or head.startswith("<opencv_storage"):
+        return _read_opencv_storage(path)  # OpenCV's own YAML 1.0 dialect or its XML
+    try:
+        return parse_yaml(text)
+    except ValueError as exc:
+        raise CameraError(f"the camera file {path} is not YAML that gtsam_rotid can read: {exc}") from None
+
+
+def _first_key(document: Mapping, keys: Sequence[str]) -> str | None:
+    return next((key for key in keys if key in document and document[key] is not None), None)
+
+
+def _numeric_array(value: Any, path: Path, key: str) -> np.ndarray:
+    try:
+        array = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise CameraError(f"{path}: {key} must hold numbers, got {value!r}") from None
+    if not np.all(np.isfinite(array)):
+        raise CameraError(f"{path}: {key} contains NaN or infinite entries")
+    return array
+
+
+def _matrix(value: Any, path: Path, key: str) -> np.ndarray:
+    """A matrix given as {rows, cols, data} (OpenCV / ROS), a flat list or a nested list."""
+    if isinstance(value, Mapping):
+        if "data" not in value:
+            raise CameraError(f"{path}: {key} has no 'data' entry (found {', '.join(map(str, value)) or 'nothing'})")
+        data = _numeric_array(value["data"], path, f"{key}.data").ravel()
+        rows, cols = value.get("rows"), value.get("cols")
+        if rows is None and cols is None:
+            return data
+        for name, count in (("rows", rows), ("cols", cols)):
+            if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+                raise CameraError(f"{path}: {key}.{name} must be a non-negative integer, got {count!r}")
+        if rows * cols != data.size:
+            raise CameraError(f"{path}: {key} says {rows}x{cols} but its data holds {data.size} numbers")
+        return data.reshape(rows, cols)
+    if isinstance(value, (list, tuple)):
+        if value and all(isinstance(row, (list, tuple)) for row in value):
+            if len({len(row) for row in value}) != 1:
+                raise CameraError(f"{path}: {key} has rows of different lengths")
+        return _numeric_array(value, path, key)
+    raise CameraError(f"{path}: {key} must be a matrix ({{rows, cols, data}} or a list of numbers), got {value!r}")
+
+
+def _image_size(document: Mapping, path: Path) -> tuple[Any, Any]:
+    width_key, height_key = _first_key(document, _WIDTH_KEYS), _first_key(document, _HEIGHT_KEYS)
+    if width_key and height_key:
+        return document[width_key], document[height_key]
+    size_key = _first_key(document, _SIZE_KEYS)
+    if size_key:
+        size = _matrix(document[size_key], path, size_key).ravel()
+        if size.size != 2:
+            raise CameraError(f"{path}: {size_key} must be [width, height], got {size.size} numbers")
+        return tuple(int(v) if float(v).is_integer() else float(v) for v in size)
+    missing = [keys[0] for keys, key in ((_WIDTH_KEYS, width_key), (_HEIGHT_KEYS, height_key)) if key is None]
+    raise CameraError(f"{path}: the image size is missing: no {' or '.join(repr(m) for m in missing)} "
+                      f"(also accepted: {', '.join(_WIDTH_KEYS[1:] + _HEIGHT_KEYS[1:] + _SIZE_KEYS)})")
+
+
+def _distortion(document: Mapping, path: Path) -> np.ndarray | None:
+    model_key = _first_key(document, ("distortion_model",))
+    model = document[model_key] if model_key else None
+    if model is not None and (not isinstance(model, str) or model not in _SUPPORTED_DISTORTION_MODELS):
+        raise CameraError(f"{path}: distortion_model {model!r} is not supported; gtsam_rotid uses OpenCV's "
+                          f"plumb_bob model (k1, k2, p1, p2, k3). Recalibrate with that model (ROS "
+                          f"camera_calibration's default, OpenCV's calibrateCamera without fisheye flags)")
+    key = _first_key(document, _DISTORTION_KEYS)
+    if key is None:
+        return None
+    dist = _matrix(document[key], path, key).ravel()
+    if dist.size in (0, 4, 5):
+        return dist if dist.size else None
+    if dist.size in (8, 12, 14) and not np.any(dist[5:]):
+        return dist[:5]
+    if dist.size in (8, 12, 14):
+        raise CameraError(f"{path}: {key} has {dist.size} coefficients with non-zero k4 and beyond "
+                          f"({dist[5:].tolist()}); gtsam_rotid supports the 5-coefficient model "
+                          f"(k1, k2, p1, p2, k3) only")
+    raise CameraError(f"{path}: {key} must hold 4 or 5 coefficients (k1, k2, p1, p2[, k3]), got {dist.size}")
+
+
+def load_camera(path: str | os.PathLike) -> Camera:
+    """A :class:`Camera` from an OpenCV calibration file or a ROS ``camera_info`` YAML.
+
+    Accepted: OpenCV's ``cv2.FileStorage`` YAML (``%YAML:1.0``; also its XML and JSON) with ``camera_matrix``
+    (or ``cameraMatrix`` / ``K``), ``distortion_coefficients`` (or ``distCoeffs`` / ``D``; absent means no
+    distortion), ``image_width`` and ``image_height`` (or ``image_size`` / ``imageSize`` = [w, h]); and ROS
+    ``camera_info`` YAML (``camera_matrix: {rows, cols, data}``, ``distortion_model: plumb_bob``, ...) or an
+    echoed ``CameraInfo`` message (``width``, ``height``, ``K`` / ``k``, ``D`` / ``d`` as flat lists).
+    Rectification and projection matrices are ignored (a monocular camera's raw image is used).
+
+    Raises :class:`CameraError` naming the file and the key at fault: a missing image size or camera matrix,
+    a matrix that is not 3x3, a distortion model other than plumb_bob (a rational model is accepted when its
+    extra coefficients are zero), unreadable or malformed files.
+    """
+    path = Path(path)
+    document = _read_camera_document(path)
+    if not isinstance(document, Mapping):
+        raise CameraError(f"{path}: a camera file must hold a mapping of keys (camera_matrix, image_width, ...), "
+                          f"got {type(document).__name__}")
+    k_key = _first_key(document, _CAMERA_MATRIX_KEYS)
+    if k_key is None:
+        raise CameraError(f"{path}: no camera matrix: expected the key 'camera_matrix' (or "
+                          f"{', '.join(repr(k) for k in _CAMERA_MATRIX_KEYS[1:])}); the file has "
+                          f"{', '.join(repr(str(k)) for k in document) or 'no keys'}")
+    K = _matrix(document[k_key], path, k_key)
+    if K.size == 9 and K.ndim == 1:
+        K = K.reshape(3, 3)
+    if K.shape != (3, 3):
+        raise CameraError(f"{path}: {k_key} must be a 3x3 matrix, got shape {K.shape}")
+    width, height = _image_size(document, path)
+    dist = _distortion(document, path)
+    try:
+        return Camera(K, width, height, dist)
+    except CameraError as exc:
+        raise CameraError(f"{path}: {exc}") from None
+
+
+# ---------------------------------------------------------------------------------------------- joint files
+@dataclass(frozen=True, eq=False)
+class JointFile:
+    """The content of a joint-angle file, in the arm's model order and radians.
+
+    ``positions`` is (N, dof); ``stamps`` is (N,) for a time series of joint states, ``None`` for a file of one
+    row per measurement. ``path`` is the file it came from (for messages).
+    """
+
+    path: Path
+    positions: np.ndarray
+    stamps: np.ndarray | None = None
+
+    @property
+    def is_time_series(self) -> bool:
+        return self.stamps is not None
+
+
+def _parse_number(text: str, where: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise RecordingError(f"{where}: {text!r} is not a number") from None
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _read_joint_csv(path: Path, text: str) -> tuple[list[str] | None, list[list[float]], list[float] | None]:
+    lines = [(n, line) for n, line in enumerate(text.splitlines(), 1)
+             if line.strip() and not line.lstrip().startswith("#")]
+    if not lines:
+        raise RecordingError(f"the joint file {path} is empty")
+    first = lines[0][1]
+    delimiter = next((d for d in (",", ";", "\t") if d in first), None)
+    if delimiter is None:
+        rows = [(n, line.split()) for n, line in lines]
+    else:
+        rows = [(n, [cell.strip() for cell in cells])
+                for (n, _), cells in zip(lines, csv.reader(io.StringIO("\n".join(line for _, line in lines)),
+                                                           delimiter=delimiter), strict=True)]
+    header = None
+    if not all(_is_number(cell) for cell in rows[0][1]):
+        header = rows.pop(0)[1]
+        if any(not cell for cell in header):
+            raise RecordingError(f"{path}: the header row has an empty column name: {header}")
+    if not rows:
+        raise RecordingError(f"the joint file {path} has a header but no rows of joint angles")
+    width = len(header) if header is not None else len(rows[0][1])
+    values = []
+    for n, cells in rows:
+        if len(cells) != width:
+            raise RecordingError(f"{path}, line {n}: {len(cells)} values, expected {width}"
+                                 + (f" (one per column of the header {header})" if header else ""))
+        values.append([_parse_number(cell, f"{path}, line {n}") for cell in cells])
+    stamps = None
+    if header is not None:
+        time_columns = [i for i, name in enumerate(header) if name.lower() in TIME_COLUMNS]
+        if len(time_columns) > 1:
+            raise RecordingError(f"{path}: more than one time column: {[header[i] for i in time_columns]}")
+        if time_columns:
+            column = time_columns[0]
+            stamps = [row.pop(column) for row in values]
+            header = header[:column] + header[column + 1:]
+    return header, values, stamps
+
+
+def _json_rows(rows: Any, path: Path, what: str) -> tuple[list[str] | None, list]:
+    """Rows of a JSON file: lists of numbers (model order) or dicts name -> angle."""
+    if not isinstance(rows, list) or not rows:
+        raise RecordingError(f"{path}: {what} must be a non-empty list of rows")
+    if all(isinstance(row, Mapping) for row in rows):
+        names = list(rows[0])
+        for i, row in enumerate(rows):
+            if set(row) != set(names):
+                raise RecordingError(f"{path}: {what} row {i} names the joints {sorted(row)}, but row 0 names "
+                                     f"{sorted(names)}")
+        return names, [[row[name] for name in names] for row in rows]
+    if not all(isinstance(row, list) for row in rows):
+        raise RecordingError(f"{path}: {what} must be a list of rows (lists of numbers or dicts name -> angle)")
+    return None, rows
+
+
+def _read_joint_json(path: Path, text: str) -> tuple[list[str] | None, list, list | None]:
+    try:
+        document = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise RecordingError(f"the joint file {path} is not valid JSON: {exc.msg} (line {exc.lineno})") from None
+    if isinstance(document, list):
+        names, rows = _json_rows(document, path, "the file")
+        return names, rows, None
+    if not isinstance(document, Mapping):
+        raise RecordingError(f"{path}: expected a list of rows or an object with 'joint_names', got "
+                             f"{type(document).__name__}")
+    names = document.get("joint_names")
+    if names is not None and (not isinstance(names, list) or not all(isinstance(n, str) for n in names)):
+        raise RecordingError(f"{path}: 'joint_names' must be a list of strings")
+    if "positions" in document or "stamps" in document:
+        for key in ("stamps", "positions"):
+            if key not in document:
+                raise RecordingError(f"{path}: a time series needs both 'stamps' and 'positions'; '{key}' is missing")
+        row_names, rows = _json_rows(document["positions"], path, "'positions'")
+        stamps = document["stamps"]
+        if not isinstance(stamps, list):
+            raise RecordingError(f"{path}: 'stamps' must be a list of numbers")
+        return names if row_names is None else row_names, rows, stamps
+    if "measurements" in document:
+        row_names, rows = _json_rows(document["measurements"], path, "'measurements'")
+        return names if row_names is None else row_names, rows, None
+    raise RecordingError(f"{path}: expected the key 'measurements' (one row per measurement) or 'stamps' and "
+                         f"'positions' (a time series); found {sorted(document)}")
+
+
+def _model_order(names: list[str] | None, values: np.ndarray, arm: Arm, path: Path,
+                 ignore_joints: Sequence[str]) -> np.ndarray:
+    """Columns of ``values`` (named ``names``, or model order when None) as (N, dof) in ``arm.joint_names`` order."""
+    if names is None:
+        if values.shape[1] != arm.dof:
+            raise RecordingError(f"{path}: rows have {values.shape[1]} values but the arm {arm.name!r} has "
+                                 f"{arm.dof} joints ({', '.join(arm.joint_names)}); add a header row naming the "
+                                 f"columns, or give one value per joint in this order")
+        return values
+    if len(names) != values.shape[1]:
+        raise RecordingError(f"{path}: {len(names)} joint names but rows have {values.shape[1]} values")
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise RecordingError(f"{path}: joint name(s) {duplicates} appear more than once")
+    ignored = set(ignore_joints)
+    unknown = [n for n in names if n not in arm.joint_names and n not in ignored]
+    missing = [n for n in arm.joint_names if n not in names]
+    if unknown or missing:
+        parts = []
+        if unknown:
+            parts.append(f"unknown joint name(s) {unknown}")
+        if missing:
+            parts.append(f"missing joint(s) {missing}")
+        raise RecordingError(f"{path}: {' and '.join(parts)}; the arm {arm.name!r} has the joints "
+                             f"{arm.joint_names}" + (" (pass ignore_joints / --ignore-joints for extra columns "
+                                                     "such as fingers)" if unknown and not missing else ""))
+    return values[:, [names.index(n) for n in arm.joint_names]]
+
+
+def read_joint_file(path: str | os.PathLike, arm: Arm, *, degrees: bool = False,
+                    ignore_joints: Sequence[str] = ()) -> JointFile:
+    """Read a joint-angle file (CSV or JSON; the format is told by the ``.json`` ending or a leading ``[`` / ``{``).
+
+    CSV: a header row naming the columns (joint names, and a ``time`` / ``stamp`` column for a time series), or
+    no header (one value per joint, ``arm.joint_names`` order). JSON: a list of rows (lists in model order or
+    dicts name -> angle), ``{"joint_names": [...], "measurements": [[...], ...]}``, or a time series
+    ``{"joint_names": [...], "stamps": [...], "positions": [[...], ...]}``.
+
+    Columns named in ``ignore_joints`` are dropped; any other name that is not one of ``arm.joint_names``, or a
+    joint without a column, is a :class:`RecordingError` listing them.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise RecordingError(f"no joint-angle file at {path}" if not path.exists() else
+                             f"the joint-angle file {path} is not a file")
+    try:
+        text = path.read_bytes().decode("utf-8-sig")
+    except OSError as exc:
+        raise RecordingError(f"cannot read the joint-angle file {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise RecordingError(f"the joint-angle file {path} is not a text file (not UTF-8)") from None
+    if path.suffix.lower() == ".json" or text.lstrip()[:1] in ("[", "{"):
+        names, rows, stamps = _read_joint_json(path, text)
+    else:
+        names, rows, stamps = _read_joint_csv(path, text)
+    widths = {len(row) for row in rows}
+    if len(widths) != 1:
+        raise RecordingError(f"{path}: rows have different numbers of values ({sorted(widths)})")
+    try:
+        values = np.array(rows, dtype=float)
+    except (TypeError, ValueError):
+        raise RecordingError(f"{path}: joint angles must be numbers") from None
+    bad = np.argwhere(~np.isfinite(values))
+    if bad.size:
+        row, column = bad[0]
+        name = names[column] if names is not None else f"column {column}"
+        raise RecordingError(f"{path}: row {row}: the angle of {name} is NaN or infinite")
+    positions = _model_order(names, values, arm, path, ignore_joints)
+    if degrees:
+        positions = np.radians(positions)
+    stamp_array = None
+    if stamps is not None:
+        try:
+            stamp_array = np.array(stamps, dtype=float)
+        except (TypeError, ValueError):
+            raise RecordingError(f"{path}: time stamps must be numbers") from None
+        if stamp_array.shape != (len(positions),):
+            raise RecordingError(f"{path}: {stamp_array.size} time stamps for {len(positions)} rows of positions")
+        if not np.all(np.isfinite(stamp_array)):
+            raise RecordingError(f"{path}: a time stamp is NaN or infinite")
+        backwards = np.flatnonzero(np.diff(stamp_array) < 0)
+        if backwards.size:
+            i = backwards[0]
+            raise RecordingError(f"{path}: time stamps must not decrease; row {i + 1} has {stamp_array[i + 1]:g} "
+                                 f"after {stamp_array[i]:g}")
+    return JointFile(path, positions, stamp_array)
+
+
+def _spin_runs(positions: np.ndarray, wrist_index: int, still_tolerance_deg: float,
+               min_spin_deg: float) -> list[tuple[int, int]]:
+    """Index ranges [a, b) of the spins in unwrapped (N, dof) positions (see :func:`find_spins`)."""
+    others = np.delete(positions, wrist_index, axis=1).tolist()
+    tolerance = math.radians(still_tolerance_deg)
+    runs = []
+    start = 0
+    low, high = list(others[0]), list(others[0])
+    for i in range(1, len(others)):
+        row = others[i]
+        new_low = [min(a, b) for a, b in zip(low, row, strict=True)]
+        new_high = [max(a, b) for a, b in zip(high, row, strict=True)]
+        if any(h - lo > tolerance for lo, h in zip(new_low, new_high, strict=True)):
+            runs.append((start, i))
+            start, low, high = i, list(row), list(row)
+        else:
+            low, high = new_low, new_high
+    runs.append((start, len(others)))
+    wrist = positions[:, wrist_index]
+    min_spin = math.radians(min_spin_deg)
+    return [(a, b) for a, b in runs if b - a >= 2 and np.ptp(wrist[a:b]) >= min_spin]
+
+
+def find_spins(stamps, positions, wrist_index: int, *, still_tolerance_deg: float = STILL_TOLERANCE_DEG,
+               min_spin_deg: float = MIN_SPIN_DEG) -> list[tuple[float, float]]:
+    """The (first, last) stamps of each spin in a time series of joint states.
+
+    The series is split, greedily in time, into the longest runs in which no joint but the wrist moves by more
+    than ``still_tolerance_deg`` (peak to peak); runs in which the wrist turns by at least ``min_spin_deg`` are
+    the spins. ``positions`` is (N, dof) radians; continuous joints may wrap at +-pi.
+    """
+    stamps = np.asarray(stamps, dtype=float)
+    unwrapped = np.unwrap(np.asarray(positions, dtype=float), axis=0)
+    return [(float(stamps[a]), float(stamps[b - 1]))
+            for a, b in _spin_runs(unwrapped, wrist_index, still_tolerance_deg, min_spin_deg)]
+
+
+def _label(k: int, labels: Sequence[str] | None) -> str:
+    return f"measurement {k}" + (f" ({labels[k]})" if labels is not None and k < len(labels) else "")
+
+
+def _still_pose(joint_file: JointFile, unwrapped: np.ndarray, inside: np.ndarray, arm: Arm, label: str,
+                still_tolerance_deg: float, min_spin_deg: float) -> np.ndarray:
+    """The arm pose held during one spin (samples ``inside``): median of the still joints, the wrist at its start."""
+    stamps = joint_file.stamps
+    t0, t1 = stamps[inside[0]], stamps[inside[-1]]
+    segment = unwrapped[inside]
+    motion = np.degrees(np.ptp(segment, axis=0))
+    wrist = arm.wrist_index
+    moved = [(arm.joint_names[j], motion[j]) for j in range(arm.dof) if j != wrist and motion[j] > still_tolerance_deg]
+    if moved:
+        listed = ", ".join(f"{name!r} by {deg:.3g} deg" for name, deg in moved)
+        raise RecordingError(f"{label}: only the wrist may move during a spin, but between the stamps {t0:g} and "
+                             f"{t1:g} the joint(s) {listed} moved (tolerance {still_tolerance_deg:g} deg, peak to "
+                             f"peak) in {joint_file.path}")
+    if motion[wrist] < min_spin_deg:
+        raise RecordingError(f"{label}: the wrist {arm.wrist_joint!r} turned by only {motion[wrist]:.3g} deg between "
+                             f"the stamps {t0:g} and {t1:g} (a spin needs at least {min_spin_deg:g} deg) in "
+                             f"{joint_file.path}")
+    pose = np.median(segment, axis=0)
+    pose[wrist] = joint_file.positions[inside[0], wrist]
+    return pose
+
+
+def load_joints(path: str | os.PathLike, arm: Arm, n_measurements: int | None = None, *, degrees: bool = False,
+                spans: Sequence[tuple[float, float]] | None = None,
+                still_tolerance_deg: float = STILL_TOLERANCE_DEG, min_spin_deg: float = MIN_SPIN_DEG,
+                ignore_joints: Sequence[str] = (), labels: Sequence[str] | None = None) -> np.ndarray:
+    """The joint angles of each measurement, (n_measurements, dof) radians in ``arm.joint_names`` order.
+
+    ``path`` is read by :func:`read_joint_file`. A file of one row per measurement must have
+    ``n_measurements`` rows (when given). For a time series, each measurement's span of stamps is ``spans[k]``
+    = (first, last) (inclusive, in the file's time unit), or, when ``spans`` is None, found by
+    :func:`find_spins`; the still joints are the median over the span, the wrist is its angle at the span's
+    start. Every non-wrist joint must stay within ``still_tolerance_deg`` (peak to peak) and the wrist must
+    turn by at least ``min_spin_deg``, else a :class:`RecordingError` names the measurement (with its
+    ``labels[k]``, e.g. the video), the joint and how much it moved.
+    """
+    joint_file = read_joint_file(path, arm, degrees=degrees, ignore_joints=ignore_joints)
+    if n_measurements is not None and (isinstance(n_measurements, bool) or not isinstance(n_measurements, int)
+                                       or n_measurements < 1):
+        raise InputError(f"n_measurements must be a positive integer, got {n_measurements!r}")
+    if not joint_file.is_time_series:
+        if spans is not None:
+            raise RecordingError(f"{joint_file.path} has one row per measurement (no time column); spans apply "
+                                 f"only to a time series of joint states")
+        rows = len(joint_file.positions)
+        if n_measurements is not None and rows != n_measurements:
+            raise RecordingError(f"{joint_file.path} has {rows} row(s) of joint angles (one per measurement) but "
+                                 f"there are {n_measurements} measurements (videos)")
+        return joint_file.positions.copy()
+    unwrapped = np.unwrap(joint_file.positions, axis=0)
+    stamps = joint_file.stamps
+    if spans is None:
+        runs = _spin_runs(unwrapped, arm.wrist_index, still_tolerance_deg, min_spin_deg)
+        if not runs or (n_measurements is not None and len(runs) != n_measurements):
+            found = "; ".join(f"{stamps[a]:g} to {stamps[b - 1]:g}" for a, b in runs) or "none"
+            expected = f", expected {n_measurements} (one per video)" if n_measurements is not None else ""
+            raise RecordingError(f"{joint_file.path}: found {len(runs)} spin(s) (time spans in which only the wrist "
+                                 f"{arm.wrist_joint!r} moved, by at least {min_spin_deg:g} deg, the other joints "
+                                 f"within {still_tolerance_deg:g} deg){expected}: {found}. Give each video's time "
+                                 f"span explicitly (spans / --spans), or adjust still_tolerance_deg / min_spin_deg")
+        selections = [np.arange(a, b) for a, b in runs]
+    else:
+        spans = [tuple(span) for span in spans]
+        if any(len(span) != 2 for span in spans):
+            raise InputError("each span must be a pair (first stamp, last stamp)")
+        if n_measurements is not None and len(spans) != n_measurements:
+            raise RecordingError(f"{len(spans)} time span(s) given for {n_measurements} measurements (videos)")
+        selections = []
+        for k, (t0, t1) in enumerate(spans):
+            t0, t1 = float(t0), float(t1)
+            if not t0 <= t1:
+                raise RecordingError(f"{_label(k, labels)}: its time span starts at {t0:g} after it ends at {t1:g}")
+            inside = np.flatnonzero((stamps >= t0) & (stamps <= t1))
+            if inside.size < 2:
+                raise RecordingError(f"{_label(k, labels)}: the joint time series in {joint_file.path} has "
+                                     f"{inside.size} sample(s) between the stamps {t0:g} and {t1:g} (it spans "
+                                     f"{stamps[0]:g} to {stamps[-1]:g}); a spin needs at least 2")
+            selections.append(inside)
+    return np.array([_still_pose(joint_file, unwrapped, inside, arm, _label(k, labels), still_tolerance_deg,
+                                 min_spin_deg) for k, inside in enumerate(selections)])
+
+
+# ---------------------------------------------------------------------------------------------- frames
+def _natural_key(path: Path) -> list:
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", path.name)]
+
+
+def _image_files(folder: Path) -> list[Path]:
+    return sorted((p for p in folder.iterdir()
+                   if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES),
+                  key=_natural_key)
+
+
+def _checked_range(frame_range, path: Path) -> tuple[int, int | None]:
+    if frame_range is None:
+        return 0, None
+    if isinstance(frame_range, slice):
+        if frame_range.step not in (None, 1):
+            raise InputError(f"{path}: a frame range cannot have a step, got {frame_range}")
+        frame_range = (frame_range.start, frame_range.stop)
+    try:
+        start, stop = frame_range
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: a frame range must be (start, stop), got {frame_range!r}") from None
+    start = 0 if start is None else start
+    for name, value in (("start", start), ("stop", stop)):
+        if value is not None and (isinstance(value, bool) or not float(value).is_integer() or value < 0):
+            raise InputError(f"{path}: frame range {name} must be a non-negative integer, got {value!r}")
+    start, stop = int(start), None if stop is None else int(stop)
+    if stop is not None and stop <= start:
+        raise InputError(f"{path}: the frame range {start}:{stop} is empty (stop must exceed start)")
+    return start, stop
+
+
+def _range_text(start: int, stop: int | None) -> str:
+    return f"{start}:{'' if stop is None else stop}"
+
+
+def _as_uint8(image: np.ndarray, where: str) -> np.ndarray:
+    if image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        raise RecordingError(f"{where}: images must be 8- or 16-bit, got {image.dtype}")
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+    return image
+
+
+def _folder_frames(files: list[Path], start: int, stop: int | None) -> Iterator[np.ndarray]:
+    shape = None
+    for file in files[start:stop]:
+        image = cv2.imread(os.fspath(file), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise RecordingError(f"cannot read the image {file} (not an image OpenCV can decode)")
+        image = _as_uint8(image, os.fspath(file))
+        if shape is None:
+            shape = image.shape
+        elif image.shape != shape:
+            raise RecordingError(f"the image {file} is {image.shape[1]}x{image.shape[0]} with shape {image.shape}, "
+                                 f"but the folder's first image has shape {shape}")
+        yield image
+
+
+def _video_frames(path: Path, start: int, stop: int | None) -> Iterator[np.ndarray]:
+    capture = cv2.VideoCapture(os.fspath(path))
+    try:
+        if not capture.isOpened():
+            raise RecordingError(f"cannot open the video {path}")
+        index = 0
+        while stop is None or index < stop:
+            if not capture.grab():
+                break
+            if index >= start:
+                ok, frame = capture.retrieve()
+                if not ok or frame is None:
+                    raise RecordingError(f"the video {path}: frame {index} cannot be decoded")
+                yield _as_uint8(frame, f"the video {path}, frame {index}")
+            index += 1
+    finally:
+        capture.release()
+    if index == 0:
+        raise RecordingError(f"the video {path} has no frames (OpenCV decodes none)")
+    if (stop is not None and index < stop) or index <= start:
+        raise RecordingError(f"the video {path} has {index} frames (0 to {index - 1}); the frame range "
+                             f"{_range_text(start, stop)} goes beyond its end")
+
+
+@dataclass(frozen=True)
+class _Source:
+    """A checked video or image folder; ``count`` is exact for a folder, OpenCV's estimate (or None) for a video."""
+
+    path: Path
+    is_folder: bool
+    count: int | None
+    files: tuple[Path, ...] = ()
+
+
+def _open_source(path: str | os.PathLike) -> _Source:
+    """Check that ``path`` is a readable video with a frame, or a folder holding images."""
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(f"no video or image folder at {path}")
+    if path.is_dir():
+        files = _image_files(path)
+        if not files:
+            raise RecordingError(f"the image folder {path} holds no images ({', '.join(IMAGE_SUFFIXES)})")
+        return _Source(path, True, len(files), tuple(files))
+    capture = cv2.VideoCapture(os.fspath(path))
+    try:
+        if not capture.isOpened():
+            raise RecordingError(f"cannot open the video {path}: OpenCV cannot decode it (not a video, a damaged "
+                                 f"file, or a codec this OpenCV build lacks)")
+        if not capture.grab():
+            raise RecordingError(f"the video {path} has no frames (OpenCV decodes none)")
+        reported = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+    finally:
+        capture.release()
+    return _Source(path, False, reported if reported > 0 else None)
+
+
+def _frames_of(source: _Source, frame_range) -> tuple[Iterator[np.ndarray], int | None, int]:
+    """(frame iterator, expected number of frames or None, first frame index) of a checked source."""
+    start, stop = _checked_range(frame_range, source.path)
+    if source.is_folder:
+        n = source.count
+        if start >= n or (stop is not None and stop > n):
+            raise RecordingError(f"the image folder {source.path} has {n} images (frames 0 to {n - 1}); the frame "
+                                 f"range {_range_text(start, stop)} goes beyond its end")
+        return _folder_frames(list(source.files), start, stop), (n if stop is None else stop) - start, start
+    expected = None
+    if source.count is not None:
+        end = source.count if stop is None else min(stop, source.count)
+        expected = max(end - start, 0) or None
+    elif stop is not None:
+        expected = stop - start
+    return _video_frames(source.path, start, stop), expected, start
+
+
+def read_frames(path: str | os.PathLike, frame_range: tuple[int | None, int | None] | None = None
+                ) -> Iterator[np.ndarray]:
+    """The uint8 frames of a video file or of an image folder (images sorted by name, numbers in natural order).
+
+    ``frame_range`` = (start, stop) keeps frames ``start <= i < stop`` (either may be None). The path is checked
+    at once (missing, not a video OpenCV can open, no frames, an empty folder, a range beyond a folder's end:
+    :class:`RecordingError`); a range beyond a video's end is found when reading reaches it. Video frames are
+    BGR as OpenCV decodes them; images are read unchanged (grey stays grey; 16-bit is scaled to 8-bit; an
+    alpha channel is dropped).
+    """
+    frames, _, _ = _frames_of(_open_source(path), frame_range)
+    return frames
+
+
+def _checked_size(frames: Iterable[np.ndarray], camera: Camera, path: Path) -> Iterator[np.ndarray]:
+    for i, frame in enumerate(frames):
+        if i == 0 and (frame.shape[1], frame.shape[0]) != (camera.width, camera.height):
+            raise RecordingError(f"{path}: the frames are {frame.shape[1]}x{frame.shape[0]} pixels but the camera "
+                                 f"is {camera.width}x{camera.height}; the camera file must describe this video")
+        yield frame
+
+
+def _counted(frames: Iterable[np.ndarray], bar: tqdm) -> Iterator[np.ndarray]:
+    """``frames``, advancing ``bar`` by one per frame (a plain generator: no ``len``, as a tracker may ask)."""
+    for frame in frames:
+        yield frame
+        bar.update(1)
+
+
+# ---------------------------------------------------------------------------------------------- dataset
+def _tracker_description(tracker: Callable, params: Any) -> dict:
+    description: dict[str, Any] = {"function": f"{getattr(tracker, '__module__', '?')}."
+                                               f"{getattr(tracker, '__qualname__', type(tracker).__name__)}"}
+    if params is not None:
+        value = dataclasses.asdict(params) if dataclasses.is_dataclass(params) and not isinstance(params, type) \
+            else params
+        try:
+            json.dumps(value, allow_nan=False)
+        except (TypeError, ValueError):
+            value = repr(params)
+        description["params"] = value
+    return description
+
+
+def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | str | os.PathLike, arm: Arm, *,
+                 tracker: Callable | None = None, tracker_params: Any = None,
+                 frame_ranges: Sequence[tuple[int | None, int | None] | None] | None = None,
+                 progress: bool = True, joint_options: Mapping | None = None,
+                 metadata: Mapping | None = None) -> Dataset:
+    """A :class:`Dataset` from one video (file or image folder) per measurement.
+
+    Args:
+        videos: one video file or image folder per measurement (the measurement is named after it).
+        joints: (n, dof) joint angles in radians, ``arm.joint_names`` order (or a list of dicts name -> angle),
+            or the path of a joint-angle file read by :func:`load_joints` with ``joint_options`` (e.g.
+            ``{"degrees": True}``).
+        camera: a :class:`Camera`, or the path of a camera file read by :func:`load_camera`.
+        arm: the robot arm.
+        tracker: ``tracker(frames, params=tracker_params) -> list of Track`` (or of (N, 2) pixel arrays); frames
+            is an iterator of uint8 images. Default :func:`gtsam_rotid.tracking.track`.
+        frame_ranges: one (start, stop) or None per video (frames ``start <= i < stop``); track frame indices
+            are the video's own frame numbers.
+        progress: show tqdm progress bars (over videos, and over each video's frames).
+        joint_options: keyword arguments of :func:`load_joints` when ``joints`` is a path (``degrees``,
+            ``spans``, ``still_tolerance_deg``, ``min_spin_deg``, ``ignore_joints``).
+        metadata: extra dataset metadata (merged with a ``"recording"`` entry naming the sources).
+
+    Every video is checked before any tracking (missing, unreadable, empty, a range beyond a folder's end);
+    a range beyond a video's end, frames of another size than the camera's, or fewer than 2 tracks in a video
+    raise a :class:`RecordingError` naming the video.
+    """
+    if isinstance(videos, (str, os.PathLike)):
+        videos = [videos]
+    videos = [Path(v) for v in videos]
+    if not videos:
+        raise InputError("no videos given: a dataset needs one video or image folder per measurement")
+    if not isinstance(arm, Arm):
+        raise InputError(f"arm must be a gtsam_rotid.arm.Arm, got {type(arm).__name__}")
+    n = len(videos)
+    if frame_ranges is None:
+        frame_ranges = [None] * n
+    frame_ranges = list(frame_ranges)
+    if len(frame_ranges) != n:
+        raise InputError(f"{len(frame_ranges)} frame range(s) for {n} video(s); give one per video (None for all "
+                         f"frames)")
+    camera_file = None
+    if not isinstance(camera, Camera):
+        camera_file = os.fspath(camera)
+        camera = load_camera(camera)
+    joints_file = None
+    labels = [v.name for v in videos]
+    if isinstance(joints, (str, os.PathLike)):
+        joints_file = os.fspath(joints)
+        joints = load_joints(joints, arm, n, labels=labels, **dict(joint_options or {}))
+    elif joint_options:
+        raise InputError("joint_options apply only when joints is the path of a joint-angle file")
+    if isinstance(joints, np.ndarray) and joints.ndim != 2:
+        raise InputError(f"joints must be (n, dof) joint angles, one row per video, got shape {joints.shape}")
+    joints = list(joints)
+    if len(joints) != n:
+        raise InputError(f"{len(joints)} row(s) of joint angles for {n} video(s); give one per video")
+    angles = []
+    for k, row in enumerate(joints):
+        try:
+            angles.append(arm.joint_angle_vector(row))
+        except ArmError as exc:
+            raise InputError(f"{_label(k, labels)}: {exc}") from None
+    sources = [_open_source(v) for v in videos]  # fail fast, before the slow tracking
+    checked_ranges = [_checked_range(r, v) for r, v in zip(frame_ranges, videos, strict=True)]
+    if tracker is None:
+        from .tracking import track as tracker
+    measurements = []
+    with tqdm(total=n, desc="videos", unit="video", disable=not progress, file=sys.stderr) as bar:
+        for k, (source, frame_range) in enumerate(zip(sources, checked_ranges, strict=True)):
+            frames, expected, first = _frames_of(source, frame_range)
+            frames = _checked_size(frames, camera, source.path)
+            with tqdm(total=expected, desc=source.path.name, unit="frame", leave=False, disable=not progress,
+                      file=sys.stderr) as frame_bar:
+                found = tracker(_counted(frames, frame_bar), params=tracker_params)
+            if found is None or isinstance(found, (Track, np.ndarray)):
+                raise InputError(f"the tracker must return a list of Track for {source.path}, got "
+                                 f"{type(found).__name__}")
+            tracks = []
+            for j, item in enumerate(found):
+                track = Track.from_any(item, measurement=k, track=j)
+                if track.frames is not None and first:
+                    track = Track(track.pixels, track.frames + first)
+                tracks.append(track)
+            if len(tracks) < 2:
+                raise RecordingError(f"{_label(k, labels)}: the tracker found {len(tracks)} track(s) in {source.path}; "
+                                     f"a measurement needs at least 2 (are features on the spinning end effector "
+                                     f"visible and in focus?)")
+            measurements.append(Measurement(angles[k], tracks, name=source.path.name))
+            bar.update(1)
+    recording = {
+        "videos": [os.fspath(v) for v in videos],
+        "frame_ranges": [None if given is None else list(checked)
+                         for given, checked in zip(frame_ranges, checked_ranges, strict=True)],
+        "joints_file": joints_file,
+        "joint_options": dict(joint_options or {}),
+        "camera_file": camera_file,
+        "tracker": _tracker_description(tracker, tracker_params),
+    }
+    return Dataset(arm, camera, measurements, metadata={"recording": recording, **dict(metadata or {})})
+
+
+# ---------------------------------------------------------------------------------------------- command line
+def _parse_pair(text: str, what: str, convert: Callable[[str], Any]) -> tuple[Any, Any]:
+    if text.count(":") != 1:
+        raise InputError(f"{what} {text!r} must be START:STOP (either may be empty)")
+    start, stop = (part.strip() for part in text.split(":"))
+    try:
+        return (convert(start) if start else None), (convert(stop) if stop else None)
+    except ValueError:
+        raise InputError(f"{what} {text!r} must be START:STOP with numbers") from None
+
+
+def _videos_in(folder: Path) -> list[Path]:
+    if not folder.is_dir():
+        raise RecordingError(f"--videos-dir {folder} is not a directory")
+    entries = sorted((p for p in folder.iterdir() if not p.name.startswith(".") and
+                      (p.is_dir() or p.suffix.lower() in VIDEO_SUFFIXES)), key=_natural_key)
+    if not entries:
+        hint = " (it holds images: pass it with --video as one image folder)" if _image_files(folder) else ""
+        raise RecordingError(f"--videos-dir {folder} holds no videos ({', '.join(VIDEO_SUFFIXES)}) and no image "
+                             f"folders{hint}")
+    return entries
+
+
+def cmd_track(args: argparse.Namespace) -> int:
+    """``gtsam-rotid track``: videos + joint angles + camera file -> a dataset directory."""
+    output = Path(args.output)
+    if os.path.lexists(output) and not args.overwrite:
+        raise DatasetExistsError(f"{output} exists; pass --overwrite to replace it")
+    videos = [Path(v) for v in args.videos] if args.videos else _videos_in(Path(args.videos_dir))
+    frame_ranges = None
+    if args.frames:
+        if len(args.frames) != len(videos):
+            raise InputError(f"{len(args.frames)} --frames range(s) for {len(videos)} video(s); give one START:STOP "
+                             f"per video (':' for all frames)")
+        frame_ranges = [_parse_pair(text, "--frames", int) for text in args.frames]
+    spans = None
+    if args.spans:
+        spans = [_parse_pair(text, "--spans", float) for text in args.spans]
+        if any(a is None or b is None for a, b in spans):
+            raise InputError("each --spans entry needs both its first and last stamp, T0:T1")
+    arm = Arm.from_urdf(args.urdf, wrist_joint=args.wrist_joint) if args.urdf else \
+        Arm.from_robot(args.robot, wrist_joint=args.wrist_joint)
+    joint_options = {"degrees": bool(args.degrees), "spans": spans, "still_tolerance_deg": args.still_tolerance,
+                     "min_spin_deg": args.min_spin, "ignore_joints": list(args.ignore_joints)}
+    print(f"{len(videos)} video(s); {arm!r}", flush=True)
+    dataset = make_dataset(videos, args.joints, args.camera, arm, frame_ranges=frame_ranges,
+                           progress=not args.no_progress, joint_options=joint_options)
+    dataset.save(output, overwrite=args.overwrite)
+    print(dataset.summary())
+    print(f"wrote {output}")
+    return 0
+
+
+def add_track_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``track`` command to an ``argparse`` subparsers object; returns its parser (func = cmd_track)."""
+    p = subparsers.add_parser(
+        "track", help="make a dataset from recorded videos, joint angles and a camera file",
+        description="Track features in one video (or image folder) per arm pose and write a dataset. The joint "
+                    "file is CSV or JSON: one row of angles per video, or a time series of joint states "
+                    "(a time/stamp column) from which each spin's still joints are read.")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--video", "--videos", dest="videos", nargs="+", metavar="VIDEO",
+                        help="one video file or image folder per measurement, in the joint file's order")
+    source.add_argument("--videos-dir", metavar="DIR",
+                        help="a directory whose videos and image folders (sorted by name) are the measurements")
+    p.add_argument("--joints", required=True, metavar="FILE", help="joint-angle file (CSV or JSON)")
+    p.add_argument("--camera", required=True, metavar="CAMERA_YAML",
+                   help="OpenCV calibration YAML or ROS camera_info YAML")
+    robot = p.add_mutually_exclusive_group(required=True)
+    robot.add_argument("--robot", metavar="NAME", help="example-robot-data arm (kinova, ur5, ur10, panda, xarm7)")
+    robot.add_argument("--urdf", metavar="FILE", help="the arm's URDF")
+    p.add_argument("--wrist-joint", metavar="NAME", help="the spinning joint (default: the last revolute joint)")
+    p.add_argument("--frames", nargs="+", metavar="START:STOP",
+                   help="frame range per video (stop exclusive; ':' = all frames)")
+    p.add_argument("--spans", nargs="+", metavar="T0:T1",
+                   help="time span of each video's spin in the joint time series (default: found automatically)")
+    p.add_argument("--degrees", action="store_true", help="the joint file is in degrees (default radians)")
+    p.add_argument("--still-tolerance", type=float, default=STILL_TOLERANCE_DEG, metavar="DEG",
+                   help=f"largest motion of a non-wrist joint during a spin (default {STILL_TOLERANCE_DEG})")
+    p.add_argument("--min-spin", type=float, default=MIN_SPIN_DEG, metavar="DEG",
+                   help=f"smallest wrist rotation that counts as a spin (default {MIN_SPIN_DEG:g})")
+    p.add_argument("--ignore-joints", nargs="+", default=(), metavar="NAME",
+                   help="joint-file columns to ignore (e.g. fingers)")
+    p.add_argument("-o", "--output", required=True, metavar="DATASET", help="dataset directory to write")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing dataset")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_track)
+    return p
