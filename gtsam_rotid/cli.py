@@ -1,4 +1,4 @@
-"""Command line: ``gtsam-rotid {simulate,calibrate,demo,track} ...``. Thin: it parses and calls library functions."""
+"""Command line: ``gtsam-rotid {simulate,calibrate,demo,track,report,export}``; thin: parses, calls the library."""
 
 from __future__ import annotations
 
@@ -9,8 +9,10 @@ import time
 from pathlib import Path
 
 from . import __version__
-from .errors import RotIdError
+from .errors import OutputError, RotIdError
+from .export import add_export_parser
 from .recordings import add_track_parser
+from .report import add_report_parser
 
 SCENES = ("reference", "single-crossing")
 #: ``gtsam_rotid.estimate.Method`` values (kept literal so that ``--help`` does not import the estimator).
@@ -18,10 +20,6 @@ METHODS = ("joint", "weighted", "paper")
 TRUTH_FILE = "truth.json"
 DATASET_FILE = "dataset.json"
 RESULT_FILE = "result.json"
-
-
-class OutputError(RotIdError):
-    """An output file the command should write exists (without --overwrite) or cannot be written."""
 
 
 def _simulate_scene(scene: str, seed: int, **changes):
@@ -232,6 +230,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_demo)
 
     add_track_parser(sub)
+    add_report_parser(sub)
+    add_export_parser(sub)
     return parser
 
 

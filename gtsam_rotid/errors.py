@@ -54,6 +54,10 @@ class DatasetNotFoundError(RotIdError, FileNotFoundError):
     """No dataset at the given path (the directory or one of its files is missing)."""
 
 
+class OutputError(RotIdError):
+    """An output file to write exists (and overwriting was not asked for) or cannot be written."""
+
+
 class RecordingError(InputError):
     """A video, image folder, frame range or joint-angle file that cannot be used (the message names it)."""
 

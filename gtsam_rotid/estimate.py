@@ -124,6 +124,13 @@ class MeasurementReport:
     rejected_tracks: dict[int, str] = field(default_factory=dict)
     #: why the measurement is an outlier ("" when it is not)
     outlier_reason: str = ""
+    #: the FK wrist axis of this arm pose (arm frame, m): a point on it and its unit direction
+    axis_point: list[float] | None = None
+    axis_direction: list[float] | None = None
+    #: the stage-1 image axis (homogeneous line, ``l1^2 + l2^2 = 1``, ideal pixels)
+    image_axis: list[float] | None = None
+    #: chi-square (2 dof) of its image axis against the FK axis projected by the estimate (weighted and joint)
+    axis_chi2: float | None = None
 
 
 @dataclass
@@ -139,6 +146,9 @@ class CalibrationResult:
     measurements: list[MeasurementReport]
     observability: Observability
     sigma_px: float  # pixel noise estimated from the residuals
+    #: residual degrees of freedom of ``final_error``'s graph (residuals minus parameters); 2 * final_error is
+    #: its chi-square at the noise the graph assumed
+    dof: int | None = None
 
     @property
     def covariance_usable(self) -> bool:
@@ -203,6 +213,7 @@ class CalibrationResult:
             "iterations": self.iterations,
             "final_error": self.final_error,
             "sigma_px": self.sigma_px,
+            "dof": self.dof,
             "measurements": [
                 {**asdict(m), "rejected_tracks": {str(k): v for k, v in m.rejected_tracks.items()}}
                 for m in self.measurements
@@ -222,12 +233,19 @@ class CalibrationResult:
             iterations=data["iterations"],
             final_error=data["final_error"],
             sigma_px=data["sigma_px"],
+            dof=data.get("dof"),
             measurements=[
                 MeasurementReport(**{**m, "rejected_tracks": {int(k): v for k, v in m["rejected_tracks"].items()}})
                 for m in data["measurements"]
             ],
             observability=Observability.from_dict(data["observability"]),
         )
+
+    def report(self, dataset=None, **kwargs):
+        """The covariance report (:func:`gtsam_rotid.report.make_report`): numbers as fields, ``.to_text()``."""
+        from .report import make_report  # the report module sits above the estimator in the data flow
+
+        return make_report(self, dataset, **kwargs)
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
         write_json_atomic(path, self.to_dict(), overwrite=overwrite, indent=1)
@@ -632,16 +650,22 @@ def _check_scale(result: CalibrationResult, setup: _Setup, stage1: list[_Stage1]
 
 
 def _finish(pose, covariance, info, method, converged, iterations, error, reports, sigma_px,
-            info_scale: float = 1.0) -> CalibrationResult:
+            info_scale: float = 1.0, dof: int | None = None) -> CalibrationResult:
     """Result with the observability of ``info * info_scale`` (the scale makes it a real information)."""
     observability = analyse_observability(info * info_scale, pose)
     if covariance is None or not observability.is_observable:
         covariance = observability.covariance(info)
     return CalibrationResult(pose, covariance, method.value, bool(converged), int(iterations), float(error),
-                             reports, observability, float(sigma_px))
+                             reports, observability, float(sigma_px), dof)
 
 
-def _reports(stage1: list[_Stage1], sigmas: dict[int, float], used: list[int], options,
+def _graph_dof(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> int:
+    """Residuals minus parameters of a graph at its values."""
+    residuals = sum(graph.at(i).dim() for i in range(graph.size()))
+    return int(residuals - values.dim())
+
+
+def _reports(stage1: list[_Stage1], setup: _Setup, sigmas: dict[int, float], used: list[int], options,
              chi2: dict[int, float] | None = None) -> list[MeasurementReport]:
     median = float(np.median([sigmas[k] for k in used]))
     reports = []
@@ -653,8 +677,13 @@ def _reports(stage1: list[_Stage1], sigmas: dict[int, float], used: list[int], o
         if excluded:
             reason = (f"left out: its image axis disagrees with the FK axis projected by the estimate (chi-square "
                       f"{chi2[k]:.3g} > {options.outlier_measurement_chi2:g}, 2 dof); check its joint angles")
-        reports.append(MeasurementReport(k, len(s.keys.tracks) - len(s.outliers), s.n_points, float(sigma),
-                                         0.0 if excluded else median**2 / sigma**2, excluded, rejected, reason))
+        axis = setup.axes[k]
+        reports.append(MeasurementReport(
+            k, len(s.keys.tracks) - len(s.outliers), s.n_points, float(sigma),
+            0.0 if excluded else median**2 / sigma**2, excluded, rejected, reason,
+            axis_point=[float(v) for v in axis.point], axis_direction=[float(v) for v in axis.direction],
+            image_axis=[float(v) for v in s.line / np.hypot(s.line[0], s.line[1])],
+            axis_chi2=None if chi2 is None else float(chi2[k])))
     _flag_outlier_measurements(reports, options)
     return reports
 
@@ -681,14 +710,14 @@ def _paper(camera, setup, stage1, init_pose, options) -> CalibrationResult:
     values = gtsam.Values()
     values.insert(POSE_KEY, pose)
     sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
-    reports = _reports(stage1, sigmas, list(range(len(stage1))), options)
+    reports = _reports(stage1, setup, sigmas, list(range(len(stage1))), options)
     for r in reports:
         r.weight = 1.0
     # The paper's covariance assumes 1 px line errors; judge what is determined with the residual scale.
     dof = 2 * len(stage1) - 6
     line_var = max(2.0 * error / dof, options.min_sigma_px**2) if dof > 0 else 1.0
     return _finish(pose, None, pose_information(graph, values, POSE_KEY), Method.PAPER, True, iterations, error,
-                   reports, np.median(list(sigmas.values())), info_scale=1.0 / line_var)
+                   reports, np.median(list(sigmas.values())), info_scale=1.0 / line_var, dof=_graph_dof(graph, values))
 
 
 def _weighted(camera, setup, stage1, init_pose, options) -> CalibrationResult:
@@ -696,9 +725,9 @@ def _weighted(camera, setup, stage1, init_pose, options) -> CalibrationResult:
     values = gtsam.Values()
     values.insert(POSE_KEY, pose)
     sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
-    reports = _reports(stage1, sigmas, used, options, chi2)
+    reports = _reports(stage1, setup, sigmas, used, options, chi2)
     return _finish(pose, None, pose_information(graph, values, POSE_KEY), Method.WEIGHTED, True, iterations,
-                   graph.error(values), reports, np.median([sigmas[k] for k in used]))
+                   graph.error(values), reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(graph, values))
 
 
 def _joint(arm, camera, measurements, setup, stage1, init_pose, options) -> CalibrationResult:
@@ -737,7 +766,7 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options) -> Cali
         if stable:
             break
     info = pose_information(graph, result, POSE_KEY)
-    reports = _reports(stage1, sigmas, used, options, chi2)
+    reports = _reports(stage1, setup, sigmas, used, options, chi2)
     if options.spin_model == "rigid" and builder.model is Model.LINE:
         rigid = _rigid_spin(camera, measurements, setup, keys, result, sigmas, options)
         if rigid is not None:
@@ -751,7 +780,7 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options) -> Cali
     except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
         covariance = None
     return _finish(pose, covariance, info, Method.JOINT, converged, iterations, error, reports,
-                   np.median(list(sigmas.values())))
+                   np.median(list(sigmas.values())), dof=_graph_dof(graph, result))
 
 
 def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options):

@@ -1,0 +1,436 @@
+"""Export ``arm_T_camera`` and its covariance for other tools: YAML, JSON, a URDF joint, a ROS 2
+``static_transform_publisher`` command line, a 4x4 matrix.
+
+**The covariance layout of the exports** is ROS's ``geometry_msgs/PoseWithCovariance``: 6x6, row-major,
+order ``(x, y, z, rotation about X, rotation about Y, rotation about Z)``, metres and radians, everything in
+the *parent* (arm-base) frame:
+
+- ``(x, y, z)``: the camera origin in the parent frame; its error is ``t_true - t``;
+- rotation: the small rotation ``dtheta`` about the parent's fixed X, Y, Z axes that takes the estimate to
+  the truth, ``R_true = Exp(dtheta) R`` (a left perturbation; not increments of roll/pitch/yaw angles, which
+  differ from it except near the identity).
+
+**Conversion from GTSAM.** The library's covariance is in GTSAM's Pose3 tangent ``xi = (w, rho)``: rotation
+first, then translation, perturbation on the right, ``T_true = T Exp(xi)``, both in the *camera* frame. To first
+order ``R Exp(w) = Exp(R w) R`` and ``t_true = t + R rho``, so the ROS vector is ``y = J xi`` with::
+
+    J = [[0, R],
+         [R, 0]]          (R = arm_R_camera)
+
+and ``Sigma_ros = J Sigma J^T``; ``J`` is orthogonal, so ``Sigma = J^T Sigma_ros J`` converts back
+(:func:`ros_covariance`, :func:`gtsam_covariance`; ``tests/test_export.py`` checks both by sampling).
+
+The parent-frame layout does not change when the child frame is turned by a fixed rotation: the camera's
+OpenCV *optical* frame (x right, y down, z forward; ROS REP 103's ``*_optical_frame``, the default) and the
+ROS *body* convention (x forward, y left, z up; ``camera_link``) share it, only the pose differs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+import shlex
+import sys
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from .errors import InputError, OutputError
+
+FORMAT_MARKER = "gtsam_rotid.transform"
+FORMAT_VERSION = 1
+PARENT_FRAME = "base_link"
+JOINT_NAME = "camera_joint"
+#: ``optical_R_body``: maps ROS body-frame coordinates (x forward, y left, z up) to OpenCV optical-frame
+#: coordinates (x right, y down, z forward); its columns are the body axes seen in the optical frame.
+OPTICAL_R_BODY = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+COVARIANCE_CONVENTION = (
+    "geometry_msgs/PoseWithCovariance: 6x6 row-major, (x, y, z, rotation about X, Y, Z) of the parent frame, "
+    "metres and radians; position error t_true - t in the parent frame; rotation error dtheta with "
+    "R_true = Exp(dtheta) R about the parent's fixed axes")
+#: Frame and link names: ROS-style identifiers (no spaces or quotes, so they are safe in XML and in a shell).
+_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_./-]*$")
+
+
+class Format(StrEnum):
+    YAML = "yaml"
+    JSON = "json"
+    URDF = "urdf"
+    ROS2 = "ros2"
+    MATRIX = "matrix"
+
+
+class CameraFrame(StrEnum):
+    #: OpenCV optical frame (x right, y down, z forward): the frame the calibration estimates.
+    OPTICAL = "optical"
+    #: ROS body convention (REP 103: x forward, y left, z up), e.g. a URDF's ``camera_link``.
+    BODY = "body"
+
+
+DEFAULT_CHILD = {CameraFrame.OPTICAL: "camera_optical_frame", CameraFrame.BODY: "camera_link"}
+
+
+# ---------------------------------------------------------------------------------------------------
+# covariance conversion
+
+
+def tangent_to_ros(arm_T_camera: gtsam.Pose3) -> np.ndarray:
+    """6x6 ``J`` with ``y_ros = J xi``: GTSAM Pose3 tangent (w, rho; camera frame) to (dt, dtheta; parent)."""
+    R = arm_T_camera.rotation().matrix()
+    J = np.zeros((6, 6))
+    J[:3, 3:] = R
+    J[3:, :3] = R
+    return J
+
+
+def ros_covariance(arm_T_camera: gtsam.Pose3, covariance) -> np.ndarray:
+    """The GTSAM-tangent covariance of ``arm_T_camera`` in the ROS PoseWithCovariance layout (module doc)."""
+    covariance = _checked_covariance(covariance)
+    J = tangent_to_ros(arm_T_camera)
+    out = J @ covariance @ J.T
+    return 0.5 * (out + out.T)
+
+
+def gtsam_covariance(arm_T_camera: gtsam.Pose3, covariance_ros) -> np.ndarray:
+    """Inverse of :func:`ros_covariance` (``J`` is orthogonal)."""
+    covariance_ros = _checked_covariance(covariance_ros)
+    J = tangent_to_ros(arm_T_camera)
+    out = J.T @ covariance_ros @ J
+    return 0.5 * (out + out.T)
+
+
+def _checked_covariance(covariance) -> np.ndarray:
+    covariance = np.asarray(covariance, dtype=float)
+    if covariance.shape == (36,):
+        covariance = covariance.reshape(6, 6)
+    if covariance.shape != (6, 6):
+        raise InputError(f"a pose covariance must be 6x6 (or 36 values), got shape {covariance.shape}")
+    return covariance
+
+
+def quaternion_xyzw(rotation: gtsam.Rot3) -> np.ndarray:
+    """Unit quaternion (x, y, z, w) of a rotation, with w >= 0 (ROS order)."""
+    q = rotation.toQuaternion()
+    out = np.array([q.x(), q.y(), q.z(), q.w()])
+    out /= np.linalg.norm(out)
+    return -out if out[3] < 0 else out
+
+
+# ---------------------------------------------------------------------------------------------------
+# the exported transform
+
+
+def _checked_name(name: str, what: str) -> str:
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise InputError(f"{what} {name!r} is not a valid frame or link name (letters, digits, '_', '/', '.', "
+                         "'-'; no spaces or quotes)")
+    return name
+
+
+def _num(value: float) -> str:
+    """A float for text formats: 12 significant digits (sub-nanometre, sub-nanoradian)."""
+    text = f"{float(value):.12g}"
+    return "0" if text == "-0" else text
+
+
+@dataclass
+class Transform:
+    """``parent_T_child`` (the calibrated camera in the arm-base frame) with its ROS-layout covariance."""
+
+    parent_T_child: gtsam.Pose3
+    covariance: np.ndarray  # 6x6, ROS PoseWithCovariance layout (module docstring)
+    parent_frame: str = PARENT_FRAME
+    child_frame: str = DEFAULT_CHILD[CameraFrame.OPTICAL]
+    camera_frame: CameraFrame = CameraFrame.OPTICAL
+    covariance_usable: bool = True
+    method: str = ""
+
+    @classmethod
+    def from_result(cls, result, *, parent_frame: str = PARENT_FRAME, child_frame: str | None = None,
+                    camera_frame: str | CameraFrame = CameraFrame.OPTICAL) -> Transform:
+        """From a :class:`gtsam_rotid.estimate.CalibrationResult` (or anything with ``arm_T_camera`` and
+        ``covariance``). ``camera_frame="body"`` turns the child to ROS's x-forward body convention."""
+        try:
+            camera_frame = CameraFrame(camera_frame)
+        except ValueError:
+            raise InputError(f"unknown camera frame {camera_frame!r}; choose one of "
+                             f"{[f.value for f in CameraFrame]}") from None
+        child_frame = DEFAULT_CHILD[camera_frame] if child_frame is None else child_frame
+        _checked_name(parent_frame, "parent frame")
+        _checked_name(child_frame, "child frame")
+        if parent_frame == child_frame:
+            raise InputError(f"the parent and child frames must differ, both are {parent_frame!r}")
+        arm_T_camera = result.arm_T_camera
+        covariance = ros_covariance(arm_T_camera, result.covariance)  # the same for both child conventions
+        pose = arm_T_camera
+        if camera_frame is CameraFrame.BODY:
+            pose = arm_T_camera.compose(gtsam.Pose3(gtsam.Rot3(OPTICAL_R_BODY), np.zeros(3)))
+        return cls(pose, covariance, parent_frame, child_frame, camera_frame,
+                   bool(getattr(result, "covariance_usable", True)), str(getattr(result, "method", "")))
+
+    @property
+    def translation(self) -> np.ndarray:
+        return np.asarray(self.parent_T_child.translation(), dtype=float)
+
+    @property
+    def quaternion(self) -> np.ndarray:
+        """(x, y, z, w), w >= 0."""
+        return quaternion_xyzw(self.parent_T_child.rotation())
+
+    @property
+    def rpy(self) -> np.ndarray:
+        """Roll, pitch, yaw (rad) as URDF defines them: ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (fixed axes X, Y, Z)."""
+        return np.asarray(self.parent_T_child.rotation().rpy(), dtype=float)
+
+    @property
+    def matrix(self) -> np.ndarray:
+        return self.parent_T_child.matrix()
+
+    def _describe(self) -> str:
+        frame = ("OpenCV optical frame: x right, y down, z forward" if self.camera_frame is CameraFrame.OPTICAL
+                 else "ROS body convention: x forward, y left, z up")
+        method = f" ({self.method})" if self.method else ""
+        return (f"gtsam_rotid calibration{method}: pose of {self.child_frame} ({frame}) in {self.parent_frame} "
+                "(the arm base)")
+
+    def to_dict(self) -> dict:
+        x, y, z = self.translation
+        qx, qy, qz, qw = self.quaternion
+        return {
+            "format": FORMAT_MARKER,
+            "version": FORMAT_VERSION,
+            "description": self._describe(),
+            "parent_frame": self.parent_frame,
+            "child_frame": self.child_frame,
+            "camera_frame": self.camera_frame.value,
+            "method": self.method,
+            "pose": {
+                "position": {"x": float(x), "y": float(y), "z": float(z)},
+                "orientation": {"x": float(qx), "y": float(qy), "z": float(qz), "w": float(qw)},
+            },
+            "rpy": [float(v) for v in self.rpy],
+            "covariance": [float(v) for v in self.covariance.ravel()],
+            "covariance_usable": self.covariance_usable,
+            "covariance_convention": COVARIANCE_CONVENTION,
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=1) + "\n"
+
+    def to_yaml(self) -> str:
+        """The :meth:`to_dict` content as YAML (written here: no YAML library needed to write or to read it).
+
+        Floats are written so that YAML 1.1 (PyYAML) and 1.2 loaders both read them as floats; the covariance
+        is a flow sequence of 36 numbers, one row per line.
+        """
+        data = self.to_dict()
+        lines = [f"# {data['description']}",
+                 f"# covariance: {COVARIANCE_CONVENTION}"]
+        for key, value in data.items():
+            if key == "covariance":
+                rows = [", ".join(_yaml_scalar(v) for v in self.covariance[i]) for i in range(6)]
+                lines.append("covariance: [")
+                lines.extend(f"  {row}{',' if i < 5 else ']'}" for i, row in enumerate(rows))
+            elif key == "pose":
+                lines.append("pose:")
+                for part, fields in value.items():
+                    lines.append(f"  {part}:")
+                    lines.extend(f"    {name}: {_yaml_scalar(v)}" for name, v in fields.items())
+            elif isinstance(value, list):
+                lines.append(f"{key}: [{', '.join(_yaml_scalar(v) for v in value)}]")
+            else:
+                lines.append(f"{key}: {_yaml_scalar(value)}")
+        return "\n".join(lines) + "\n"
+
+    def to_urdf(self, joint_name: str = JOINT_NAME) -> str:
+        """A fixed ``<joint>`` from the parent link to the child link (URDF ``rpy``: fixed axes X, Y, Z)."""
+        _checked_name(joint_name, "joint name")
+        xyz = " ".join(_num(v) for v in self.translation)
+        rpy = " ".join(_num(v) for v in self.rpy)
+        return (f"<!-- {self._describe()} -->\n"
+                f'<joint name="{joint_name}" type="fixed">\n'
+                f'  <parent link="{self.parent_frame}"/>\n'
+                f'  <child link="{self.child_frame}"/>\n'
+                f'  <origin xyz="{xyz}" rpy="{rpy}"/>\n'
+                "</joint>\n")
+
+    def to_ros2_command(self) -> str:
+        """``ros2 run tf2_ros static_transform_publisher`` with the flag syntax of ROS 2 Humble and later."""
+        x, y, z = self.translation
+        qx, qy, qz, qw = self.quaternion
+        args = ["ros2", "run", "tf2_ros", "static_transform_publisher",
+                "--x", _num(x), "--y", _num(y), "--z", _num(z),
+                "--qx", _num(qx), "--qy", _num(qy), "--qz", _num(qz), "--qw", _num(qw),
+                "--frame-id", self.parent_frame, "--child-frame-id", self.child_frame]
+        return " ".join(shlex.quote(a) for a in args) + "\n"
+
+    def to_matrix_text(self) -> str:
+        """The 4x4 homogeneous matrix (metres), one row per line; ``numpy.loadtxt`` reads it back."""
+        rows = "\n".join(" ".join(f"{_num(v):>20}" for v in row) for row in self.matrix)
+        return (f"# {self._describe()}\n"
+                f"# maps {self.child_frame} coordinates to {self.parent_frame} coordinates: "
+                f"x_{self.parent_frame} = M x_{self.child_frame} (metres)\n{rows}\n")
+
+    def to_text(self, fmt: str | Format, joint_name: str = JOINT_NAME) -> str:
+        fmt = _format(fmt)
+        if fmt is Format.YAML:
+            return self.to_yaml()
+        if fmt is Format.JSON:
+            return self.to_json()
+        if fmt is Format.URDF:
+            return self.to_urdf(joint_name)
+        if fmt is Format.ROS2:
+            return self.to_ros2_command()
+        return self.to_matrix_text()
+
+
+def _format(fmt) -> Format:
+    try:
+        return Format(fmt)
+    except ValueError:
+        raise InputError(f"unknown export format {fmt!r}; choose one of {[f.value for f in Format]}") from None
+
+
+def _yaml_scalar(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        if math.isnan(value):
+            return ".nan"
+        if math.isinf(value):
+            return ".inf" if value > 0 else "-.inf"
+        text = repr(value)  # shortest text that reads back exactly
+        mantissa, _, exponent = text.partition("e")
+        if "." not in mantissa:
+            mantissa += ".0"  # YAML 1.1 needs the dot (1e-05 would be a string there)
+        if exponent and exponent[0] not in "+-":
+            exponent = "+" + exponent
+        return mantissa + ("e" + exponent if exponent else "")
+    return json.dumps(str(value), ensure_ascii=False)  # a double-quoted YAML string
+
+
+def export_result(result, to: str | Format, *, parent_frame: str = PARENT_FRAME, child_frame: str | None = None,
+                  camera_frame: str | CameraFrame = CameraFrame.OPTICAL, joint_name: str = JOINT_NAME) -> str:
+    """The result's ``arm_T_camera`` (and covariance where the format has one) as text in format ``to``."""
+    transform = Transform.from_result(result, parent_frame=parent_frame, child_frame=child_frame,
+                                      camera_frame=camera_frame)
+    return transform.to_text(to, joint_name)
+
+
+# ---------------------------------------------------------------------------------------------------
+# files (shared with gtsam_rotid.report)
+
+
+def load_result(path: str | os.PathLike):
+    """A :class:`~gtsam_rotid.estimate.CalibrationResult` from the JSON file ``calibrate -o`` writes.
+
+    Raises :class:`InputError` (one line, naming the file) when it is missing or not a result.
+    """
+    from .estimate import CalibrationResult
+
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path} is a directory, not a calibration result JSON file")
+    try:
+        with open(path, encoding="utf-8") as handle:
+            data = json.load(handle)
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc.strerror or exc}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path} is not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path} is not a gtsam_rotid calibration result (a JSON object was expected)")
+    try:
+        return CalibrationResult.from_dict(data)
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise InputError(f"{path} is not a readable gtsam_rotid calibration result ({type(exc).__name__}: "
+                         f"{exc})") from None
+
+
+def check_output_file(path: str | os.PathLike, overwrite: bool) -> Path:
+    """Refuse (before any work) an output path that exists without ``overwrite``, is a directory, or whose
+    directory does not exist."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"{path} is a directory; give a file name")
+    if path.exists() and not overwrite:
+        raise OutputError(f"{path} exists; pass --overwrite to replace it")
+    if not path.parent.is_dir():
+        raise OutputError(f"cannot write {path}: the directory {path.parent} does not exist")
+    return path
+
+
+def write_text(path: str | os.PathLike, text: str, overwrite: bool = False) -> Path:
+    """Write ``text`` through a temporary file and a rename (an existing file stays intact on failure)."""
+    path = check_output_file(path, overwrite)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "w", encoding="utf-8") as handle:
+            handle.write(text)
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+    return path
+
+
+# ---------------------------------------------------------------------------------------------------
+# command line: ``gtsam-rotid export RESULT.json --to FORMAT [-o FILE]``
+
+
+def add_export_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``export`` command to an ``argparse`` subparsers object (``gtsam_rotid.cli`` wires it)."""
+    p = subparsers.add_parser(
+        "export", help="write arm_T_camera (and its covariance) as YAML, JSON, URDF, a ROS 2 command or a matrix",
+        description="Export a calibration result. yaml/json: pose (position, quaternion x y z w) and the covariance "
+                    "in ROS's geometry_msgs/PoseWithCovariance layout (6x6 row-major; x, y, z, rotation about X, Y, "
+                    "Z of the parent frame; metres, radians). urdf: a fixed <joint>. ros2: a tf2_ros "
+                    "static_transform_publisher command line (Humble+ flags). matrix: the 4x4 matrix. The child "
+                    "frame is the camera's OpenCV optical frame (x right, y down, z forward) unless "
+                    "--camera-frame body.")
+    p.add_argument("result", metavar="RESULT_JSON", help="result file written by `calibrate -o`")
+    p.add_argument("--to", required=True, choices=[f.value for f in Format], help="output format")
+    p.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of standard output")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    p.add_argument("--parent", default=PARENT_FRAME, metavar="FRAME",
+                   help=f"parent frame / link: the arm base, i.e. the URDF's root link (default {PARENT_FRAME})")
+    p.add_argument("--child", metavar="FRAME",
+                   help=f"child frame / link (default {DEFAULT_CHILD[CameraFrame.OPTICAL]}, or "
+                        f"{DEFAULT_CHILD[CameraFrame.BODY]} with --camera-frame body)")
+    p.add_argument("--camera-frame", choices=[f.value for f in CameraFrame], default=CameraFrame.OPTICAL.value,
+                   help="optical (default): the estimated OpenCV frame, z forward; body: turned to ROS's x-forward "
+                        "camera_link convention (REP 103)")
+    p.add_argument("--joint-name", default=JOINT_NAME, help=f"URDF joint name (default {JOINT_NAME})")
+    p.set_defaults(func=cmd_export)
+    return p
+
+
+def cmd_export(args) -> int:
+    output = None if args.output is None else check_output_file(args.output, args.overwrite)
+    result = load_result(args.result)
+    fmt = _format(args.to)
+    text = export_result(result, fmt, parent_frame=args.parent, child_frame=args.child,
+                         camera_frame=args.camera_frame, joint_name=args.joint_name)
+    if fmt in (Format.YAML, Format.JSON) and not result.covariance_usable:
+        print("gtsam-rotid export: warning: the covariance is unusable (the arm poses do not determine the "
+              "calibration; see `gtsam-rotid report`); it is exported with covariance_usable: false",
+              file=sys.stderr)
+    if output is None:
+        sys.stdout.write(text if text.endswith("\n") else text + "\n")
+    else:
+        write_text(output, text, overwrite=args.overwrite)
+        print(f"wrote {output}")
+    return 0

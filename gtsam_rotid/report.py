@@ -1,0 +1,657 @@
+"""The covariance report of a calibration: numbers, words and a pretty printer.
+
+``make_report(result, dataset=None)`` returns a :class:`CalibrationReport`: the estimate (position in mm,
+roll-pitch-yaw in degrees, quaternion), its 1σ and 95 % bounds, the correlation matrix with the strong
+correlations named, per-measurement residuals, weights, outliers and rejected tracks, the χ² consistency of
+the fit, and the observability verdict in plain words with what pose to add. ``to_text()``,
+``to_markdown()`` and ``to_dict()`` (JSON) print it.
+
+Frames and layout: the covariance is shown in the layout the exports use (:mod:`gtsam_rotid.export`, ROS
+``PoseWithCovariance``): the camera position ``(x, y, z)`` in the arm-base frame and small rotations about
+the arm-base axes X, Y, Z (``rX, rY, rZ``). Roll, pitch and yaw are URDF's (``R = Rz(yaw) Ry(pitch)
+Rx(roll)``); their 1σ is propagated from the rotation block. The estimated camera frame is OpenCV's optical
+frame (x right, y down, z forward).
+
+With the dataset (or a result that carries each measurement's wrist axis) the words locate the common
+point of the wrist axes, e.g. for a single crossing: "all 6 wrist axes pass within 0.0 mm of P = (…) mm:
+the camera's position along the line through P and the camera is not determined"; the suggestion says what
+pose to add.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from .errors import InputError
+from .export import check_output_file, load_result, quaternion_xyzw, ros_covariance, write_text
+from .geometry import Line3
+from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD
+
+#: Two-sided 95 % point of the normal distribution: the 95 % bound of one axis is Z95 σ.
+Z95 = 1.959963984540054
+#: 95 % point of the χ² distribution with 3 dof: the 95 % position ellipsoid has semi-axes sqrt(this) σ.
+CHI2_95_3DOF = 7.814727903251178
+#: Correlations with |ρ| above this are called out.
+STRONG_CORRELATION = 0.8
+#: Wrist axes that all pass within this distance (m) of one point make a single crossing.
+CROSSING_TOLERANCE_M = 0.01
+#: The suggested pose's wrist axis should miss the crossing point by at least this (m).
+SUGGESTED_MISS_M = 0.05
+#: Wrist axes whose directions all lie within this angle (deg) of each other are parallel.
+PARALLEL_TOLERANCE_DEG = 5.0
+#: The suggested pose's wrist axis should be tilted from parallel ones by at least this (deg).
+SUGGESTED_TILT_DEG = 20.0
+#: The χ² test calls the fit consistent when the upper-tail probability lies in [P_LOW, 1 - P_LOW].
+P_LOW = 0.005
+LABELS = ("x", "y", "z", "rX", "rY", "rZ")
+COVARIANCE_ORDER = ("x, y, z: camera position in the arm-base frame (m); rX, rY, rZ: small rotation about the "
+                    "arm-base axes X, Y, Z (rad), R_true = Exp(r) R (ROS PoseWithCovariance layout)")
+
+
+class ReportFormat(StrEnum):
+    TEXT = "text"
+    MARKDOWN = "markdown"
+    JSON = "json"
+
+
+# ---------------------------------------------------------------------------------------------------
+# numbers
+
+
+def chi2_sf(x: float, dof: int) -> float:
+    """Upper-tail probability P(χ²_dof >= x): exact for dof <= 400 (half-integer incomplete gamma series,
+    summed in log space), Wilson-Hilferty above."""
+    if dof <= 0:
+        return math.nan
+    if x <= 0.0:
+        return 1.0
+    y = 0.5 * x
+    if dof <= 400:
+        if dof % 2 == 0:  # Q(n, y) = e^-y sum_{i<n} y^i / i!
+            logs = [i * math.log(y) - y - math.lgamma(i + 1) for i in range(dof // 2)]
+            return float(min(1.0, sum(math.exp(v) for v in logs)))
+        # Q(n + 1/2, y) = erfc(sqrt(y)) + e^-y sum_{j<n} y^(j + 1/2) / Gamma(j + 3/2)
+        logs = [(j + 0.5) * math.log(y) - y - math.lgamma(j + 1.5) for j in range((dof - 1) // 2)]
+        return float(min(1.0, math.erfc(math.sqrt(y)) + sum(math.exp(v) for v in logs)))
+    h = 2.0 / (9.0 * dof)
+    z = ((x / dof) ** (1.0 / 3.0) - (1.0 - h)) / math.sqrt(h)
+    return 0.5 * math.erfc(z / math.sqrt(2.0))
+
+
+def correlation(covariance: np.ndarray) -> np.ndarray:
+    """Correlation matrix ``D^-1/2 Sigma D^-1/2`` of a covariance."""
+    s = np.sqrt(np.diag(covariance))
+    out = covariance / np.outer(s, s)
+    np.fill_diagonal(out, 1.0)
+    return np.clip(out, -1.0, 1.0)
+
+
+def rpy_jacobian(rotation: gtsam.Rot3, step: float = 1e-6) -> np.ndarray:
+    """3x3 derivative of (roll, pitch, yaw) wrt a small rotation about the fixed axes: ``Exp(d) R``."""
+    J = np.zeros((3, 3))
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = step
+        plus = np.asarray(gtsam.Rot3.Expmap(d).compose(rotation).rpy())
+        minus = np.asarray(gtsam.Rot3.Expmap(-d).compose(rotation).rpy())
+        J[:, i] = (np.mod(plus - minus + np.pi, 2 * np.pi) - np.pi) / (2 * step)
+    return J
+
+
+@dataclass
+class Chi2Check:
+    """χ² of the final fit against its degrees of freedom."""
+
+    chi2: float
+    dof: int
+    #: upper-tail probability P(χ²_dof >= chi2)
+    p_value: float
+    #: None when the test does not apply (no redundancy, or the paper's unit-noise fit)
+    consistent: bool | None
+    what: str
+    note: str = ""
+    dof_exact: bool = True
+
+    @property
+    def reduced(self) -> float:
+        return self.chi2 / self.dof if self.dof > 0 else math.nan
+
+    def sentence(self) -> str:
+        dof = f"{self.dof} dof" + ("" if self.dof_exact else " (approximate)")
+        head = f"χ² = {self.chi2:.4g} for {dof}, χ²/dof = {self.reduced:.3g}, P(χ² ≥ this) = {self.p_value:.3g}"
+        if self.consistent is None:
+            verdict = "no consistency test"
+        elif self.consistent:
+            verdict = "consistent with the estimated noise"
+        elif self.p_value < P_LOW:
+            verdict = "INCONSISTENT: the residuals are larger than the noise model allows"
+        else:
+            verdict = "INCONSISTENT: the residuals are smaller than the noise model expects"
+        return f"{head}: {verdict}"
+
+    def to_dict(self) -> dict:
+        return {"chi2": self.chi2, "dof": self.dof, "dof_exact": self.dof_exact, "reduced": self.reduced,
+                "p_value": self.p_value, "consistent": self.consistent, "what": self.what, "note": self.note}
+
+
+def chi2_check(result) -> Chi2Check:
+    """The χ² consistency of the fit from ``result.final_error`` (= χ²/2 of the final graph).
+
+    The degrees of freedom are ``result.dof`` when the result carries it; otherwise they are counted from the
+    measurement reports (weighted/paper: 2 axis distances per measurement used, minus 6; joint: one residual per
+    point and 2 tie residuals per measurement, minus 6 pose, 3 line and 2 circle parameters per track).
+    """
+    used = [m for m in result.measurements if m.weight > 0]
+    chi2 = 2.0 * float(result.final_error)
+    dof = result.dof
+    exact = dof is not None
+    method = result.method
+    if method == "joint":
+        if dof is None:
+            dof = sum(m.n_points for m in used) - 2 * sum(m.n_tracks for m in used) - len(used) - 6
+        what = "pixel residuals of every track against its circle about the wrist axis (joint graph)"
+        note = ("the pixel noise of each measurement was estimated from these residuals, so χ²/dof ≈ 1 by "
+                "construction: this checks the solve, not the noise model")
+    else:
+        if dof is None:
+            dof = 2 * len(used) - 6
+        what = ("each measurement's image axis against the wrist axis projected by the estimate (2 distances per "
+                "measurement)")
+        note = ("weighted by each image axis' covariance at its measurement's pixel noise; whole measurements "
+                "under a Huber kernel, so χ² is the robust cost") if method == "weighted" else ""
+    p = chi2_sf(chi2, dof) if dof > 0 else math.nan
+    if method == "paper":
+        consistent = None
+        note = ("the paper's fit assumes 1 px line errors (unit noise): χ²/dof is the mean squared axis distance "
+                "in px², not a consistency test, and its (JᵀJ)⁻¹ covariance is not calibrated")
+    elif dof <= 0:
+        consistent = None
+        note = "no redundancy: as many equations as unknowns"
+    else:
+        consistent = bool(P_LOW <= p <= 1.0 - P_LOW)
+    return Chi2Check(chi2, int(dof), float(p), consistent, what, note, exact)
+
+
+@dataclass
+class AxisGeometry:
+    """Where the wrist axes of the measurements used lie (arm frame, metres)."""
+
+    point: np.ndarray  # the point closest to all axes
+    miss: np.ndarray  # distance of each axis from it
+    spread_deg: float  # largest angle between two axis directions (lines, so at most 90)
+    mean_direction: np.ndarray
+    indices: list[int]
+
+    @property
+    def is_crossing(self) -> bool:
+        return bool(np.max(self.miss) <= CROSSING_TOLERANCE_M)
+
+    @property
+    def is_parallel(self) -> bool:
+        return self.spread_deg <= PARALLEL_TOLERANCE_DEG
+
+
+def axis_geometry(axes: list[Line3], indices: list[int] | None = None) -> AxisGeometry | None:
+    """Common point (least squares), miss distances and angular spread of wrist axes; None for fewer than 2."""
+    if len(axes) < 2:
+        return None
+    from .estimate import closest_point
+
+    point = closest_point(axes)
+    miss = np.array([float(a.distance_to(point)[0]) for a in axes])
+    directions = np.array([a.direction for a in axes])
+    cosines = np.clip(np.abs(directions @ directions.T), 0.0, 1.0)
+    spread = float(np.degrees(np.arccos(cosines.min())))
+    scatter = directions.T @ directions
+    mean_direction = np.linalg.eigh(scatter)[1][:, -1]
+    return AxisGeometry(point, miss, spread, mean_direction, list(range(len(axes))) if indices is None else indices)
+
+
+def wrist_axes(result, dataset=None) -> dict[int, Line3] | None:
+    """The FK wrist axis (arm frame) of each measurement, from the dataset or from the result when it carries
+    them (``MeasurementReport.axis_point`` / ``axis_direction``); None when neither has them."""
+    if dataset is not None:
+        if len(dataset) != len(result.measurements):
+            raise InputError(f"the dataset has {len(dataset)} measurements but the result {len(result.measurements)}: "
+                             "it is not the dataset this result was calibrated from")
+        return {k: dataset.arm.wrist_axis(dataset.joint_angles(k)) for k in range(len(dataset))}
+    axes = {}
+    for m in result.measurements:
+        point, direction = m.axis_point, m.axis_direction
+        if point is None or direction is None:
+            return None
+        axes[m.index] = Line3(point, direction)
+    return axes
+
+
+def _vec(v, fmt: str = "{:.1f}") -> str:
+    return "(" + ", ".join(fmt.format(float(x)) for x in v) + ")"
+
+
+def _direction(v) -> str:
+    v = np.asarray(v, dtype=float)
+    v = v / np.linalg.norm(v)
+    v = v if v[np.argmax(np.abs(v))] > 0 else -v
+    return _vec(v, "{:+.3f}")
+
+
+# ---------------------------------------------------------------------------------------------------
+# the report
+
+
+@dataclass
+class CalibrationReport:
+    """Everything a user needs to judge a calibration; print with ``to_text()`` / ``to_markdown()``."""
+
+    method: str
+    converged: bool
+    iterations: int
+    sigma_px: float
+    arm_T_camera: np.ndarray  # 4x4, camera (OpenCV optical frame) in the arm-base frame, metres
+    translation_mm: np.ndarray
+    rpy_deg: np.ndarray  # URDF roll, pitch, yaw
+    quaternion_xyzw: np.ndarray
+    covariance: np.ndarray  # 6x6, COVARIANCE_ORDER (m, rad)
+    covariance_usable: bool
+    sigma_position_mm: np.ndarray  # arm frame
+    sigma_rpy_deg: np.ndarray
+    sigma_rotation_arm_deg: np.ndarray  # about the arm axes X, Y, Z
+    sigma_rotation_camera_deg: np.ndarray  # about the camera axes x, y, z
+    determined: np.ndarray  # (6,) bool per LABELS entry: 1σ within the observability limits
+    ellipsoid95_mm: np.ndarray  # semi-axes of the 95 % position ellipsoid, descending
+    ellipsoid95_axes: np.ndarray  # 3x3, columns: their arm-frame directions
+    correlation: np.ndarray  # 6x6, LABELS order
+    strong_correlations: list[tuple[str, str, float]]
+    chi2: Chi2Check
+    observability: list[str]
+    suggestion: str
+    condition_number: float
+    weakest_position: tuple[np.ndarray, float]  # arm-frame direction, 1σ (mm)
+    weakest_rotation: tuple[np.ndarray, float]  # arm-frame axis, 1σ (deg)
+    measurements: list = field(default_factory=list)  # MeasurementReport
+    crossing_point_mm: np.ndarray | None = None
+    crossing_miss_mm: float | None = None
+
+    @property
+    def bound95_position_mm(self) -> np.ndarray:
+        return Z95 * self.sigma_position_mm
+
+    @property
+    def bound95_rpy_deg(self) -> np.ndarray:
+        return Z95 * self.sigma_rpy_deg
+
+    @property
+    def bound95_rotation_arm_deg(self) -> np.ndarray:
+        return Z95 * self.sigma_rotation_arm_deg
+
+    @property
+    def rejected_tracks(self) -> list[tuple[int, int, str]]:
+        return [(m.index, j, why) for m in self.measurements for j, why in sorted(m.rejected_tracks.items())]
+
+    # ------------------------------------------------------------------ printing
+    def _estimate_rows(self) -> list[tuple[str, str, str, str]]:
+        rows = []
+        values = [*self.translation_mm, *self.rpy_deg]
+        sigmas = [*self.sigma_position_mm, *self.sigma_rpy_deg]
+        names = ["x (mm)", "y (mm)", "z (mm)", "roll (deg)", "pitch (deg)", "yaw (deg)"]
+        determined = [*self.determined[:3], *([bool(np.all(self.determined[3:]))] * 3)]
+        for i, (name, value, sigma, ok) in enumerate(zip(names, values, sigmas, determined, strict=True)):
+            digits = 2 if i < 3 else 4
+            shown = f"{round(float(value), digits) + 0.0:.{digits}f}"  # + 0.0: no "-0.0000"
+            if ok:
+                rows.append((name, shown, f"{sigma:.3g}", f"±{Z95 * sigma:.3g}"))
+            else:
+                rows.append((name, shown, "not determined", "not determined"))
+        return rows
+
+    def _observability_lines(self) -> list[str]:
+        lines = list(self.observability)
+        if self.suggestion:
+            lines.append(f"SUGGESTION: {self.suggestion}")
+        return lines
+
+    def _measurement_rows(self) -> list[tuple[str, ...]]:
+        rows = []
+        for m in self.measurements:
+            status = "OUTLIER: " + (m.outlier_reason or "flagged") if m.outlier else "ok"
+            rows.append((str(m.index), str(m.n_tracks), str(m.n_points), f"{m.residual_rms_px:.3f}",
+                         f"{m.weight:.2f}", str(len(m.rejected_tracks)), status))
+        return rows
+
+    def _header_lines(self) -> list[str]:
+        state = "converged" if self.converged else "NOT converged"
+        return [f"method {self.method}, {state} after {self.iterations} iterations, pixel noise {self.sigma_px:.3f} "
+                "px (estimated from the residuals)",
+                "arm_T_camera: the camera pose (OpenCV optical frame: x right, y down, z forward) in the arm-base "
+                "frame"]
+
+    def _uncertainty_lines(self) -> list[str]:
+        q = self.quaternion_xyzw
+        lines = [f"quaternion (x, y, z, w): {_vec(q, '{:.8f}')}"]
+        if not self.covariance_usable:
+            lines.append("COVARIANCE UNUSABLE: the arm poses do not determine the calibration (see observability); "
+                         "the 1σ of undetermined directions is meaningless")
+        lines.append(f"rotation 1σ about the arm axes X, Y, Z (deg): {_vec(self.sigma_rotation_arm_deg, '{:.4g}')}; "
+                     f"95 % ±{_vec(self.bound95_rotation_arm_deg, '{:.4g}')}")
+        lines.append(f"rotation 1σ about the camera axes x, y, z (deg): "
+                     f"{_vec(self.sigma_rotation_camera_deg, '{:.4g}')}")
+        if self.covariance_usable:
+            a = self.ellipsoid95_axes
+            lines.append("95 % position ellipsoid: semi-axes " + ", ".join(
+                f"{s:.3g} mm along {_direction(a[:, i])}" for i, s in enumerate(self.ellipsoid95_mm)))
+        return lines
+
+    def _correlation_lines(self, markdown: bool) -> list[str]:
+        strong = [f"{a}–{b} {rho:+.2f}" for a, b, rho in self.strong_correlations]
+        summary = (f"strong correlations (|ρ| > {STRONG_CORRELATION:g}): " + (", ".join(strong) if strong else "none"))
+        if markdown:
+            lines = ["| | " + " | ".join(LABELS) + " |", "|---" * 7 + "|"]
+            lines += [f"| **{LABELS[i]}** | " + " | ".join(f"{v:+.2f}" for v in row) + " |"
+                      for i, row in enumerate(self.correlation)]
+        else:
+            lines = ["      " + "".join(f"{name:>7}" for name in LABELS)]
+            lines += [f"  {LABELS[i]:<4}" + "".join(f"{v:+7.2f}" for v in row)
+                      for i, row in enumerate(self.correlation)]
+        if not self.covariance_usable:
+            summary += " (the undetermined direction dominates: not meaningful)"
+        return [*lines, "", summary]
+
+    def to_text(self) -> str:
+        out = ["gtsam_rotid calibration report", *self._header_lines(), ""]
+        out.append(f"  {'':<12}{'estimate':>14}{'1σ':>16}{'95 % (±1.96σ)':>18}")
+        out += [f"  {n:<12}{v:>14}{s:>16}{b:>18}" for n, v, s, b in self._estimate_rows()]
+        out += ["  " + line for line in self._uncertainty_lines()]
+        out += ["", "correlation (x, y, z: position in the arm frame; rX, rY, rZ: rotation about the arm axes):"]
+        out += ["  " + line if line else "" for line in self._correlation_lines(False)]
+        out += ["", "fit consistency:", "  " + self.chi2.sentence(), f"  tested: {self.chi2.what}"]
+        if self.chi2.note:
+            out.append(f"  note: {self.chi2.note}")
+        out += ["", "observability:"] + ["  " + line for line in self._observability_lines()]
+        out += ["", "measurements:",
+                f"  {'k':>3} {'tracks':>6} {'points':>7} {'RMS px':>7} {'weight':>6} {'rejected':>8}  status"]
+        out += [f"  {k:>3} {t:>6} {p:>7} {r:>7} {w:>6} {n:>8}  {s}" for k, t, p, r, w, n, s in self._measurement_rows()]
+        rejected = self.rejected_tracks
+        out += ["", "rejected tracks:" + ("" if rejected else " none")]
+        out += [f"  measurement {k}, track {j}: {why}" for k, j, why in rejected]
+        return "\n".join(out) + "\n"
+
+    def to_markdown(self) -> str:
+        out = ["# Calibration report", "", *[f"{line}  " for line in self._header_lines()], "",
+               "## Estimate", "", "| | estimate | 1σ | 95 % (±1.96σ) |", "|---|---:|---:|---:|"]
+        out += [f"| {n} | {v} | {s} | {b} |" for n, v, s, b in self._estimate_rows()]
+        out += [""] + [f"- {line}" for line in self._uncertainty_lines()]
+        out += ["", "## Correlation", "",
+                "x, y, z: camera position in the arm frame; rX, rY, rZ: rotation about the arm axes.", ""]
+        out += self._correlation_lines(True)
+        out += ["", "## Fit consistency", "", f"- {self.chi2.sentence()}", f"- tested: {self.chi2.what}"]
+        if self.chi2.note:
+            out.append(f"- note: {self.chi2.note}")
+        out += ["", "## Observability", ""] + [f"- {line}" for line in self._observability_lines()]
+        out += ["", "## Measurements", "", "| k | tracks | points | RMS (px) | weight | rejected | status |",
+                "|---:|---:|---:|---:|---:|---:|---|"]
+        out += ["| " + " | ".join(row) + " |" for row in self._measurement_rows()]
+        rejected = self.rejected_tracks
+        out += ["", "### Rejected tracks", ""]
+        out += [f"- measurement {k}, track {j}: {why}" for k, j, why in rejected] if rejected else ["none"]
+        return "\n".join(out) + "\n"
+
+    def __str__(self) -> str:
+        return self.to_text()
+
+    def to_dict(self) -> dict:
+        def f(x):
+            x = float(x)
+            return x if math.isfinite(x) else None
+
+        def arr(a):
+            return np.vectorize(f, otypes=[object])(np.asarray(a, dtype=float)).tolist()
+
+        return {
+            "format": "gtsam_rotid.report",
+            "version": 1,
+            "method": self.method,
+            "converged": self.converged,
+            "iterations": self.iterations,
+            "sigma_px": f(self.sigma_px),
+            "arm_T_camera": arr(self.arm_T_camera),
+            "translation_mm": arr(self.translation_mm),
+            "rpy_deg": arr(self.rpy_deg),
+            "quaternion_xyzw": arr(self.quaternion_xyzw),
+            "covariance": arr(self.covariance),
+            "covariance_order": COVARIANCE_ORDER,
+            "covariance_usable": self.covariance_usable,
+            "sigma": {"position_mm": arr(self.sigma_position_mm), "rpy_deg": arr(self.sigma_rpy_deg),
+                      "rotation_arm_deg": arr(self.sigma_rotation_arm_deg),
+                      "rotation_camera_deg": arr(self.sigma_rotation_camera_deg)},
+            "bound95": {"position_mm": arr(self.bound95_position_mm), "rpy_deg": arr(self.bound95_rpy_deg),
+                        "rotation_arm_deg": arr(self.bound95_rotation_arm_deg)},
+            "determined": dict(zip(LABELS, (bool(d) for d in self.determined), strict=True)),
+            "ellipsoid95_mm": {"semi_axes": arr(self.ellipsoid95_mm), "directions": arr(self.ellipsoid95_axes)},
+            "correlation": arr(self.correlation),
+            "correlation_labels": list(LABELS),
+            "strong_correlations": [{"a": a, "b": b, "rho": f(rho)} for a, b, rho in self.strong_correlations],
+            "chi2": {k: (f(v) if isinstance(v, float) else v) for k, v in self.chi2.to_dict().items()},
+            "observability": {
+                "words": list(self.observability),
+                "suggestion": self.suggestion,
+                "condition_number": f(self.condition_number),
+                "crossing_point_mm": None if self.crossing_point_mm is None else arr(self.crossing_point_mm),
+                "crossing_miss_mm": None if self.crossing_miss_mm is None else f(self.crossing_miss_mm),
+                "weakest_position": {"direction": arr(self.weakest_position[0]),
+                                     "sigma_mm": f(self.weakest_position[1])},
+                "weakest_rotation": {"axis": arr(self.weakest_rotation[0]), "sigma_deg": f(self.weakest_rotation[1])},
+            },
+            "measurements": [
+                {"index": m.index, "n_tracks": m.n_tracks, "n_points": m.n_points,
+                 "residual_rms_px": f(m.residual_rms_px), "weight": f(m.weight), "outlier": bool(m.outlier),
+                 "outlier_reason": m.outlier_reason,
+                 "rejected_tracks": {str(j): why for j, why in sorted(m.rejected_tracks.items())}}
+                for m in self.measurements
+            ],
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=1, ensure_ascii=False) + "\n"
+
+    def render(self, fmt: str | ReportFormat = ReportFormat.TEXT) -> str:
+        try:
+            fmt = ReportFormat(fmt)
+        except ValueError:
+            raise InputError(f"unknown report format {fmt!r}; choose one of "
+                             f"{[f.value for f in ReportFormat]}") from None
+        if fmt is ReportFormat.MARKDOWN:
+            return self.to_markdown()
+        if fmt is ReportFormat.JSON:
+            return self.to_json()
+        return self.to_text()
+
+
+def _strongest(block: np.ndarray) -> tuple[np.ndarray, float]:
+    w, V = np.linalg.eigh(0.5 * (block + block.T))
+    v = V[:, -1]
+    return (v if v[np.argmax(np.abs(v))] > 0 else -v), float(np.sqrt(max(w[-1], 0.0)))
+
+
+def _observability(result, cov: np.ndarray, geometry: AxisGeometry | None) -> tuple[list[str], str]:
+    """(words, suggestion) of the observability verdict; ``cov`` in COVARIANCE_ORDER."""
+    obs = result.observability
+    undetermined = not obs.is_observable
+    camera = np.asarray(result.arm_T_camera.translation(), dtype=float)
+    words, suggestion = [], ""
+    found_cause = False
+    if geometry is not None and geometry.is_crossing:
+        P = geometry.point
+        ray = P - camera
+        where = (f"all {len(geometry.miss)} wrist axes pass within {1000 * np.max(geometry.miss):.1f} mm of "
+                 f"P = {_vec(1000 * P)} mm (arm frame)")
+        if undetermined:
+            found_cause = True
+            words.append(f"DEGENERATE: {where}: the camera's position along the line through P and the camera "
+                         f"(arm-frame direction {_direction(ray)}) is not determined")
+            suggestion = (f"add a pose whose wrist axis misses P = {_vec(1000 * P)} mm by at least "
+                          f"{100 * SUGGESTED_MISS_M:.0f} cm")
+        else:
+            u = ray / np.linalg.norm(ray)
+            sigma = 1000.0 * float(np.sqrt(max(u @ cov[:3, :3] @ u, 0.0)))
+            words.append(f"{where}: close to a single crossing, which leaves the camera's position along its ray "
+                         f"to P undetermined; along that ray (arm-frame direction {_direction(ray)}) the position "
+                         f"has 1σ {sigma:.3g} mm")
+            suggestion = (f"to determine the position along that ray better, add a pose whose wrist axis misses P by "
+                          f"at least {100 * SUGGESTED_MISS_M:.0f} cm")
+    elif geometry is not None and geometry.is_parallel and undetermined:
+        found_cause = True
+        words.append(f"DEGENERATE: all {len(geometry.miss)} wrist axes are parallel within {geometry.spread_deg:.1f}° "
+                     f"(arm-frame direction {_direction(geometry.mean_direction)}): the camera's position along that "
+                     "direction is not determined")
+        suggestion = f"add a pose whose wrist axis is tilted at least {SUGGESTED_TILT_DEG:.0f}° from the others"
+    if undetermined:
+        details = [w for w in obs.describe() if not w.startswith("DEGENERATE")]
+        if not found_cause:
+            pure = [d for d in obs.unobservable_directions if np.linalg.norm(d[:3]) < 0.1]
+            if len(obs.unobservable_directions) == 1 and pure and geometry is None:
+                d_arm = obs.arm_R_camera @ pure[0][3:]
+                words.append(f"DEGENERATE: the camera's position along the line through the camera centre "
+                             f"{_vec(1000 * camera)} mm in arm-frame direction {_direction(d_arm)} is not determined: "
+                             "typically every wrist axis passes through one point of that line (a single crossing)")
+                suggestion = (f"add a pose whose wrist axis misses that line by at least {100 * SUGGESTED_MISS_M:.0f} "
+                              "cm (give the dataset to the report to locate the crossing point)")
+            else:
+                words.append("DEGENERATE: the chosen arm poses do not determine the calibration")
+                suggestion = "add a pose whose wrist axis is not like the others: tilted from them and offset from " \
+                             "their common point"
+        words.append(f"undetermined directions ({len(obs.unobservable_directions)}, from the information matrix):")
+        words.extend(f"  {w}" for w in details)
+    else:
+        words.append("all six degrees of freedom of arm_T_camera are determined")
+    words.append(f"condition number of the information matrix: {obs.condition_number:.3g} (Pose3 tangent, rad and m)")
+    if not undetermined:
+        pos_dir, pos_sigma = _strongest(cov[:3, :3])
+        rot_axis, rot_sigma = _strongest(cov[3:, 3:])
+        words.append(f"least determined: position along arm-frame direction {_direction(pos_dir)} "
+                     f"(1σ {1000 * pos_sigma:.3g} mm), rotation about arm-frame axis {_direction(rot_axis)} "
+                     f"(1σ {np.degrees(rot_sigma):.3g}°)")
+    return words, suggestion
+
+
+def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORRELATION) -> CalibrationReport:
+    """The report of a :class:`~gtsam_rotid.estimate.CalibrationResult`.
+
+    ``dataset`` (the one calibrated) lets the observability words locate the wrist axes' common point; without
+    it they use the wrist axes the result carries, if any.
+    """
+    pose = result.arm_T_camera
+    rotation = pose.rotation()
+    cov = ros_covariance(pose, result.covariance)
+    sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    J = rpy_jacobian(rotation)
+    cov_rpy = J @ cov[3:, 3:] @ J.T
+    determined = np.array([s <= UNOBSERVABLE_SIGMA_M for s in sigma[:3]]
+                          + [s <= UNOBSERVABLE_SIGMA_RAD for s in sigma[3:]])
+    w, V = np.linalg.eigh(0.5 * (cov[:3, :3] + cov[:3, :3].T))
+    order = np.argsort(w)[::-1]
+    ellipsoid = 1000.0 * np.sqrt(CHI2_95_3DOF * np.maximum(w[order], 0.0))
+    corr = correlation(cov)
+    strong = [(LABELS[i], LABELS[j], float(corr[i, j])) for i in range(6) for j in range(i + 1, 6)
+              if abs(corr[i, j]) > strong_correlation]
+    axes = wrist_axes(result, dataset)
+    geometry = None
+    if axes is not None:
+        used = [m.index for m in result.measurements if m.weight > 0 and m.index in axes]
+        geometry = axis_geometry([axes[k] for k in used], used)
+    words, suggestion = _observability(result, cov, geometry)
+    pos_dir, pos_sigma = _strongest(cov[:3, :3])
+    rot_axis, rot_sigma = _strongest(cov[3:, 3:])
+    crossing = geometry is not None and geometry.is_crossing
+    return CalibrationReport(
+        method=result.method, converged=bool(result.converged), iterations=int(result.iterations),
+        sigma_px=float(result.sigma_px), arm_T_camera=pose.matrix(),
+        translation_mm=1000.0 * np.asarray(pose.translation(), dtype=float),
+        rpy_deg=np.degrees(np.asarray(rotation.rpy(), dtype=float)), quaternion_xyzw=quaternion_xyzw(rotation),
+        covariance=cov, covariance_usable=bool(result.covariance_usable),
+        sigma_position_mm=1000.0 * sigma[:3], sigma_rpy_deg=np.degrees(np.sqrt(np.maximum(np.diag(cov_rpy), 0.0))),
+        sigma_rotation_arm_deg=np.degrees(sigma[3:]),
+        sigma_rotation_camera_deg=np.degrees(np.sqrt(np.maximum(np.diag(result.covariance)[:3], 0.0))),
+        determined=determined, ellipsoid95_mm=ellipsoid, ellipsoid95_axes=V[:, order], correlation=corr,
+        strong_correlations=strong, chi2=chi2_check(result), observability=words, suggestion=suggestion,
+        condition_number=float(result.observability.condition_number),
+        weakest_position=(pos_dir, 1000.0 * pos_sigma), weakest_rotation=(rot_axis, float(np.degrees(rot_sigma))),
+        measurements=list(result.measurements),
+        crossing_point_mm=1000.0 * geometry.point if crossing else None,
+        crossing_miss_mm=1000.0 * float(np.max(geometry.miss)) if crossing else None,
+    )
+
+
+# ---------------------------------------------------------------------------------------------------
+# command line: ``gtsam-rotid report RESULT.json [--dataset DIR] [--plots DIR] [--format ...]``
+
+
+def add_report_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``report`` command to an ``argparse`` subparsers object (``gtsam_rotid.cli`` wires it)."""
+    p = subparsers.add_parser(
+        "report", help="print the estimate, its uncertainty, consistency and observability (and plots)",
+        description="Report a calibration result: the estimate (mm, roll-pitch-yaw in degrees, quaternion), 1σ and "
+                    "95 % bounds, correlations, per-measurement residuals, weights, outliers and rejected tracks, the "
+                    "χ² consistency of the fit and the observability verdict in words. With --dataset the verdict "
+                    "locates the wrist axes' common point and --plots also draws the tracks and residuals.")
+    p.add_argument("result", metavar="RESULT_JSON", help="result file written by `calibrate -o`")
+    p.add_argument("--dataset", metavar="DIR", help="the dataset directory that was calibrated (optional)")
+    p.add_argument("--format", choices=[f.value for f in ReportFormat], default=ReportFormat.TEXT.value,
+                   help="text (default), markdown or json")
+    p.add_argument("-o", "--output", metavar="FILE", help="write the report to FILE instead of standard output")
+    p.add_argument("--plots", metavar="DIR", help="write PNG plots into DIR (created if missing)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.set_defaults(func=cmd_report)
+    return p
+
+
+def cmd_report(args) -> int:
+    from .export import OutputError
+
+    output = None if args.output is None else check_output_file(args.output, args.overwrite)
+    plots_dir = None if args.plots is None else Path(args.plots)
+    if plots_dir is not None:
+        if plots_dir.exists() and not plots_dir.is_dir():
+            raise OutputError(f"{plots_dir} exists and is not a directory")
+        if not plots_dir.parent.is_dir():
+            raise OutputError(f"cannot write plots into {plots_dir}: the directory {plots_dir.parent} does not "
+                                  "exist")
+    result = load_result(args.result)
+    dataset = None
+    if args.dataset is not None:
+        from .dataset import Dataset
+
+        dataset = Dataset.load(args.dataset)
+    if plots_dir is not None:
+        from .plots import plot_files
+
+        for path in plot_files(result, dataset, plots_dir):  # refuse before writing anything
+            if path.exists() and not args.overwrite:
+                raise OutputError(f"{path} exists; pass --overwrite to replace it")
+    text = make_report(result, dataset).render(args.format)
+    # with the report on standard output, progress lines go to standard error (the output stays parseable)
+    progress = sys.stdout if output is not None else sys.stderr
+    if output is None:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    else:
+        write_text(output, text, overwrite=args.overwrite)
+        print(f"wrote {output}", file=progress)
+    if plots_dir is not None:
+        from .plots import save_plots
+
+        plots_dir.mkdir(exist_ok=True)
+        if dataset is None:
+            print("gtsam-rotid report: note: only the 3-D view is drawn; give --dataset for the tracks and the "
+                  "residual histograms", file=sys.stderr)
+        for path in save_plots(result, dataset, plots_dir, overwrite=args.overwrite):
+            print(f"wrote {path}", file=progress)
+    return 0
