@@ -273,6 +273,12 @@ WATCH_POSE = 1e-7
 #: from the best start and its image-axis error is below this multiple of the best (+ 1 px^2).
 TWIN_MIN_ANGLE_DEG = 10.0
 TWIN_ERROR_RATIO = 4.0
+#: The image-axis (stage-2) graphs hold the pose near the start along directions whose information is below this
+#: fraction of the largest (reference scene: >= 8e-4; single crossing: ~3e-6), by a prior of sigma GAUGE_SIGMA
+#: (rad, m); see :func:`_gauge_prior`.
+WEAK_RELATIVE = 1e-4
+GAUGE_SIGMA = 0.1
+GAUGE_FLOOR = 1e-8
 #: LM iterations allowed from the twin start.
 TWIN_ITERATIONS = 20
 
@@ -361,15 +367,46 @@ def _stage2_graph(axes, lines, K, noises) -> gtsam.NonlinearFactorGraph:
     return graph
 
 
-def _best_stage2(graph, starts, options, max_iterations: int | None = None) -> tuple[gtsam.Pose3, float, int]:
+def _gauge_prior(graph: gtsam.NonlinearFactorGraph, anchor: gtsam.Pose3) -> gtsam.PriorFactorPose3 | None:
+    """A prior at ``anchor`` along the pose directions the image-axis graph leaves (nearly) undetermined there.
+
+    Pixel noise tilts the cost along such a direction (single crossing: the camera's ray to the crossing point,
+    where the noisy image axes fit better the farther the camera) and LM would slide the camera metres, even
+    kilometres, along it. Directions whose information is below ``WEAK_RELATIVE`` of the largest get a prior of
+    sigma ``GAUGE_SIGMA`` (rad, m); the others one of information ``GAUGE_FLOOR`` (it moves nothing there: the
+    data's information is >= 1e5 times larger), so that the prior is a full-rank Gaussian. None when nothing is
+    weak.
+    """
+    values = gtsam.Values()
+    values.insert(POSE_KEY, anchor)
+    w, V = np.linalg.eigh(pose_information(graph, values, POSE_KEY))
+    weak = w < WEAK_RELATIVE * max(w.max(), 1e-300)
+    if not weak.any():
+        return None
+    information = np.where(weak, GAUGE_SIGMA**-2, GAUGE_FLOOR)
+    return gtsam.PriorFactorPose3(POSE_KEY, anchor,
+                                  gtsam.noiseModel.Gaussian.Information((V * information) @ V.T))
+
+
+def _best_stage2(graph, starts, options, max_iterations: int | None = None,
+                 anchor: gtsam.Pose3 | None = None) -> tuple[gtsam.Pose3, float, int, int]:
+    """LM from each start, with the :func:`_gauge_prior` at ``anchor`` (default: at the start); returns (pose,
+    error, iterations, index of the start) of the lowest error."""
     best = None
-    for start in starts:
+    for i, start in enumerate(starts):
         values = gtsam.Values()
         values.insert(POSE_KEY, start)
-        result, iterations, error, _ = _lm(graph, values, max_iterations or options.max_iterations,
-                                           diagonal_damping=False)
+        gauged = graph
+        prior = _gauge_prior(graph, start if anchor is None else anchor)
+        if prior is not None:
+            gauged = gtsam.NonlinearFactorGraph()
+            gauged.push_back(graph)
+            gauged.add(prior)
+        result, iterations, _, _ = _lm(gauged, values, max_iterations or options.max_iterations,
+                                       diagonal_damping=False)
+        error = graph.error(result)
         if best is None or error < best[1]:
-            best = (result.atPose3(POSE_KEY), error, iterations)
+            best = (result.atPose3(POSE_KEY), error, iterations, i)
     return best
 
 
@@ -410,8 +447,9 @@ def initial_pose(arm: Arm, camera: Camera, measurements: list[Measurement],
     return _initial(arm, camera, measurements, options)[0][0]
 
 
-def _initial(arm, camera, measurements, options) -> tuple[list[gtsam.Pose3], _Setup]:
-    """Starting poses (one, or a pose and its twin when the image axes cannot tell them apart) and the setup."""
+def _initial(arm, camera, measurements, options) -> tuple[list[gtsam.Pose3], _Setup, list[gtsam.Pose3]]:
+    """Starting poses (one, or a pose and its twin when the image axes cannot tell them apart), the setup, and
+    per start the candidate it came from (before LM: the anchor of :func:`_gauge_prior`)."""
     setup = _setup(arm, camera, measurements, options)
     K = camera.K
     normals = np.array([plane_normal(K, line) for line in setup.lines])
@@ -421,7 +459,7 @@ def _initial(arm, camera, measurements, options) -> tuple[list[gtsam.Pose3], _Se
                                "and that the tracks belong to the wrist")
     unit = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(setup.axes)
     graph = _stage2_graph(setup.axes, setup.lines, K, unit)
-    pose, error, _ = _best_stage2(graph, candidates, options)
+    pose, error, _, best = _best_stage2(graph, candidates, options)
     rms = np.sqrt(2.0 * error / (2 * len(setup.axes)))
     if rms > options.max_initial_rms_px:
         raise CalibrationError(
@@ -431,11 +469,13 @@ def _initial(arm, camera, measurements, options) -> tuple[list[gtsam.Pose3], _Se
     # to decide (elsewhere LM takes the twin back to ``pose``).
     # A genuine twin is a minimum next to its start; elsewhere LM would crawl back to ``pose`` for many
     # iterations, so it gets few.
-    twin, twin_error, _ = _best_stage2(graph, [twin_pose(pose, closest_point(setup.axes))], options,
-                                       max_iterations=TWIN_ITERATIONS)
+    crossing = closest_point(setup.axes)
+    twin, twin_error, _, _ = _best_stage2(graph, [twin_pose(pose, crossing)], options,
+                                          max_iterations=TWIN_ITERATIONS)
     distinct = np.linalg.norm(pose.localCoordinates(twin)[:3]) > np.radians(TWIN_MIN_ANGLE_DEG)
-    starts = [pose, twin] if distinct and twin_error < TWIN_ERROR_RATIO * error + 1.0 else [pose]
-    return starts, setup
+    if distinct and twin_error < TWIN_ERROR_RATIO * error + 1.0:
+        return [pose, twin], setup, [candidates[best], twin_pose(candidates[best], crossing)]
+    return [pose], setup, [candidates[best]]
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -560,7 +600,7 @@ def _chi2(camera, axes, stage1, pose) -> np.ndarray:
     return np.array(out)
 
 
-def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsam.Pose3, options):
+def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsam.Pose3, options, anchor):
     """Stage 2 weighted by the stage-1 line covariances, Huber on whole measurements; returns (pose, its, graph)."""
     pose, iterations, graph = start, 0, None
     for _round in range(3):  # the distance covariance depends on where the test points project
@@ -571,7 +611,7 @@ def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsa
             noises.append(gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(3.0), base))
         graph = _stage2_graph([setup.axes[k] for k in used], [stage1[k].line for k in used], camera.K, noises)
         previous = pose
-        pose, _, it = _best_stage2(graph, [pose], options)
+        pose, _, it, _ = _best_stage2(graph, [pose], options, anchor=anchor)
         iterations += it
         step = previous.localCoordinates(pose)
         if np.max(np.abs(step[:3])) < 1e-9 and np.max(np.abs(step[3:])) < 1e-9:
@@ -588,8 +628,8 @@ def _poor_minimum(chi2: np.ndarray, limit: float, what: str) -> CalibrationError
         "raise CalibrationOptions.outlier_measurement_chi2)")
 
 
-def _robust_weighted(camera, setup, stage1, start, options) -> tuple[gtsam.Pose3, int, gtsam.NonlinearFactorGraph,
-                                                                       list[int], dict[int, float]]:
+def _robust_weighted(camera, setup, stage1, start, options, anchor
+                     ) -> tuple[gtsam.Pose3, int, gtsam.NonlinearFactorGraph, list[int], dict[int, float]]:
     """Weighted stage 2 that leaves out measurements whose image axis disagrees with the FK axis.
 
     At most ``(n - 3) // 2`` measurements are left out, so that the rest still over-determine the pose and
@@ -601,7 +641,7 @@ def _robust_weighted(camera, setup, stage1, start, options) -> tuple[gtsam.Pose3
     limit = options.outlier_measurement_chi2
     iterations = 0
     while True:
-        pose, it, graph = _weighted_stage2(camera, setup, stage1, used, start, options)
+        pose, it, graph = _weighted_stage2(camera, setup, stage1, used, start, options, anchor)
         iterations += it
         chi2 = _chi2(camera, setup.axes, stage1, pose)
         bad = [k for k in used if chi2[k] > limit]
@@ -615,7 +655,7 @@ def _robust_weighted(camera, setup, stage1, start, options) -> tuple[gtsam.Pose3
         best = None
         for k in used:
             rest = [i for i in used if i != k]
-            rest_pose, it, _ = _weighted_stage2(camera, setup, stage1, rest, pose, options)
+            rest_pose, it, _ = _weighted_stage2(camera, setup, stage1, rest, pose, options, anchor)
             iterations += it
             rest_chi2 = _chi2(camera, setup.axes, stage1, rest_pose)
             score = float(sum(rest_chi2[i] for i in rest))
@@ -697,13 +737,13 @@ def _flag_outlier_measurements(reports: list[MeasurementReport], options: Calibr
                                 f"the median {median:.2f} px")
 
 
-def _paper(camera, setup, stage1, init_pose, options) -> CalibrationResult:
+def _paper(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
     """The seed's stage 2: unweighted, random restarts, covariance (J^T J)^-1 at unit noise."""
     rng = np.random.default_rng(options.seed)
     noises = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(stage1)
     graph = _stage2_graph(setup.axes, [s.line for s in stage1], camera.K, noises)
     starts = [init_pose, *_random_restarts(init_pose, options.restarts, rng)]
-    pose, error, iterations = _best_stage2(graph, starts, options)
+    pose, error, iterations, _ = _best_stage2(graph, starts, options, anchor=anchor)
     chi2 = _chi2(camera, setup.axes, stage1, pose)
     if np.median(chi2) > options.outlier_measurement_chi2:  # the unweighted fit is suboptimal: judge loosely
         raise _poor_minimum(chi2, options.outlier_measurement_chi2, "most measurements disagree")
@@ -720,8 +760,8 @@ def _paper(camera, setup, stage1, init_pose, options) -> CalibrationResult:
                    reports, np.median(list(sigmas.values())), info_scale=1.0 / line_var, dof=_graph_dof(graph, values))
 
 
-def _weighted(camera, setup, stage1, init_pose, options) -> CalibrationResult:
-    pose, iterations, graph, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options)
+def _weighted(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
+    pose, iterations, graph, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options, anchor)
     values = gtsam.Values()
     values.insert(POSE_KEY, pose)
     sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
@@ -730,14 +770,14 @@ def _weighted(camera, setup, stage1, init_pose, options) -> CalibrationResult:
                    graph.error(values), reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(graph, values))
 
 
-def _joint(arm, camera, measurements, setup, stage1, init_pose, options) -> CalibrationResult:
+def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
     """One graph: every circle-point factor (Huber per track) tied to the pose; Marginals of the whole graph.
 
     It starts from the weighted two-stage pose, within the joint problem's basin (from a few degrees off,
     circles of short arcs can run off to degenerate solutions that LM cannot leave), with the circles
     fitted at that pose (``"line"`` model: the stage-1 lines and circles, see RotIdGraph.add_measurement).
     """
-    pose, iterations, _, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options)
+    pose, iterations, _, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options, anchor)
     builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model)
     sigmas = {k: float(np.sqrt(stage1[k].sigma2)) for k in used}
     circles = {k: None if builder.model is Model.POSE else dict(stage1[k].circles) for k in used}
@@ -863,13 +903,13 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
         raise InputError(f"unknown method {method!r}; choose one of {[m.value for m in Method]}") from None
     options = CalibrationOptions() if options is None else options
     measurements = [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements]
-    starts, setup = _initial(arm, camera, measurements, options)
+    starts, setup, anchors = _initial(arm, camera, measurements, options)
     runs = [(start, _stage1(arm, camera, measurements, start, setup, options)) for start in starts]
     if len(runs) > 1:  # image axes cannot choose between twin starts: the joint fit of the circles does
         joints, failures = [], []
-        for start, stage1 in runs:
+        for (start, stage1), anchor in zip(runs, anchors, strict=True):
             try:
-                joints.append(_joint(arm, camera, measurements, setup, stage1, start, options))
+                joints.append(_joint(arm, camera, measurements, setup, stage1, start, options, anchor))
             except CalibrationError as failure:  # the wrong twin's circles cannot fit: its estimate is a poor one
                 joints.append(None)
                 failures.append(failure)
@@ -879,16 +919,17 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
         if method is Method.JOINT:
             _check_scale(joints[best], setup, runs[best][1], options)
             return joints[best]
-        runs = [runs[best]]
+        runs, anchors = [runs[best]], [anchors[best]]
     init_pose, stage1 = runs[0]
-    result = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options)
+    result = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
     _check_scale(result, setup, stage1, options)
     return result
 
 
-def _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options) -> CalibrationResult:
+
+def _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
     if method is Method.PAPER:
-        return _paper(camera, setup, stage1, init_pose, options)
+        return _paper(camera, setup, stage1, init_pose, options, anchor)
     if method is Method.WEIGHTED:
-        return _weighted(camera, setup, stage1, init_pose, options)
-    return _joint(arm, camera, measurements, setup, stage1, init_pose, options)
+        return _weighted(camera, setup, stage1, init_pose, options, anchor)
+    return _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
