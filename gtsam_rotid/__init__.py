@@ -15,11 +15,14 @@ from .errors import (
     DatasetExistsError,
     DatasetNotFoundError,
     InputError,
+    OutputError,
+    RecordingError,
     RotIdError,
     SimulationError,
     ValidationError,
 )
 from .geometry import Line3
+from .tracking import Tracker, TrackerParams, track
 
 __version__ = "0.1.0"
 
@@ -34,9 +37,14 @@ __all__ = [
     "InputError",
     "Line3",
     "Measurement",
+    "OutputError",
+    "RecordingError",
     "RotIdError",
     "SimulationError",
     "Track",
+    "Tracker",
+    "TrackerParams",
     "ValidationError",
     "simulate",
+    "track",
 ]
