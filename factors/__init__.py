@@ -32,6 +32,7 @@ Factories (thin ``gtsam.CustomFactor`` wrappers over the pure functions in :mod:
 
 from .axis import make_axis_to_line_factor, make_axis_to_line_variable_factor
 from .circle import make_circle_point_factor
+from .coaxial import CoaxialLineFactor, CoaxialTracks, make_coaxial_line_factor
 from .geometry import (
     CircleTrack,
     axis_point_residuals,
@@ -61,6 +62,8 @@ from .rigid import (
 
 __all__ = [
     "CircleTrack",
+    "CoaxialLineFactor",
+    "CoaxialTracks",
     "FKAxis",
     "SpinInit",
     "axis_point_residuals",
@@ -78,6 +81,7 @@ __all__ = [
     "make_axis_to_line_factor",
     "make_axis_to_line_variable_factor",
     "make_circle_point_factor",
+    "make_coaxial_line_factor",
     "make_pose_circle_point_factor",
     "make_rigid_circle_factor",
     "project",
