@@ -585,8 +585,10 @@ class CoaxialTracks:
         nearest of ``COLD_GRID_SIZE`` phases, then safeguarded Newton on ``y2^3 f'`` (Gauss-Newton
         ``|z[:2]|^2 / y2`` where ``F'`` is not safely positive; steps clamped to one grid cell). Writes the phases
         into (s, c); returns the pixels still not certified."""
-        row = todo // lay.L
         n = len(todo)
+        if n == 0:  # every pixel left belongs to a track without a valid image ellipse
+            return todo
+        row = todo // lay.L
         self.restarted_points += n
         grid, basis = _phase_grid(COLD_GRID_SIZE)
         Y = [rows[part][:, row] for part in (_Y0, _Y1, _Y2)]  # (3, n) each

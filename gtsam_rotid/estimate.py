@@ -103,9 +103,11 @@ class CalibrationOptions:
     spin_model: str = "free"
     #: LM stops when the relative decrease of the error falls below these (stage 1; everything else).
     stage1_tolerance: float = 1e-8
-    #: Joint graph: ``"line"`` (DESIGN.md §4: line variables with a projected-axis tie) or ``"pose"`` (circles
-    #: bound to the pose through the FK axis; biased tilt with free phases), see :class:`gtsam_rotid.graph.Model`.
-    joint_model: str = "line"
+    #: Joint graph: ``"projected"`` (DESIGN.md §4's line variables with a projected-axis tie, the circles
+    #: projected out inside one factor per measurement), ``"line"`` (the same with a circle variable per track:
+    #: the same solution, ~5x slower) or ``"pose"`` (circles bound to the pose through the FK axis; biased tilt
+    #: with free phases), see :class:`gtsam_rotid.graph.Model`.
+    joint_model: str = "projected"
     #: Features farther than this (m, median over tracks) from the wrist axis are not on an end effector: an
     #: estimate that implies them is a poor minimum (typically a camera put metres away by wrong joint angles).
     max_feature_radius_m: float = 0.5
@@ -279,6 +281,9 @@ TWIN_ERROR_RATIO = 4.0
 WEAK_RELATIVE = 1e-4
 GAUGE_SIGMA = 0.1
 GAUGE_FLOOR = 1e-8
+#: Stage 1 redoes a measurement with circle variables when LM on the projected model lowers the error by less than
+#: this fraction (it stalled at its start).
+STALL_DECREASE = 1e-3
 #: LM iterations allowed from the twin start.
 TWIN_ITERATIONS = 20
 
@@ -379,13 +384,15 @@ def _gauge_prior(graph: gtsam.NonlinearFactorGraph, anchor: gtsam.Pose3) -> gtsa
     """
     values = gtsam.Values()
     values.insert(POSE_KEY, anchor)
-    w, V = np.linalg.eigh(pose_information(graph, values, POSE_KEY))
+    information = pose_information(graph, values, POSE_KEY)
+    if not np.all(np.isfinite(information)):  # e.g. test points behind the camera: no sensible gauge there
+        return None
+    w, V = np.linalg.eigh(information)
     weak = w < WEAK_RELATIVE * max(w.max(), 1e-300)
     if not weak.any():
         return None
-    information = np.where(weak, GAUGE_SIGMA**-2, GAUGE_FLOOR)
-    return gtsam.PriorFactorPose3(POSE_KEY, anchor,
-                                  gtsam.noiseModel.Gaussian.Information((V * information) @ V.T))
+    prior = np.where(weak, GAUGE_SIGMA**-2, GAUGE_FLOOR)
+    return gtsam.PriorFactorPose3(POSE_KEY, anchor, gtsam.noiseModel.Gaussian.Information((V * prior) @ V.T))
 
 
 def _best_stage2(graph, starts, options, max_iterations: int | None = None,
@@ -495,8 +502,18 @@ class _Stage1:
     iterations: int
 
 
+def _circles(keys: MeasurementKeys, values) -> list[np.ndarray]:
+    """(d, r) of each of a measurement's tracks (in ``keys.tracks`` order) at the values."""
+    if keys.coaxial is not None:
+        return list(keys.coaxial.circles(values))
+    return [values.atVector(c) for c in keys.circles]
+
+
 def _track_stats(graph, keys: MeasurementKeys, values) -> dict[int, tuple[float, int]]:
     """Per track: (residual sum of squares in px^2, number of points)."""
+    if keys.coaxial is not None:
+        sse = keys.coaxial.track_sse(values)
+        return {j: (float(sse[i]), int(keys.coaxial.counts[i])) for i, j in enumerate(keys.tracks)}
     out = {}
     for j, fi in zip(keys.tracks, keys.circle_factors, strict=True):
         e = graph.at(fi).unwhitenedError(values)
@@ -527,7 +544,14 @@ def _noise_variance(stats: dict[int, tuple[float, int]], line_dof: int, options:
     return max(sse / dof, options.min_sigma_px**2)
 
 
-def _stage1_measurement(builder: RotIdGraph, measurement, k, pose, prepared, options) -> _Stage1:
+def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepared, options) -> _Stage1:
+    """Coaxial circles of one measurement, rejecting outlier tracks round by round.
+
+    ``builders``: the projected model first (fast); if LM cannot lower its error at all (wrong arcs far from
+    any coaxial circle can make the projected-out circles jump between solutions from one line to the next),
+    the measurement is redone with the next builder's model (circle variables that move continuously).
+    """
+    builder, *fallbacks = builders
     skip: dict[int, str] = {}
     iterations = 0
     line_start, circles_start = None, None
@@ -539,34 +563,40 @@ def _stage1_measurement(builder: RotIdGraph, measurement, k, pose, prepared, opt
         line, _ = image_line_from_rot3(builder.camera.K, v.atRot3(builder.line_key(k)))
         return line_distances(line, corners)
 
-    for _round in range(4):
+    rounds = 0
+    while rounds < 4:
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False,
                                        prepared=prepared, skip_tracks=skip, refine_circles=False,
                                        initial_line=line_start, initial_circles=circles_start)
-        result, it, _, _ = _lm(graph, values, options.max_iterations, relative_tolerance=options.stage1_tolerance,
-                               watch=image_axis_at_corners, watch_tolerance=WATCH_LINE_PX)
+        start_error = graph.error(values)
+        result, it, error, _ = _lm(graph, values, options.max_iterations, relative_tolerance=options.stage1_tolerance,
+                                   watch=image_axis_at_corners, watch_tolerance=WATCH_LINE_PX)
         iterations += it
+        if fallbacks and error >= (1.0 - STALL_DECREASE) * start_error and start_error > 0.0:
+            builder, *fallbacks = fallbacks  # stalled from the start: redo this round with the next model
+            continue
+        rounds += 1
         stats = _track_stats(graph, keys, result)
         new = _outlier_tracks(stats, options)
         if not new or len(stats) - len(new) < 2:
             break
         skip.update(new)
         line_start = result.atRot3(keys.line)  # the next round starts where this one ended
-        circles_start = {j: result.atVector(c) for j, c in zip(keys.tracks, keys.circles, strict=True)}
+        circles_start = dict(zip(keys.tracks, _circles(keys, result), strict=True))
     R = result.atRot3(keys.line)
     line, J = image_line_from_rot3(builder.camera.K, R)
     info = marginal_information(graph, result, keys.line, 3)  # unit pixel noise
     w, V = np.linalg.eigh(info)
     cov_R = (V / np.maximum(w, 1e-12 * max(w.max(), 1e-300))) @ V.T
-    circles = {j: result.atVector(c) for j, c in zip(keys.tracks, keys.circles, strict=True)}
+    circles = dict(zip(keys.tracks, _circles(keys, result), strict=True))
     return _Stage1(keys, R, circles, line, J @ cov_R @ J.T, _noise_variance(stats, 3, options),
                    sum(n for _, n in stats.values()), skip, iterations)
 
 
 def _stage1(arm, camera, measurements, pose, setup: _Setup, options) -> list[_Stage1]:
-    builder = _builder(arm, camera, options)
-    return [_stage1_measurement(builder, m, k, pose, setup.prepared[k], options) for k, m in enumerate(measurements)]
+    builders = [_builder(arm, camera, options, model=Model.PROJECTED), _builder(arm, camera, options)]
+    return [_stage1_measurement(builders, m, k, pose, setup.prepared[k], options) for k, m in enumerate(measurements)]
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -798,8 +828,7 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
         pose = result.atPose3(POSE_KEY)
         new_sigmas = {k: float(np.sqrt(_noise_variance(_track_stats(graph, keys[k], result), 1, options)))
                       for k in used}
-        circles = {k: {j: result.atVector(c) for j, c in zip(keys[k].tracks, keys[k].circles, strict=True)}
-                   for k in used}
+        circles = {k: dict(zip(keys[k].tracks, _circles(keys[k], result), strict=True)) for k in used}
         lines = {k: None if keys[k].line is None else result.atRot3(keys[k].line) for k in used}
         stable = all(abs(new_sigmas[k] / sigmas[k] - 1.0) < 0.05 for k in used)
         sigmas = new_sigmas
@@ -807,7 +836,7 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
             break
     info = pose_information(graph, result, POSE_KEY)
     reports = _reports(stage1, setup, sigmas, used, options, chi2)
-    if options.spin_model == "rigid" and builder.model is Model.LINE:
+    if options.spin_model == "rigid" and builder.model is not Model.POSE:
         rigid = _rigid_spin(camera, measurements, setup, keys, result, sigmas, options)
         if rigid is not None:
             pose, covariance, it, error, converged = rigid
@@ -842,8 +871,8 @@ def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options):
         graph.add(make_axis_to_line_variable_factor(gtsam.noiseModel.Isotropic.Sigma(2, options.tie_sigma_px),
                                                     POSE_KEY, keys_k.line, axis_test_points(setup.axes[k]), K))
         spun = []
-        for j, circle_key in zip(keys_k.tracks, keys_k.circles, strict=True):
-            d, r = free.atVector(circle_key)
+        for j, (d, r) in zip(keys_k.tracks, _circles(keys_k, free), strict=True):
+            circle_key = gtsam.symbol("c", k * CIRCLE_STRIDE + j)
             ideal = setup.prepared[k].usable[j].ideal
             frames = Track.from_any(measurements[k].tracks[j]).frames
             if frames is None:
