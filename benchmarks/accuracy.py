@@ -100,7 +100,7 @@ def main(argv=None) -> int:
     parser.add_argument("--first-seed", type=int, default=1000)
     parser.add_argument("--scene-seed", type=int, default=0, help="seed of the reference scene whose arm poses "
                         "every trial keeps (-1: new poses in every trial)")
-    parser.add_argument("--joint-model", default="line", choices=("line", "pose"),
+    parser.add_argument("--joint-model", default="projected", choices=("projected", "line", "pose"),
                         help="graph of the joint method (CalibrationOptions.joint_model)")
     parser.add_argument("--spin-model", default="free", choices=("free", "rigid"),
                         help="phase model of the joint method (CalibrationOptions.spin_model)")
