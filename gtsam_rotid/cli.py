@@ -3,16 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path
 
 from . import __version__
-from .errors import OutputError, RotIdError
+from .errors import InputError, OutputError, RotIdError
 from .export import add_export_parser
 from .recordings import add_track_parser
-from .report import add_report_parser
+from .report import add_report_parser, error_vs_truth_lines
 
 SCENES = ("reference", "single-crossing")
 #: ``gtsam_rotid.estimate.Method`` values (kept literal so that ``--help`` does not import the estimator).
@@ -69,45 +68,9 @@ def _calibrate_timed(dataset, method: str):
     return result
 
 
-def _in_sigmas(error, sigma) -> str:
-    return " ".join(f"{e / s:+7.2f}" if s > 0 else "    n/a" for e, s in zip(error, sigma, strict=True))
-
-
-def print_error_vs_truth(result, arm_T_camera_true) -> None:
-    """Print the estimate's error against a known ``arm_T_camera``, per axis and in units of the reported 1σ.
-
-    Rotation and camera-frame translation are ``result.error_to`` (the Pose3 tangent, in which the covariance
-    is expressed); the arm-frame position error is the difference of the camera centres, against
-    ``result.sigma_mm_arm``.
-    """
-    import numpy as np
-
-    error = result.error_to(arm_T_camera_true)
-    rot_deg = np.degrees(error[:3])
-    trans_mm = 1000.0 * error[3:]
-    pos_mm = 1000.0 * (result.arm_T_camera.translation() - arm_T_camera_true.translation())
-    usable = result.covariance_usable
-    rows = [
-        ("rotation, camera axes (deg)", rot_deg, "{:+10.4f}", result.sigma_deg),
-        ("translation, camera frame (mm)", trans_mm, "{:+10.3f}", result.sigma_mm),
-        ("position, arm frame (mm)", pos_mm, "{:+10.3f}", result.sigma_mm_arm),
-    ]
-    print("error vs truth (estimate - truth, per axis" + (", and in reported 1-sigma units)" if usable else ")"))
-    for label, values, fmt, sigma in rows:
-        line = f"  {label:<31}" + "".join(fmt.format(v) for v in values)
-        if usable:
-            line += f"   = {_in_sigmas(values, sigma)} sigma"
+def _print_lines(lines) -> None:
+    for line in lines:
         print(line)
-    total = f"  total: rotation {np.linalg.norm(rot_deg):.3g} deg, position {np.linalg.norm(pos_mm):.3g} mm"
-    if usable:
-        try:
-            chi2 = float(error @ np.linalg.solve(result.covariance, error))
-        except np.linalg.LinAlgError:
-            chi2 = math.nan
-        total += f", Mahalanobis chi2 {chi2:.3g} (6 dof: about 6 if the 1-sigma is right)"
-    else:
-        total += " (covariance unusable: no comparison with a 1-sigma)"
-    print(total)
 
 
 def _load_truth(dataset_path: Path):
@@ -149,13 +112,28 @@ def cmd_calibrate(args) -> int:
     result = _calibrate_timed(dataset, args.method)
     print(result.summary())
     if truth is not None:
-        print_error_vs_truth(result, truth.arm_T_camera)
+        _print_lines(error_vs_truth_lines(result, truth.arm_T_camera))
     if output is not None:
         _save_result(result, output, args.overwrite)
     return 0
 
 
 def cmd_demo(args) -> int:
+    """The whole pipeline on the built-in scene: render, track, calibrate (or, with --no-video, calibrate the
+    simulated tracks directly)."""
+    if args.no_video:
+        return _demo_simulated(args)
+    if args.noise_var is not None:
+        raise InputError("--noise-var sets the pixel noise of simulated tracks: use it with --no-video (the video "
+                         "demo's noise is the rendered image noise)")
+    from .pixels import DEMO_DURATION, run_demo
+
+    run_demo(args.out, seed=args.seed, duration=args.duration or DEMO_DURATION,
+             n_measurements=args.n_measurements or 6, method=args.method, overwrite=args.overwrite)
+    return 0
+
+
+def _demo_simulated(args) -> int:
     import numpy as np
 
     out = Path(args.out) if args.out else None
@@ -179,7 +157,7 @@ def cmd_demo(args) -> int:
         print(f"wrote {out / 'dataset'}")
     result = _calibrate_timed(dataset, args.method)
     print(result.summary())
-    print_error_vs_truth(result, truth.arm_T_camera)
+    _print_lines(error_vs_truth_lines(result, truth.arm_T_camera))
     if out is not None:
         _save_result(result, out / RESULT_FILE, args.overwrite)
     return 0
@@ -222,8 +200,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help="replace an existing result file")
     p.set_defaults(func=cmd_calibrate)
 
-    p = sub.add_parser("demo", help="simulate the reference scene and calibrate it")
-    p.add_argument("--out", metavar="DIR", help=f"also write DIR/dataset and DIR/{RESULT_FILE}")
+    p = sub.add_parser("demo", help="render the reference scene, track it and calibrate it (the whole pipeline)",
+                       description="Render the paper's reference scene (6 wrist spins, 20 s each by default), track "
+                                   "the features, calibrate, and print the result and its error against the truth. "
+                                   "--no-video calibrates the simulated tracks instead (60 s spins by default).")
+    p.add_argument("--out", metavar="DIR", help=f"also write DIR/dataset, DIR/{RESULT_FILE} (and, from video, "
+                                                 "one overlay picture per measurement)")
+    p.add_argument("--no-video", action="store_true", help="skip rendering and tracking: calibrate simulated tracks")
     p.add_argument("--overwrite", action="store_true", help="replace existing output")
     _add_method_option(p)
     _add_scene_options(p)

@@ -749,7 +749,7 @@ def _reports(stage1: list[_Stage1], setup: _Setup, sigmas: dict[int, float], use
                       f"{chi2[k]:.3g} > {options.outlier_measurement_chi2:g}, 2 dof); check its joint angles")
         axis = setup.axes[k]
         reports.append(MeasurementReport(
-            k, len(s.keys.tracks) - len(s.outliers), s.n_points, float(sigma),
+            k, len(s.keys.tracks), s.n_points, float(sigma),
             0.0 if excluded else median**2 / sigma**2, excluded, rejected, reason,
             axis_point=[float(v) for v in axis.point], axis_direction=[float(v) for v in axis.direction],
             image_axis=[float(v) for v in s.line / np.hypot(s.line[0], s.line[1])],

@@ -12,6 +12,9 @@ Every function returns a ``matplotlib.figure.Figure``; ``fig.savefig("x.png")`` 
   slope and intercept errors per measurement) and :func:`plot_pose_errors` / :func:`plot_cartesian_errors` /
   :func:`plot_angular_errors` (errors per noise level with the Cramér-Rao bound drawn).
 
+- :func:`plot_overlay`: the paper's "quad view" of one measurement on a video frame: the frame, the features
+  tracked in it, the tracked arcs, and the fitted circles with the projected axis (:func:`save_overlays`).
+
 :func:`save_plots` writes the report's set (``gtsam-rotid report --plots DIR``).
 """
 
@@ -470,6 +473,135 @@ def save_plots(result, dataset, directory: str | os.PathLike, *, overwrite: bool
         figures += [plot_tracks(result, dataset, k, fit=fit) for k, fit in enumerate(fits)]
         figures.append(plot_residual_histograms(result, dataset, fits=fits))
     for fig, path in zip(figures, paths, strict=True):
+        try:
+            fig.savefig(path, dpi=DPI)
+        except OSError as exc:
+            raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+    return paths
+
+
+# ---------------------------------------------------------------------------------------------------
+# the quad view on a video frame
+
+
+def _zoom_box(camera, tracks: list[np.ndarray]) -> tuple[tuple[float, float], tuple[float, float]]:
+    """(x limits, y limits, rows downwards) of a box around the tracks with the image's aspect ratio."""
+    if not tracks:
+        return (-0.5, camera.width - 0.5), (camera.height - 0.5, -0.5)
+    points = np.vstack(tracks)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo) * 1.15 + 5.0
+    half = np.maximum(half, half[::-1] * np.array([camera.width / camera.height, camera.height / camera.width]))
+    return (centre[0] - half[0], centre[0] + half[0]), (centre[1] + half[1], centre[1] - half[1])
+
+
+def _show_frame(ax, frame: np.ndarray, camera, alpha: float = 1.0) -> None:
+    image = np.asarray(frame)
+    extent = (-0.5, camera.width - 0.5, camera.height - 0.5, -0.5)
+    if image.ndim == 3:  # OpenCV's BGR
+        ax.imshow(image[..., ::-1], extent=extent, alpha=alpha, interpolation="nearest")
+    else:
+        ax.imshow(image, cmap="gray", vmin=0, vmax=255, extent=extent, alpha=alpha, interpolation="nearest")
+
+
+def plot_overlay(frame, result, dataset, k: int, *, frame_number: int | None = None,
+                 fit: TrackFit | None = None) -> Figure:
+    """Measurement ``k`` over one of its video frames, in four panels (the paper's "quad view"):
+
+    1. the frame as recorded (the box shows where the other panels zoom in);
+    2. the features tracked in that frame (``frame_number``: the frame's number in the tracks' ``frames``), a
+       ring per tracked point, coloured by track;
+    3. every track's arc over the whole spin, tracks the estimator rejected in grey;
+    4. the circles fitted about the wrist axis projected by the estimate, that projected axis, and the stage-1
+       image axis (as :func:`plot_tracks`).
+
+    ``frame``: uint8 grey (H, W) or BGR (H, W, 3) image of the camera's size; ``fit`` reuses :func:`fit_tracks`.
+    """
+    camera = dataset.camera
+    image = np.asarray(frame)
+    if image.shape[:2] != (camera.height, camera.width):
+        raise InputError(f"the frame is {image.shape[1]}x{image.shape[0]} but the camera's image is "
+                         f"{camera.width}x{camera.height}")
+    fit = fit_tracks(result, dataset, k) if fit is None else fit
+    tracks = [Track.from_any(t) for t in dataset[k].tracks]
+    colours = _track_colours(len(tracks))
+    kept = set(fit.circles) if fit.line is not None else set(range(len(tracks)))
+    xlim, ylim = _zoom_box(camera, [t.pixels for t in tracks])
+    fig = new_figure(11.0, 8.6)
+    (raw, detected), (arcs, fitted) = fig.subplots(2, 2)
+
+    _show_frame(raw, image, camera)
+    raw.plot([xlim[0], xlim[1], xlim[1], xlim[0], xlim[0]], [ylim[0], ylim[0], ylim[1], ylim[1], ylim[0]], "-",
+             color="tab:orange", lw=1.0)
+    raw.set_xlim(-0.5, camera.width - 0.5)
+    raw.set_ylim(camera.height - 0.5, -0.5)
+    where = "" if frame_number is None else f" {frame_number}"
+    raw.set_title(f"1. frame{where} of the video (box: the zoom of the other panels)", fontsize=9)
+
+    _show_frame(detected, image, camera)
+    n_here = 0
+    if frame_number is not None:
+        for j, t in enumerate(tracks):
+            if t.frames is None:
+                continue
+            i = np.searchsorted(t.frames, frame_number)
+            if i < len(t.frames) and t.frames[i] == frame_number:
+                n_here += 1
+                detected.plot(*t.pixels[i], "o", ms=11.0, mfc="none", mew=1.4, color=colours[j])
+    detected.set_title(f"2. features tracked in this frame: {n_here}", fontsize=9)
+
+    _show_frame(arcs, image, camera, alpha=0.45)
+    for j, t in enumerate(tracks):
+        if j in kept:
+            arcs.plot(t.pixels[:, 0], t.pixels[:, 1], "-", lw=1.2, color=colours[j])
+        else:
+            arcs.plot(t.pixels[:, 0], t.pixels[:, 1], "-", lw=0.8, color="0.5")
+    arcs.set_title(f"3. tracked arcs over the spin: {len(kept)} kept, {len(tracks) - len(kept)} rejected (grey)",
+                   fontsize=9)
+
+    _show_frame(fitted, image, camera, alpha=0.45)
+    _draw_tracks(fitted, result, dataset, k, fit, True)
+    fitted.set_title("4. circles fitted about the wrist axis, and that axis, projected by the estimate", fontsize=9)
+
+    for ax in (detected, arcs, fitted):
+        ax.set_xlim(*xlim)
+        ax.set_ylim(*ylim)
+    for ax in (raw, detected, arcs, fitted):
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=7)
+    report = result.measurements[k] if k < len(result.measurements) else None
+    title = f"measurement {k}: {len(tracks)} tracks"
+    if report is not None:
+        title += (f", residual RMS {report.residual_rms_px:.3f} px, weight {report.weight:.2f}"
+                  + (f", OUTLIER ({report.outlier_reason})" if report.outlier else ""))
+    if fit.problem:
+        title += f"\n{fit.problem}"
+    fig.suptitle(title, fontsize=10)
+    return fig
+
+
+def overlay_files(directory: str | os.PathLike, measurements) -> list[Path]:
+    """The PNG files :func:`save_overlays` writes for these measurement indices."""
+    return [Path(directory) / f"overlay_m{k}.png" for k in measurements]
+
+
+def save_overlays(result, dataset, frames, directory: str | os.PathLike, *, overwrite: bool = False) -> list[Path]:
+    """Write :func:`plot_overlay` of each measurement as ``overlay_m{k}.png`` in ``directory``.
+
+    ``frames``: a mapping ``k -> (frame_number, image)`` (measurements without a frame are skipped). Refuses
+    (before drawing) to replace existing files unless ``overwrite``. Returns the paths written.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise OutputError(f"{directory} is not a directory")
+    order = sorted(frames)
+    paths = overlay_files(directory, order)
+    existing = [p for p in paths if p.exists()]
+    if existing and not overwrite:
+        raise OutputError(f"{existing[0]} exists; pass --overwrite to replace it")
+    for k, path in zip(order, paths, strict=True):
+        frame_number, image = frames[k]
+        fig = plot_overlay(image, result, dataset, k, frame_number=frame_number)
         try:
             fig.savefig(path, dpi=DPI)
         except OSError as exc:

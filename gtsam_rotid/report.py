@@ -590,6 +590,47 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
     )
 
 
+
+def _in_sigmas(error, sigma) -> str:
+    return " ".join(f"{e / s:+7.2f}" if s > 0 else "    n/a" for e, s in zip(error, sigma, strict=True))
+
+
+def error_vs_truth_lines(result, arm_T_camera_true) -> list[str]:
+    """The estimate's error against a known ``arm_T_camera``, per axis and in units of the reported 1σ.
+
+    Rotation and camera-frame translation are ``result.error_to`` (the Pose3 tangent, in which the covariance
+    is expressed); the arm-frame position error is the difference of the camera centres, against
+    ``result.sigma_mm_arm``.
+    """
+    error = result.error_to(arm_T_camera_true)
+    rot_deg = np.degrees(error[:3])
+    trans_mm = 1000.0 * error[3:]
+    pos_mm = 1000.0 * (result.arm_T_camera.translation() - arm_T_camera_true.translation())
+    usable = result.covariance_usable
+    rows = [
+        ("rotation, camera axes (deg)", rot_deg, "{:+10.4f}", result.sigma_deg),
+        ("translation, camera frame (mm)", trans_mm, "{:+10.3f}", result.sigma_mm),
+        ("position, arm frame (mm)", pos_mm, "{:+10.3f}", result.sigma_mm_arm),
+    ]
+    lines = ["error vs truth (estimate - truth, per axis" + (", and in reported 1-sigma units)" if usable else ")")]
+    for label, values, fmt, sigma in rows:
+        line = f"  {label:<31}" + "".join(fmt.format(v) for v in values)
+        if usable:
+            line += f"   = {_in_sigmas(values, sigma)} sigma"
+        lines.append(line)
+    total = f"  total: rotation {np.linalg.norm(rot_deg):.3g} deg, position {np.linalg.norm(pos_mm):.3g} mm"
+    if usable:
+        try:
+            chi2 = float(error @ np.linalg.solve(result.covariance, error))
+        except np.linalg.LinAlgError:
+            chi2 = math.nan
+        total += f", Mahalanobis chi2 {chi2:.3g} (6 dof: about 6 if the 1-sigma is right)"
+    else:
+        total += " (covariance unusable: no comparison with a 1-sigma)"
+    lines.append(total)
+    return lines
+
+
 # ---------------------------------------------------------------------------------------------------
 # command line: ``gtsam-rotid report RESULT.json [--dataset DIR] [--plots DIR] [--format ...]``
 

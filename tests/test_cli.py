@@ -200,9 +200,9 @@ def test_calibrate_bad_method_is_a_usage_error(noise_free_dataset):
     assert result.returncode == 2 and "invalid choice" in result.stderr
 
 
-def test_demo_calibrates_and_prints_the_true_error(tmp_path):
+def test_demo_without_video_calibrates_and_prints_the_true_error(tmp_path):
     out = tmp_path / "demo"
-    result = run("demo", *FAST_SCENE, "--out", str(out))
+    result = run("demo", "--no-video", *FAST_SCENE, "--out", str(out))
     stdout = result.stdout
     assert "reference scene" in stdout and "true arm_T_camera" in stdout
     assert "simulating..." in stdout and "calibrating (joint)..." in stdout and "calibrated in" in stdout
@@ -213,6 +213,19 @@ def test_demo_calibrates_and_prints_the_true_error(tmp_path):
     assert rotation < 1e-6
     assert translation < 1e-6
     before = (out / "result.json").read_bytes()
-    again = run("demo", *FAST_SCENE, "--out", str(out), check=False)  # refused before simulating
+    again = run("demo", "--no-video", *FAST_SCENE, "--out", str(out), check=False)  # refused before simulating
     assert again.returncode == 1 and "--overwrite" in again.stderr
     assert (out / "result.json").read_bytes() == before
+
+
+def test_demo_from_video_runs_the_whole_pipeline(tmp_path):
+    """The default demo renders, tracks and calibrates (a short scene here; the full one in the README)."""
+    out = tmp_path / "video-demo"
+    result = run("demo", "--duration", "6", "--n-measurements", "4", "--out", str(out))
+    stdout = result.stdout
+    assert "rendered, tracked and calibrated" in stdout and "calibrating (joint)..." in stdout
+    assert_prints_error_vs_truth(stdout)
+    assert (out / "result.json").is_file() and (out / "dataset" / "truth.json").is_file()
+    assert sorted(p.name for p in out.glob("overlay_m*.png")) == [f"overlay_m{k}.png" for k in range(4)]
+    refused = run("demo", "--noise-var", "1", check=False)  # pixel noise belongs to simulated tracks
+    assert refused.returncode == 1 and "--no-video" in refused.stderr

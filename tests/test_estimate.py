@@ -175,6 +175,8 @@ def test_outlier_tracks_are_named_and_do_not_bias(outlier_track_scene, method):
     rejected = {(m.index, j): why for m in result.measurements for j, why in m.rejected_tracks.items()}
     caught = planted & rejected.keys()
     assert len(caught) >= len(planted) // 2
+    for m in result.measurements:  # every track is either used or rejected, and counted once
+        assert m.n_tracks + len(m.rejected_tracks) == len(dataset[m.index].tracks)
     assert all("does not fit" in rejected[t] or "residual RMS" in rejected[t] for t in caught)
     # good tracks are rejected only for being short or still, or rarely (a 99.9 % test) for their fit
     wrongly = [why for t, why in rejected.items() if t not in planted and "points)" not in why and "barely" not in why]

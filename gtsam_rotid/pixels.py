@@ -1,0 +1,429 @@
+"""From pixels to a calibration on a simulated scene: render the video, track it, calibrate (issue 4).
+
+The simulator (:mod:`gtsam_rotid.simulate`) gives the arm poses, the camera and the true ``arm_T_camera``; the
+renderer (:mod:`gtsam_rotid.render`) draws each measurement's wrist spin as 8-bit frames; the tracker
+(:mod:`gtsam_rotid.tracking`) turns them into tracks, frame by frame (frames are rendered one at a time and never
+held); the estimator sees only the tracks. The simulator's own features are not used: the rendered dots (their
+circles are those of the renderer's sections, :class:`~gtsam_rotid.render.RenderConfig`) are what is tracked.
+
+- :func:`dataset_from_video`: a simulated scene -> :class:`VideoScene` (the tracked :class:`Dataset`, each
+  measurement's :class:`~gtsam_rotid.tracking.TrackingResult`, the tracking accuracy against the rendered truth).
+- :func:`tracking_accuracy` / :func:`spin_accuracy`: every tracked point matched to the nearest true dot centre
+  in its frame; RMS error, the fraction matched, per-track bias, and tracks that follow more than one dot.
+- :func:`run_demo`: the whole pipeline on a shortened reference scene (``gtsam-rotid demo``): render, track,
+  calibrate, print the result and its true error, and write the dataset, the result and one overlay picture per
+  measurement (the paper's "quad view", :func:`gtsam_rotid.plots.plot_overlay`).
+"""
+
+from __future__ import annotations
+
+import builtins
+import dataclasses
+import os
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .dataset import Dataset, Measurement, Track
+from .errors import InputError, OutputError
+from .render import RenderConfig, RenderedSpin, render_measurement
+from .tracking import Tracker, TrackerParams, TrackingResult
+
+__all__ = [
+    "DEMO_DURATION",
+    "DemoRun",
+    "TrackingAccuracy",
+    "VideoScene",
+    "dataset_from_video",
+    "demo_files",
+    "run_demo",
+    "spin_accuracy",
+    "tracking_accuracy",
+]
+
+#: Seconds of wrist spin per measurement in :func:`run_demo` (the reference scene has 60 s): with six
+#: measurements the demo renders and tracks 3600 frames and takes well under two minutes on two cores.
+DEMO_DURATION = 20.0
+#: A tracked point farther than this (px) from every true dot centre of its frame is unmatched.
+MATCH_GATE_PX = 3.0
+DATASET_DIR = "dataset"
+TRUTH_FILE = "truth.json"
+RESULT_FILE = "result.json"
+TRACKING_FILE = "tracking.txt"
+
+
+# ---------------------------------------------------------------------------------------------- accuracy
+@dataclass(frozen=True)
+class TrackingAccuracy:
+    """Tracked points against the true dot centres (px).
+
+    ``rms_px``, ``median_px`` and ``max_px`` are over the matched points (within ``gate_px`` of a true centre of
+    their frame); ``bias_px`` is the RMS over tracks of each track's mean error vector (the part of the error that
+    does not average out along an arc); ``n_mixed`` counts tracks whose matched points belong to more than one
+    dot (the tracker hopped); ``n_on_visible`` counts matched points on dots the truth calls visible, and
+    ``coverage`` is the fraction of the (frame, dot) pairs the truth calls visible that a matched point covers
+    (NaN when the visibility is not known).
+    """
+
+    n_tracks: int
+    n_points: int
+    n_matched: int
+    rms_px: float
+    median_px: float
+    max_px: float
+    bias_px: float
+    n_mixed: int
+    n_on_visible: int
+    coverage: float = float("nan")
+    gate_px: float = MATCH_GATE_PX
+    #: (frame, dot) pairs the truth calls visible (the denominator of ``coverage``)
+    n_visible: int = 0
+
+    @property
+    def matched_fraction(self) -> float:
+        return self.n_matched / self.n_points if self.n_points else float("nan")
+
+    def summary(self) -> str:
+        return (f"{self.n_tracks} tracks, {self.n_points} points: RMS {self.rms_px:.3f} px (median "
+                f"{self.median_px:.3f}, max {self.max_px:.2f}) over the {100 * self.matched_fraction:.2f} % "
+                f"within {self.gate_px:g} px of a true dot centre; per-track bias {self.bias_px:.3f} px RMS; "
+                f"{self.n_mixed} tracks on more than one dot"
+                + ("" if np.isnan(self.coverage) else f"; {100 * self.coverage:.1f} % of visible dot-frames covered"))
+
+    @staticmethod
+    def pooled(parts) -> TrackingAccuracy:
+        """The accuracy of several measurements together (exact for RMS and counts; the median is the
+        points-weighted mean of the medians, the bias the tracks-weighted RMS)."""
+        parts = list(parts)
+        if not parts:
+            raise InputError("no tracking accuracies to pool")
+        matched = sum(p.n_matched for p in parts)
+        tracks = sum(p.n_tracks for p in parts)
+
+        def mean(values, weights):
+            weights = np.asarray(weights, dtype=float)
+            return float(np.sum(np.asarray(values) * weights) / weights.sum()) if weights.sum() else float("nan")
+
+        return TrackingAccuracy(
+            n_tracks=tracks, n_points=sum(p.n_points for p in parts), n_matched=matched,
+            rms_px=float(np.sqrt(mean([p.rms_px ** 2 for p in parts], [p.n_matched for p in parts]))),
+            median_px=mean([p.median_px for p in parts], [p.n_matched for p in parts]),
+            max_px=max(p.max_px for p in parts),
+            bias_px=float(np.sqrt(mean([p.bias_px ** 2 for p in parts], [p.n_tracks for p in parts]))),
+            n_mixed=sum(p.n_mixed for p in parts), n_on_visible=sum(p.n_on_visible for p in parts),
+            coverage=mean([p.coverage for p in parts], [p.n_visible for p in parts]), gate_px=parts[0].gate_px,
+            n_visible=sum(p.n_visible for p in parts))
+
+
+def tracking_accuracy(tracks, truth_pixels, *, frame_indices=None, visible=None,
+                      gate_px: float = MATCH_GATE_PX) -> TrackingAccuracy:
+    """Match every tracked point to the nearest true dot centre of its frame and measure the error.
+
+    Args:
+        tracks: :class:`Track` s with frame indices.
+        truth_pixels: (F, N, 2) true centres of N dots in F frames, NaN where a dot is not drawn (not a candidate).
+        frame_indices: (F,) the frame number of each row of ``truth_pixels`` (default ``0..F-1``): a track's
+            ``frames`` are looked up in it.
+        visible: optional (F, N) bool, the dots the truth calls visible (for ``n_on_visible`` and ``coverage``).
+        gate_px: a point farther than this from every candidate is unmatched (it counts in ``n_points`` only).
+    """
+    truth_pixels = np.asarray(truth_pixels, dtype=float)
+    if truth_pixels.ndim != 3 or truth_pixels.shape[2] != 2:
+        raise InputError(f"truth_pixels must have shape (F, N, 2), got {truth_pixels.shape}")
+    n_frames = truth_pixels.shape[0]
+    frame_indices = np.arange(n_frames) if frame_indices is None else np.asarray(frame_indices, dtype=np.int64)
+    if frame_indices.shape != (n_frames,):
+        raise InputError(f"frame_indices must have shape ({n_frames},), got {frame_indices.shape}")
+    tracks = list(tracks)
+    row_of = np.full(int(frame_indices.max(initial=-1)) + 1, -1, np.int64)
+    row_of[frame_indices] = np.arange(n_frames)
+    n_dots = truth_pixels.shape[1]
+    if visible is not None:
+        visible = np.asarray(visible, dtype=bool)
+        if visible.shape != truth_pixels.shape[:2]:
+            raise InputError(f"visible must have shape {truth_pixels.shape[:2]}, got {visible.shape}")
+    errors, biases, cells, mixed, on_visible, total = [], [], [], 0, 0, 0
+    for j, track in enumerate(tracks):
+        track = Track.from_any(track, track=j)
+        if track.frames is None:
+            raise InputError(f"track {j} has no frame indices; they are needed to match it to the truth")
+        total += len(track)
+        known = track.frames < len(row_of)
+        rows = np.where(known, row_of[np.minimum(track.frames, len(row_of) - 1)], -1)
+        if np.any(rows < 0):
+            raise InputError(f"track {j}: frame {int(track.frames[np.flatnonzero(rows < 0)[0]])} is not among the "
+                             f"truth's frames")
+        offsets = truth_pixels[rows] - track.pixels[:, None, :]                 # (n, N, 2): truth - tracked
+        distance = np.where(np.isnan(offsets[..., 0]), np.inf, np.hypot(offsets[..., 0], offsets[..., 1]))
+        nearest = np.argmin(distance, axis=1)
+        matched = distance[np.arange(len(track)), nearest] <= gate_px
+        if not matched.any():
+            continue
+        error = -offsets[np.arange(len(track)), nearest][matched]               # tracked - truth
+        errors.append(error)
+        biases.append(error.mean(axis=0))
+        mixed += len(np.unique(nearest[matched])) > 1
+        cells.append(rows[matched] * n_dots + nearest[matched])
+        if visible is not None:
+            on_visible += int(np.sum(visible[rows[matched], nearest[matched]]))
+    n_tracks = len(tracks)
+    n_visible = 0 if visible is None else int(visible.sum())
+    coverage = float("nan")
+    if visible is not None and n_visible:
+        covered = np.unique(np.concatenate(cells)) if cells else np.zeros(0, np.int64)
+        coverage = float(visible.ravel()[covered].sum() / n_visible)
+    if not errors:
+        return TrackingAccuracy(n_tracks, total, 0, float("nan"), float("nan"), float("nan"), float("nan"), mixed,
+                                on_visible, coverage, gate_px, n_visible)
+    norms = np.linalg.norm(np.concatenate(errors), axis=1)
+    bias = np.linalg.norm(np.array(biases), axis=1)
+    return TrackingAccuracy(n_tracks, total, len(norms), float(np.sqrt(np.mean(norms ** 2))), float(np.median(norms)),
+                            float(norms.max()), float(np.sqrt(np.mean(bias ** 2))), mixed, on_visible, coverage,
+                            gate_px, n_visible)
+
+
+def spin_accuracy(tracks, spin: RenderedSpin, *, gate_px: float = MATCH_GATE_PX) -> TrackingAccuracy:
+    """:func:`tracking_accuracy` against a rendering's true dot centres (``truth_pixels``: the projected centre,
+    whose circle is the one the estimator fits). Every dot drawn in a frame (its face towards the camera, even
+    if partly hidden or cut by the image border) is a candidate, so that no tracked point escapes the RMS."""
+    drawn = np.where(spin.facing[..., None] > 0.0, spin.truth_pixels, np.nan)
+    return tracking_accuracy(tracks, drawn, frame_indices=spin.frame_indices, visible=spin.visible, gate_px=gate_px)
+
+
+# ---------------------------------------------------------------------------------------------- video -> dataset
+@dataclass
+class VideoScene:
+    """What :func:`dataset_from_video` returns.
+
+    ``dataset``: the simulated scene's arm, camera and joint angles with the tracker's tracks (frame numbers of
+    the spin); ``tracking``: each measurement's :class:`TrackingResult` (with the rejected tracks and why);
+    ``accuracy``: each measurement's :class:`TrackingAccuracy`; ``spins``: the renderings (frames are rendered
+    again on demand, e.g. ``spins[k].frame(i)`` for a picture); ``render_seconds`` / ``track_seconds``: wall
+    time spent drawing frames and tracking them.
+    """
+
+    dataset: Dataset
+    tracking: list[TrackingResult]
+    accuracy: list[TrackingAccuracy]
+    spins: list[RenderedSpin]
+    render_seconds: float = 0.0
+    track_seconds: float = 0.0
+
+    @property
+    def n_frames(self) -> int:
+        return sum(s.n_frames for s in self.spins)
+
+    @property
+    def total_accuracy(self) -> TrackingAccuracy:
+        return TrackingAccuracy.pooled(self.accuracy)
+
+    def busiest_frame(self, k: int) -> int:
+        """Position (in ``spins[k]``) of the frame of measurement ``k`` with the most tracked points."""
+        spin = self.spins[k]
+        counts = np.zeros(spin.n_frames, np.int64)
+        position = {int(f): i for i, f in enumerate(spin.frame_indices)}
+        for track in self.dataset[k].tracks:
+            counts[[position[int(f)] for f in track.frames]] += 1
+        return int(np.argmax(counts))
+
+    def summary(self) -> str:
+        frames = self.n_frames
+        speed = frames / self.track_seconds if self.track_seconds > 0 else float("nan")
+        lines = [f"Rendered and tracked {frames} frames in {self.render_seconds:.1f} s + {self.track_seconds:.1f} s "
+                 f"({speed:.0f} frames/s tracking)"]
+        for k, (result, accuracy) in enumerate(zip(self.tracking, self.accuracy, strict=True)):
+            rejected = len(result.rejected)
+            lines.append(f"  measurement {k}: {len(result.tracks)} tracks kept, {rejected} rejected by the tracker; "
+                         f"vs truth RMS {accuracy.rms_px:.3f} px, {100 * accuracy.matched_fraction:.1f} % matched")
+        lines.append("  all: " + self.total_accuracy.summary())
+        return "\n".join(lines)
+
+
+class _Timed:
+    """Frames from a generator, timing the generator (rendering) apart from the consumer (tracking)."""
+
+    def __init__(self, frames: Iterator[np.ndarray], bar=None):
+        self._frames, self._bar, self.seconds = frames, bar, 0.0
+
+    def __iter__(self):
+        while True:
+            start = time.perf_counter()
+            try:
+                frame = next(self._frames)
+            except StopIteration:
+                return
+            finally:
+                self.seconds += time.perf_counter() - start
+            yield frame
+            if self._bar is not None:
+                self._bar.update(1)
+
+
+def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | None = None,
+                       tracker_params: TrackerParams | None = None, *, frames=None,
+                       progress: bool = True) -> VideoScene:
+    """Render every measurement of a simulated scene (``dataset, truth = simulate...``), track its frames and
+    return the tracked dataset (same arm, camera and joint angles; the tracks come from the tracker, with the
+    spin's frame numbers) with the tracking results and their accuracy against the rendered truth.
+
+    Frames are rendered one at a time and fed to the tracker (nothing is held). ``frames``: the frame selection
+    of :func:`~gtsam_rotid.render.render_measurement` (default all). ``progress`` draws tqdm bars on stderr.
+    A measurement in which the tracker keeps fewer than 2 tracks raises :class:`InputError` naming it.
+    """
+    from tqdm import tqdm
+
+    render_config = RenderConfig() if render_config is None else render_config
+    tracker_params = TrackerParams() if tracker_params is None else tracker_params
+    measurements, results, accuracies, spins = [], [], [], []
+    render_seconds = track_seconds = 0.0
+    n = len(dataset)
+    with tqdm(total=n, desc="measurements", unit="spin", disable=not progress, file=sys.stderr) as outer:
+        for k in range(n):
+            start = time.perf_counter()
+            spin = render_measurement(dataset, truth, k, render_config, frames=frames)
+            render_seconds += time.perf_counter() - start
+            start = time.perf_counter()
+            with tqdm(total=spin.n_frames, desc=f"render + track {k}", unit="frame", leave=False,
+                      disable=not progress, file=sys.stderr) as bar:
+                source = _Timed(spin.frames(), bar)
+                result = Tracker(tracker_params).run(source)
+            elapsed = time.perf_counter() - start
+            render_seconds += source.seconds
+            track_seconds += elapsed - source.seconds
+            # the tracker numbers the frames it was fed 0, 1, ...: back to the spin's frame numbers
+            tracks = [Track(t.pixels, spin.frame_indices[t.frames]) for t in result.tracks]
+            rejected = [dataclasses.replace(r, track=Track(r.track.pixels, spin.frame_indices[r.track.frames]))
+                        for r in result.rejected]
+            result = dataclasses.replace(result, tracks=tracks, rejected=rejected)
+            if len(tracks) < 2:
+                raise InputError(f"measurement {k}: the tracker kept {len(tracks)} track(s) in {spin.n_frames} "
+                                 f"rendered frames; a measurement needs at least 2\n{result.summary()}")
+            measurements.append(Measurement(dataset[k].joint_angles, tracks, name=dataset[k].name))
+            results.append(result)
+            accuracies.append(spin_accuracy(tracks, spin))
+            spins.append(spin)
+            outer.update(1)
+    metadata = {key: value for key, value in dataset.metadata.items() if key != "noise_var"}
+    metadata["video"] = {"rendered": True, "noise_sigma_grey": render_config.noise_sigma,
+                         "render_seed": render_config.seed, "tracker": "gtsam_rotid.tracking.Tracker",
+                         "tracker_params": dataclasses.asdict(tracker_params)}
+    tracked = Dataset(dataset.arm, dataset.camera, measurements, metadata=metadata)
+    return VideoScene(tracked, results, accuracies, spins, render_seconds, track_seconds)
+
+
+# ---------------------------------------------------------------------------------------------- demo
+@dataclass
+class DemoRun:
+    """What :func:`run_demo` returns: the simulated ``truth``, the tracked ``scene``, the calibration
+    ``result``, the files written (``paths``) and the wall time of each step (seconds)."""
+
+    truth: object
+    scene: VideoScene
+    result: object
+    paths: list[Path] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+def demo_files(out_dir: str | os.PathLike, n_measurements: int) -> dict[str, Path | list[Path]]:
+    """The files :func:`run_demo` writes into ``out_dir``."""
+    from .plots import overlay_files
+
+    out = Path(out_dir)
+    return {"dataset": out / DATASET_DIR, "result": out / RESULT_FILE, "tracking": out / TRACKING_FILE,
+            "overlays": overlay_files(out, range(n_measurements))}
+
+
+def _check_demo_output(out: Path, n_measurements: int, overwrite: bool) -> None:
+    """Refuse before the slow work, not after."""
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out} exists and is not a directory")
+    files = demo_files(out, n_measurements)
+    if files["dataset"].exists() and not overwrite:
+        raise OutputError(f"{files['dataset']} exists; pass overwrite=True (--overwrite) to replace it")
+    for path in [files["result"], files["tracking"], *files["overlays"]]:
+        if path.is_dir():
+            raise OutputError(f"{path} is a directory")
+        if path.exists() and not overwrite:
+            raise OutputError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+
+
+def run_demo(out_dir: str | os.PathLike | None = None, *, seed: int = 0, duration: float = DEMO_DURATION,
+             n_measurements: int = 6, method: str = "joint", render_config: RenderConfig | None = None,
+             tracker_params: TrackerParams | None = None, overwrite: bool = False, progress: bool = True,
+             print: Callable[..., None] = builtins.print) -> DemoRun:
+    """The whole pixel pipeline on the reference scene (seed ``seed``, ``n_measurements`` spins of ``duration``
+    s): simulate the arm poses, render each spin, track it, calibrate with ``method``, and print the result and
+    its error against the truth.
+
+    With ``out_dir``: also write ``dataset/`` (the tracked dataset, with ``truth.json``), ``result.json``,
+    ``tracking.txt`` (the tracking summary and its accuracy against the rendered truth) and one
+    ``overlay_m{k}.png`` per measurement (the quad view of :func:`gtsam_rotid.plots.plot_overlay` on the frame
+    with the most tracked points). Existing files are refused before any work unless ``overwrite``.
+    ``print`` receives every line of output (progress bars go to stderr when ``progress``).
+    """
+    from . import simulate
+    from .estimate import calibrate
+    from .report import error_vs_truth_lines
+
+    clock = time.perf_counter()
+    seconds: dict[str, float] = {}
+    out = None if out_dir is None else Path(out_dir)
+    if out is not None:
+        _check_demo_output(out, n_measurements, overwrite)
+    print(f"gtsam-rotid demo from pixels: the reference scene (Kinova Jaco2, Xtion-like camera), seed {seed}, "
+          f"{n_measurements} wrist spins of {duration:g} s rendered, tracked and calibrated")
+    start = time.perf_counter()
+    simulated, truth = simulate.reference_scene(seed=seed, duration=duration, n_measurements=n_measurements)
+    seconds["simulate"] = time.perf_counter() - start
+    T = truth.arm_T_camera
+    x, y, z = T.translation() * 1000.0
+    r, p, yaw = np.degrees(T.rotation().rpy())
+    print(f"true arm_T_camera: t = ({x:.1f}, {y:.1f}, {z:.1f}) mm, rpy = ({r:.2f}, {p:.2f}, {yaw:.2f}) deg")
+    print("rendering and tracking...", flush=True)
+    scene = dataset_from_video(simulated, truth, render_config, tracker_params, progress=progress)
+    seconds["render"], seconds["track"] = scene.render_seconds, scene.track_seconds
+    print(scene.summary())
+    print(f"calibrating ({method})...", flush=True)
+    start = time.perf_counter()
+    result = calibrate(scene.dataset, method=method)
+    seconds["calibrate"] = time.perf_counter() - start
+    print(f"calibrated in {seconds['calibrate']:.1f} s")
+    print(result.summary())
+    for line in error_vs_truth_lines(result, truth.arm_T_camera):
+        print(line)
+    paths: list[Path] = []
+    if out is not None:
+        start = time.perf_counter()
+        paths = _write_demo(out, scene, truth, result, overwrite)
+        seconds["write"] = time.perf_counter() - start
+        for path in paths:
+            print(f"wrote {path}")
+    seconds["total"] = time.perf_counter() - clock
+    print(f"demo took {seconds['total']:.1f} s")
+    return DemoRun(truth, scene, result, paths, seconds)
+
+
+def _write_demo(out: Path, scene: VideoScene, truth, result, overwrite: bool) -> list[Path]:
+    from .plots import save_overlays
+
+    files = demo_files(out, len(scene.dataset))
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        scene.dataset.save(files["dataset"], overwrite=overwrite)
+        truth.save(files["dataset"] / TRUTH_FILE, overwrite=True)
+        result.save(files["result"], overwrite=overwrite)
+        parts = [scene.summary()] + [f"measurement {k}: {r.summary()}" for k, r in enumerate(scene.tracking)]
+        text = "\n\n".join(parts)
+        files["tracking"].write_text(text + "\n")
+    except OSError as exc:
+        raise OutputError(f"cannot write into {out}: {exc.strerror or exc}") from None
+    frames = {}
+    for k, spin in enumerate(scene.spins):
+        position = scene.busiest_frame(k)
+        frames[k] = (int(spin.frame_indices[position]), spin.frame(position))
+    overlays = save_overlays(result, scene.dataset, frames, out, overwrite=overwrite)
+    return [files["dataset"], files["result"], files["tracking"], *overlays]

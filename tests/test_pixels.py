@@ -1,0 +1,132 @@
+"""Tests of gtsam_rotid.pixels: rendered video -> tracks -> calibration, against the simulator's ground truth.
+
+One short rendered scene (four 8 s spins of the reference scene, ~1000 frames) runs through :func:`run_demo` once
+per module; the tests read its outputs.
+"""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from gtsam_rotid import Dataset, OutputError, Track
+from gtsam_rotid.estimate import CalibrationResult
+from gtsam_rotid.pixels import TrackingAccuracy, demo_files, run_demo, tracking_accuracy
+
+#: 99.9 % point of the chi-square distribution with 6 degrees of freedom.
+CHI2_999_6DOF = 22.458
+N_MEASUREMENTS, DURATION = 4, 8.0
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    lines: list[str] = []
+    run = run_demo(out, duration=DURATION, n_measurements=N_MEASUREMENTS, progress=False,
+                   print=lambda *args, **kwargs: lines.append(" ".join(str(a) for a in args)))
+    return out, run, "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------------- pixels -> pose
+def test_calibration_from_pixels_lands_within_its_reported_uncertainty(demo):
+    """Seed 0 (the default, not chosen). Over seeds 0-9 of this configuration the chi-square averaged 16 and 4 of
+    10 exceeded the 99.9 % point: from rendered pixels the reported covariance is ~1.6x too small in sigma, because
+    the tracker's error normal to the arc is correlated along each track (see the issue-4 notes); this test guards
+    the pipeline and the seed-0 value (6.1), not the calibration of the covariance over scenes."""
+    _, run, _ = demo
+    result, truth = run.result, run.truth
+    assert result.covariance_usable
+    error = result.error_to(truth.arm_T_camera)
+    chi2 = float(error @ np.linalg.solve(result.covariance, error))
+    assert chi2 < CHI2_999_6DOF, (chi2, np.degrees(error[:3]), 1000 * error[3:])
+    # and it is a calibration worth having even from 8 s spins: a fraction of a degree and a few mm
+    assert np.all(np.abs(np.degrees(error[:3])) < 0.5)
+    assert np.all(np.abs(1000.0 * error[3:]) < 10.0)
+
+
+def test_tracked_dataset_keeps_the_scene_and_tracks_to_a_tenth_of_a_pixel(demo):
+    _, run, _ = demo
+    scene = run.scene
+    assert len(scene.dataset) == N_MEASUREMENTS == len(scene.tracking) == len(scene.accuracy) == len(scene.spins)
+    n_frames = int(round(DURATION * 30))
+    for k, (measurement, spin) in enumerate(zip(scene.dataset, scene.spins, strict=True)):
+        assert spin.n_frames == n_frames
+        assert measurement.n_tracks >= 2
+        for track in measurement.tracks:  # frame numbers of the spin, inside it
+            assert track.frames is not None and np.all(np.diff(track.frames) > 0)
+            assert 0 <= track.frames[0] and track.frames[-1] < n_frames
+        assert scene.tracking[k].n_frames == n_frames
+    total = scene.total_accuracy
+    assert total.matched_fraction > 0.999          # every tracked point lies on a rendered dot ...
+    assert total.rms_px < 0.1                      # ... within a tenth of a pixel (RMS)
+    assert total.n_mixed == 0                      # and no track hops between dots
+    assert total.coverage > 0.5
+
+
+# ---------------------------------------------------------------------------------------------- the demo's files
+def test_demo_prints_the_result_and_its_true_error(demo):
+    _, _, text = demo
+    assert "arm_T_camera (joint" in text
+    assert "error vs truth" in text and "Mahalanobis chi2" in text
+    assert "RMS" in text and "frames" in text
+
+
+def test_demo_writes_dataset_result_and_one_overlay_per_measurement(demo):
+    out, run, _ = demo
+    files = demo_files(out, N_MEASUREMENTS)
+    loaded = Dataset.load(files["dataset"])
+    assert len(loaded) == N_MEASUREMENTS
+    assert loaded.n_observations == run.scene.dataset.n_observations
+    assert all(t.frames is not None for m in loaded for t in m.tracks)
+    assert (files["dataset"] / "truth.json").is_file()
+    result = CalibrationResult.load(files["result"])
+    assert np.allclose(result.arm_T_camera.matrix(), run.result.arm_T_camera.matrix())
+    assert "RMS" in files["tracking"].read_text()
+    assert len(files["overlays"]) == N_MEASUREMENTS
+    for path in files["overlays"]:
+        image = cv2.imread(str(path))
+        assert image is not None and image.shape[0] > 400 and image.shape[1] > 400
+        assert image.std() > 10  # a picture, not a blank canvas
+    assert set(run.paths) >= set(files["overlays"])
+    json.loads(files["result"].read_text())
+
+
+def test_demo_refuses_existing_output_before_any_work(tmp_path):
+    (tmp_path / "result.json").write_text("{}")
+    with pytest.raises(OutputError, match="result.json exists"):
+        run_demo(tmp_path, duration=1.0, n_measurements=3, progress=False, print=lambda *a, **k: None)
+    (tmp_path / "file").write_text("")
+    with pytest.raises(OutputError, match="not a directory"):
+        run_demo(tmp_path / "file", progress=False, print=lambda *a, **k: None)
+
+
+# ---------------------------------------------------------------------------------------------- accuracy helper
+def test_tracking_accuracy_matches_each_point_to_the_nearest_drawn_dot():
+    truth = np.full((6, 3, 2), np.nan)
+    truth[:, 0] = np.column_stack([np.arange(6.0) * 5, np.zeros(6)])
+    truth[:, 1] = np.column_stack([np.arange(6.0) * 5, np.full(6, 20.0)])
+    truth[3:, 2] = [[50.0, 50.0]] * 3
+    offset = np.array([0.03, -0.04])                                   # 0.05 px off
+    tracks = [Track(truth[:, 0] + offset, np.arange(6)),
+              Track(truth[1:5, 1], np.arange(1, 5)),                   # exact
+              Track(np.array([[50.0, 50.0], [90.0, 90.0]]), [3, 4])]  # second point far from every dot
+    visible = ~np.isnan(truth[..., 0])
+    acc = tracking_accuracy(tracks, truth, visible=visible)
+    assert (acc.n_tracks, acc.n_points, acc.n_matched, acc.n_mixed) == (3, 12, 11, 0)
+    assert acc.rms_px == pytest.approx(0.05 * np.sqrt(6 / 11))
+    assert acc.max_px == pytest.approx(0.05)
+    assert acc.coverage == pytest.approx(11 / visible.sum())
+    assert acc.bias_px == pytest.approx(0.05 / np.sqrt(3))
+    # frame numbers other than 0..F-1 are looked up
+    shifted = tracking_accuracy([Track(t.pixels, t.frames + 100) for t in tracks], truth,
+                                frame_indices=np.arange(100, 106))
+    assert shifted.rms_px == pytest.approx(acc.rms_px)
+    # a track that hops from one dot to another is counted
+    hop = Track(np.vstack([truth[:3, 0], truth[3:, 1]]), np.arange(6))
+    assert tracking_accuracy([hop], truth).n_mixed == 1
+    pooled = TrackingAccuracy.pooled([acc, acc])
+    assert pooled.n_points == 24 and pooled.rms_px == pytest.approx(acc.rms_px)
+    assert pooled.coverage == pytest.approx(acc.coverage)
