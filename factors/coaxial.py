@@ -26,7 +26,9 @@ graph (line + one ``(d, r)`` variable and one circle-point factor per track) lin
 gradient ``J^T e = H_R^T e`` (because ``H_c^T e = 0`` at ``c*``) that of the full graph. So LM on a graph of these
 factors follows the full graph's reduced problem, and ``gtsam.Marginals`` gives the same line (and pose) marginals,
 with one variable per measurement instead of ~60. Each call at a new line solves the circles there, starting from
-the nearest earlier solution moved by its predicted change (``dc*/dw``: Gauss-Newton's plus a learnt correction).
+an anchor's solution (the latest linearisation point's, for LM's trial steps) moved by its Gauss-Newton change
+``dc*/dw w``; never from a trial line's, so that the factor's value at a line does not depend on the lines evaluated
+before (see :meth:`CoaxialLineFactor._anchor`).
 
 Caveat: ``P H_R`` is the exact derivative of ``e(R, c*(R))`` only at zero residual. In general the exact derivative
 is ``H_R + H_c dc*/dR`` with the exact ``dc*/dR``, which differs from Gauss-Newton's
@@ -34,6 +36,16 @@ is ``H_R + H_c dc*/dR`` with the exact ``dc*/dR``, which differs from Gauss-Newt
 Gauss-Newton on the full graph). With the free closest phase per pixel these are not small: on the reference scene
 ``dc*/dR`` differs from Gauss-Newton's by a factor ~2 along two of the three line directions, and ``P H_R`` from
 the exact Jacobian by ~4 % (its ``J^T J`` by ~2e-4).
+
+Caveat (damping): LM's diagonal (scale-invariant) damping of a graph of these factors damps the reduced problem,
+not the circles. On the full graph, the circles' damping also holds back the line steps that move the circles
+far (``M^T D_c M`` is added to the line's damping); here, a line's weakly determined direction (its tilt within
+the projection plane, which the projected-axis tie leaves free) gets only its own small diagonal. From a pose ~1 deg
+off (the noise-free 5-measurement scene of ``tests/test_graph.py``), LM with diagonal damping then takes steps of
+~0.1-0.3 rad along it, some circles move far along the axis (to larger, farther circles that fit better at a wrong
+line), and LM crawls or stops at such a point; with isotropic damping it converges to the truth in ~16 iterations.
+From poorer starts (stage 1 from a pose ~8 deg off) LM tries line steps of ~1 rad: the factor refuses trial lines
+further than ``TRUST_RAD`` from its anchors (a trust region, see :meth:`CoaxialLineFactor._refused`).
 """
 
 from __future__ import annotations
@@ -52,9 +64,6 @@ __all__ = ["CoaxialLineFactor", "CoaxialTracks", "make_coaxial_line_factor"]
 ROW_COST = 16
 #: Halving steps of :meth:`CoaxialTracks.solve_circles` before a track's step is given up (it keeps its value).
 MAX_HALVINGS = 30
-#: Smallest line step (rad) whose observed change of the circles updates the learnt correction of dc*/dw (below,
-#: the solves' tolerance would dominate the observed change).
-LEARN_MIN_RAD = 1e-5
 #: The circle solve evaluates only the tracks still moving once their rows are at most this fraction of all rows.
 SUBSET_FRACTION = 0.7
 #: Relative Gauss-Newton decrement (predicted decrease of a track's sum of squares over that sum) below which a
@@ -62,9 +71,16 @@ SUBSET_FRACTION = 0.7
 CIRCLE_TOL = 1e-10
 #: Absolute floor of that decrement per pixel (px^2): noise-free tracks converge to ~1e-10 px.
 CIRCLE_ATOL_PX2 = 1e-20
-#: A line variable further than this (rad) from a cached solution starts its circles from that solution without
-#: the first-order prediction ``c + dc*/dw w``.
+#: A line variable further than this (rad) from its anchor (see :meth:`CoaxialLineFactor._anchor`) starts its
+#: circles from the anchor's without the first-order prediction ``c + dc*/dw w``.
 PREDICT_MAX_RAD = 0.2
+#: Linearisation states kept as anchors (the only starts of the circle solves, with the first state solved).
+PINNED_STATES = 2
+#: Trust region of LM's trial steps (rad): GTSAM's error (no Jacobians) at a line further than this from every
+#: anchor (and not cached) is refused, see :meth:`CoaxialLineFactor._refused`.
+TRUST_RAD = 0.1
+#: Whitened residual of every point at a refused line.
+REFUSED_RESIDUAL = 1e8
 
 # (n, a_max(n)): Taylor terms of sin / cos that are exact to ~1e-17 for |x| <= a_max(n) (first omitted term
 # x^(2n+2) / (2n+2)!), and the Horner factors 1 / ((2k)(2k+1)) and 1 / ((2k-1)(2k)).
@@ -917,9 +933,9 @@ class CoaxialTracks:
 class _LineState:
     """The projected-out circles at one line variable, and what the factor needs there."""
 
-    __slots__ = ("rot", "R", "ev", "gram", "converged", "evaluations", "M", "_J")
+    __slots__ = ("rot", "R", "ev", "gram", "converged", "evaluations", "M", "curvature", "_J")
 
-    def __init__(self, rot, R, ev, gram, converged, evaluations, M):
+    def __init__(self, rot, R, ev, gram, converged, evaluations, M, curvature):
         self.rot = rot  # gtsam.Rot3
         self.R = R
         self.ev = ev  # evaluation at (R, c*(R)) with the line Jacobians
@@ -927,6 +943,7 @@ class _LineState:
         self.converged = converged
         self.evaluations = evaluations
         self.M = M  # (m, 2, 3) (H_c^T H_c)^-1 H_c^T H_R: dc*/dw = -M (Gauss-Newton)
+        self.curvature = curvature  # (3, m) the circle solve's secant curvature terms at its end
         self._J = None  # (3, rows, L) P H_R, unweighted
 
     @property
@@ -939,12 +956,16 @@ class CoaxialLineFactor:
 
     Built by :func:`make_coaxial_line_factor`. Every inspection method takes the line variable as ``x``: a
     ``gtsam.Values`` (read at ``line_key``), a ``gtsam.Rot3``, a 3x3 matrix, or None for the line of the factor's
-    last evaluation. The circles at a line are solved once and cached (the last few lines).
+    last evaluation. The circles at a line are solved once and cached (the last few lines). GTSAM's error (no
+    Jacobians) at a line further than ``TRUST_RAD`` from every anchor (the last linearisation points, the first
+    line evaluated) is refused with a huge constant residual (LM's trust region, see :meth:`_refused`); the
+    inspection methods (``error(x)`` etc.) and linearisations always solve.
 
     Attributes:
         factor: the ``gtsam.CustomFactor`` (key ``line_key``, dimension N, unit noise model: its residual is
             already whitened by ``sigma_px``).
-        tracks: the :class:`CoaxialTracks` (pass it to a new factor to keep the warm start).
+        tracks: the :class:`CoaxialTracks` (may be shared with a new factor: each factor's solves start their
+            phases from its own anchors).
         sigma_px: the pixel noise (may be changed between solves).
         counts: (m,) points per track.
     """
@@ -965,10 +986,15 @@ class CoaxialLineFactor:
         self._start = (circles[:, 0].copy(), circles[:, 1].copy())
         self._huber_k, self._estimators = _robust_setup(robust, tracks.counts)
         self._cache: OrderedDict[bytes, _LineState] = OrderedDict()
-        self._correction = np.zeros((tracks.n_tracks, 2, 3))  # learnt correction of dc*/dw (see _start_at)
+        #: anchors, the only starts of the circle solves (see _anchor): the states of the last linearisation
+        #: points (LM's accepted lines), never evicted by trial lines, and the first state solved
+        self._pinned: OrderedDict[bytes, _LineState] = OrderedDict()
+        self._home: _LineState | None = None
         self._cache_size = max(1, int(cache_size))
         self._last: _LineState | None = None
-        #: diagnostics: circle solves, the evaluations they took, and their work in passes over all tracks
+        #: diagnostics: circle solves, the evaluations they took, and their work in passes over all tracks; errors
+        #: refused (outside the trust region, see _refused)
+        self.refused = 0
         self.solves = 0
         self.evaluations = 0
         self.work = 0.0
@@ -978,9 +1004,18 @@ class CoaxialLineFactor:
     # ------------------------------------------------------------------------------------------------------------
 
     def _error_function(self, this, values, H):
-        state = self._state(values.atRot3(self.line_key))
+        rot = values.atRot3(self.line_key)
+        if H is None and self._refused(rot):
+            self.refused += 1
+            return np.full(self.tracks.n_points, REFUSED_RESIDUAL)
+        state = self._state(rot)
         if H is None:
             return self._residual(state, self._scales(state)[1])
+        key = state.R.tobytes()
+        self._pinned[key] = state
+        self._pinned.move_to_end(key)
+        if len(self._pinned) > PINNED_STATES:
+            self._pinned.popitem(last=False)
         irls = self._scales(state)[0]
         H[0] = self._jacobian(state, irls)
         return self._residual(state, irls)
@@ -1002,56 +1037,95 @@ class CoaxialLineFactor:
         state = self._cache.get(key)
         if state is not None:
             self._cache.move_to_end(key)
+        else:
+            state = self._pinned.get(key)
+        if state is not None:
             self._last = state
             return state
-        d0, r0, base, w = self._start_at(rot)
         tracks = self.tracks
+        anchor, w, norm = self._anchor(rot)
+        # the whole solve is a function of (anchor, line) only: its phases and curvature terms start from the
+        # anchor's too, not from whatever line the tracks (or another factor sharing them) evaluated last
+        if anchor is None:
+            tracks._s = tracks._c = None
+            tracks._curvature[:] = 0.0
+            d0, r0 = self._start
+        else:
+            tracks._s, tracks._c = anchor.ev.s, anchor.ev.c
+            tracks._curvature[:] = anchor.curvature
+            d0, r0 = anchor.ev.d, anchor.ev.r
+            if norm <= PREDICT_MAX_RAD:
+                change = -anchor.M @ w  # (m, 2): Gauss-Newton's dc*/dw w
+                ok = np.isfinite(change).all(axis=1)
+                d0, r0 = np.where(ok, d0 + change[:, 0], d0), np.where(ok, r0 + change[:, 1], r0)
         ev, converged, evaluations, work = tracks._solve(R, d0, r0, self.tol, self.max_evaluations)
-        if base is not None and w @ w >= LEARN_MIN_RAD**2:
-            # Broyden update of the correction: the observed change of the circles along w is then exact
-            observed = np.column_stack([ev.d - base.ev.d, ev.r - base.ev.r])
-            predicted = (self._correction - base.M) @ w
-            update = np.multiply.outer(observed - predicted, w / (w @ w))
-            ok = np.isfinite(update).all(axis=(1, 2)) & converged
-            self._correction[ok] += update[ok]
         gram = tracks._gram(ev, 6)
         a, b, c = _inverse2(gram[:, 1, 1], gram[:, 1, 2], gram[:, 2, 2])
         B = gram[:, 1:3, 3:6]
         M = np.stack([a[:, None] * B[:, 0] + b[:, None] * B[:, 1], b[:, None] * B[:, 0] + c[:, None] * B[:, 1]],
                      axis=1)
-        state = _LineState(rot, R, ev, gram, converged, evaluations, M)
+        state = _LineState(rot, R, ev, gram, converged, evaluations, M, tracks._curvature.copy())
         self.solves += 1
         self.evaluations += evaluations
         self.work += work
         self._cache[key] = state
+        self._cache.move_to_end(key)
         if len(self._cache) > self._cache_size:
             self._cache.popitem(last=False)
+        if self._home is None:
+            self._home = state
         self._last = state
         return state
 
-    def _start_at(self, rot: gtsam.Rot3):
-        """Start of the circle solve: the nearest cached solution moved by its first-order change ``D w``.
+    def _anchors(self) -> list[_LineState]:
+        anchors = list(self._pinned.values())[::-1]  # the latest linearisation point first
+        if self._home is not None:
+            anchors.append(self._home)
+        return anchors
 
-        ``D = dc*/dw`` is Gauss-Newton's ``-(H_c^T H_c)^-1 H_c^T H_R`` plus a per-track correction learnt by
-        Broyden updates from the solves so far (the residuals' curvature terms that Gauss-Newton drops change
-        ``dc*/dw`` by a factor ~2 on the reference scene).
+    def _anchor(self, rot: gtsam.Rot3):
+        """Anchor of the circle solve at ``rot`` (or None), the line step w from it and its norm.
 
-        Returns (d0, r0, the cached state it starts from or None, w or None).
+        The solve starts from the anchor's circles moved by their Gauss-Newton change ``-M w`` (``M =
+        (H_c^T H_c)^-1 H_c^T H_R`` at the anchor; beyond ``PREDICT_MAX_RAD`` from the anchor, its circles
+        themselves). The anchors are the last ``PINNED_STATES`` linearisation points and the first state solved
+        (from the initial circles); never a trial line. The latest linearisation point is the anchor of every line
+        within ``PREDICT_MAX_RAD`` of it (LM's trial steps), else the nearest anchor is. So the circles at a line
+        depend only on its anchor, not on which trial lines were evaluated before (a rejected trial far away,
+        whose circles may have fallen into another local solution, cannot move the circles found near the
+        linearisation point), and re-evaluating a line gives its value again to the solve's tolerance. The
+        solve's phases and secant curvature terms start from the anchor's too (see :meth:`_state`).
         """
         best, best_w, best_norm = None, None, np.inf
-        for state in self._cache.values():
+        anchors = self._anchors()
+        for state in anchors:
             w = np.asarray(state.rot.localCoordinates(rot))
             norm = float(np.linalg.norm(w))
             if norm < best_norm:
                 best, best_w, best_norm = state, w, norm
-        if best is None:
-            return self._start[0], self._start[1], None, None
-        d, r = best.ev.d, best.ev.r
-        if not 0.0 < best_norm <= PREDICT_MAX_RAD:
-            return d, r, None, None
-        change = (self._correction - best.M) @ best_w  # (m, 2)
-        ok = np.isfinite(change).all(axis=1)
-        return np.where(ok, d + change[:, 0], d), np.where(ok, r + change[:, 1], r), best, best_w
+            if state is anchors[0] and norm <= PREDICT_MAX_RAD:
+                break  # LM's trials: from the point LM linearised at, whatever lies nearer
+        return best, best_w, best_norm
+
+    def _refused(self, rot: gtsam.Rot3) -> bool:
+        """Whether GTSAM's error at ``rot`` is refused: a trust region for LM's trial steps.
+
+        A line further than ``TRUST_RAD`` from every anchor (the last linearisation points and the first line
+        solved) and not cached gets the constant residual ``REFUSED_RESIDUAL`` per point instead of its circle
+        solve, so LM raises lambda and tries a shorter step. LM's diagonal damping of the reduced problem leaves a
+        line's tilt within its projection plane nearly undamped (the circles, whose damping holds such steps back
+        in the full graph, are projected out): from a poor start LM then tries steps of ~1 rad, where the solve
+        from the anchor is far from any prediction, slow, and may fall into another local solution (circles far
+        along the axis) that happens to be lower, which LM then accepts. The first evaluation, linearisations
+        (``H`` given) and the inspection methods always solve.
+        """
+        anchors = self._anchors()
+        if not anchors:
+            return False
+        key = np.ascontiguousarray(rot.matrix()).tobytes()
+        if key in self._cache or key in self._pinned:
+            return False
+        return all(np.linalg.norm(state.rot.localCoordinates(rot)) > TRUST_RAD for state in anchors)
 
     def _scales(self, state: _LineState) -> tuple[np.ndarray, np.ndarray]:
         """Per-track row scales (m,): IRLS ``sqrt(w_j) / sigma`` (linearisation) and the loss-consistent
@@ -1188,9 +1262,9 @@ def make_coaxial_line_factor(line_key: int, tracks, K, circles, *, sigma_px: flo
     """One variable-projection factor for all tracks of one measurement, keyed on its line variable only.
 
     Residual (dimension N, unit noise model): ``e(R, c*(R)) / sigma_px`` of all tracks concatenated, with every
-    track's circle ``c* = (d, r)`` projected out (:meth:`CoaxialTracks.solve_circles`, warm-started from the
-    nearest earlier solution moved by its first-order change). Jacobian: ``P_j H_R,j / sigma_px`` per track
-    (see the module docstring).
+    track's circle ``c* = (d, r)`` projected out (:meth:`CoaxialTracks.solve_circles`, started from an anchor's
+    solution moved by its first-order change, see :meth:`CoaxialLineFactor._anchor`). Jacobian:
+    ``P_j H_R,j / sigma_px`` per track (see the module docstring).
 
     Robust kernel per track (like a ``noiseModel.Robust`` on each track's circle-point factor, which GTSAM applies
     to the track's whole whitened norm ``x_j = |e_j| / sigma_px``): at a linearisation the rows of track j are
@@ -1201,7 +1275,7 @@ def make_coaxial_line_factor(line_key: int, tracks, K, circles, *, sigma_px: flo
 
     Args:
         line_key: key of the measurement's ``gtsam.Rot3`` line variable.
-        tracks: list of (N_j, 2) ideal pixels, or a :class:`CoaxialTracks` (its warm start is kept; K unused).
+        tracks: list of (N_j, 2) ideal pixels, or a :class:`CoaxialTracks` (K unused).
         K: (3, 3) intrinsic matrix.
         circles: (m, 2) initial (d, r) per track.
         sigma_px: pixel noise of the measurement.

@@ -386,8 +386,8 @@ def test_lm_on_the_factor_reaches_the_full_graph_solution(measurement):
 
 
 def test_results_do_not_depend_on_the_history(measurement, rng):
-    """Along a path of lines (steps 1e-2 to 1e-6 rad, as LM's; the factor predicts each solve's start and learns
-    from it): the same errors, circles and Jacobians as a fresh factor at each line."""
+    """Along a path of lines (steps 1e-2 to 1e-6 rad, as LM's; the factor predicts each solve's start from the
+    last linearisation point): the same errors, circles and Jacobians as a fresh factor at each line."""
     m = measurement
     factor = make_coaxial_line_factor(L(0), m.noisy, m.K, m.circles, sigma_px=SIGMA, tol=1e-14)
     line = m.line.retract(np.array([3e-3, 2e-3, -4e-3]))
@@ -401,6 +401,56 @@ def test_results_do_not_depend_on_the_history(measurement, rng):
         A_fresh, _ = fresh.factor.linearize(values).jacobian()
         np.testing.assert_allclose(A, A_fresh, rtol=0, atol=1e-7 * np.abs(A_fresh).max())
     assert factor.solves == 7
+
+
+@pytest.mark.parametrize("tilt_only", [False, True])
+def test_value_near_a_linearisation_point_does_not_depend_on_far_lines(measurement, rng, tilt_only):
+    """LM from a line ~1 deg off: after solves at lines 0.02-0.3 rad away (whose circles may fall into other local
+    solutions), the factor's value at the linearisation point is unchanged, and near it (1e-10 to 1e-3 rad) it is
+    a fresh factor's: its circles stay in the same local solution."""
+    m = measurement
+    start = m.line.retract(np.array([0.01, -0.015, 0.01]))
+    factor = make_coaxial_line_factor(L(0), m.noisy, m.K, m.circles, sigma_px=SIGMA)
+    values = line_values(start)
+    factor.factor.linearize(values)
+    error, circles = factor.factor.error(values), factor.circles(values)
+    weights = np.array([0.3, 0.3, 1.0]) if tilt_only else np.ones(3)  # mostly the tilt in the projection plane
+    for norm in (0.3, 0.28, 0.25, 0.2, 0.14, 0.1, 0.05, 0.02):
+        w = rng.normal(size=3) * weights
+        factor.error(start.retract(norm * w / np.linalg.norm(w)))  # inspection: always solves
+    assert factor.solves == 9
+    assert factor.factor.error(values) == error
+    np.testing.assert_array_equal(factor.circles(values), circles)
+    for tiny in (1e-10, 1e-6, 1e-3):
+        near = line_values(start.retract(tiny * np.array([1.0, -2.0, 1.5])))
+        fresh = make_coaxial_line_factor(L(0), m.noisy, m.K, m.circles, sigma_px=SIGMA)
+        assert factor.factor.error(near) == pytest.approx(fresh.factor.error(near), rel=1e-9)
+        np.testing.assert_allclose(factor.circles(near), fresh.circles(near), rtol=0, atol=1e-4)
+        assert factor.converged(near).all()
+
+
+def test_trial_steps_beyond_the_trust_region_are_refused(measurement):
+    """GTSAM's error at a line further than TRUST_RAD from every anchor (linearisation points, the first line) is
+    refused with a huge constant residual, without a solve; within it, at an anchor, at a cached line, through the
+    inspection methods and when linearising, the factor solves."""
+    m = measurement
+    factor = make_coaxial_line_factor(L(0), m.noisy, m.K, m.circles, sigma_px=SIGMA)
+    first = m.line.retract(np.array([0.01, -0.015, 0.01]))
+    error = factor.factor.error(line_values(first))  # the first evaluation anchors
+    far = first.retract(np.array([0.0, 0.0, 2.0 * coaxial_module.TRUST_RAD]))
+    inside = first.retract(np.array([0.0, 0.0, 0.5 * coaxial_module.TRUST_RAD]))
+    assert factor.factor.error(line_values(far)) > 1e12 * error
+    assert factor.refused == 1 and factor.solves == 1
+    assert factor.factor.error(line_values(inside)) < 1e3 * error
+    real = factor.error(far)  # inspection solves, and the line is then cached
+    assert factor.solves == 3 and real < 1e3 * error
+    assert factor.factor.error(line_values(far)) == pytest.approx(real, rel=1e-12)
+    # a linearisation at the far line anchors it: lines near it are solved, the first line still is
+    factor.factor.linearize(line_values(far))
+    near_far = far.retract(np.array([0.0, 0.02, 0.0]))
+    assert factor.factor.error(line_values(near_far)) < 1e3 * error
+    assert factor.factor.error(line_values(first)) == pytest.approx(error, rel=1e-12)
+    assert factor.refused == 1
 
 
 def test_huber_weights_and_error(measurement):
