@@ -39,6 +39,7 @@ from .factors import (
     make_axis_to_line_variable_factor,
     make_circle_point_factor,
     make_rigid_circle_factor,
+    rot3_from_line,
     spin_priors,
 )
 from .factors.rigid import DEFAULT_CHUNK_SIZE
@@ -50,6 +51,7 @@ from .graph import (
     Model,
     PreparedMeasurement,
     RotIdGraph,
+    align_line,
     axis_test_points,
     chi2_quantile,
     lm_params,
@@ -284,6 +286,9 @@ GAUGE_FLOOR = 1e-8
 #: Stage 1 redoes a measurement with circle variables when LM on the projected model lowers the error by less than
 #: this fraction (it stalled at its start).
 STALL_DECREASE = 1e-3
+#: LM iterations of one stage-1 round (the reference scene needs 10-40; far more only for hopeless starts, e.g.
+#: wrong joint angles, which the stage-2 checks then report).
+STAGE1_MAX_ITERATIONS = 60
 #: LM iterations allowed from the twin start.
 TWIN_ITERATIONS = 20
 
@@ -544,7 +549,8 @@ def _noise_variance(stats: dict[int, tuple[float, int]], line_dof: int, options:
     return max(sse / dof, options.min_sigma_px**2)
 
 
-def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepared, options) -> _Stage1:
+def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepared, options,
+                        start_line: gtsam.Rot3 | None = None) -> _Stage1:
     """Coaxial circles of one measurement, rejecting outlier tracks round by round.
 
     ``builders``: the projected model first (fast); if LM cannot lower its error at all (wrong arcs far from
@@ -554,7 +560,7 @@ def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepar
     builder, *fallbacks = builders
     skip: dict[int, str] = {}
     iterations = 0
-    line_start, circles_start = None, None
+    line_start, circles_start = start_line, None
     # the image axis is watched at the corners of the tracks' bounding box
     corners = np.array([np.min([t.ideal.min(axis=0) for t in prepared.usable.values()], axis=0),
                         np.max([t.ideal.max(axis=0) for t in prepared.usable.values()], axis=0)])
@@ -570,8 +576,9 @@ def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepar
                                        prepared=prepared, skip_tracks=skip, refine_circles=False,
                                        initial_line=line_start, initial_circles=circles_start)
         start_error = graph.error(values)
-        result, it, error, _ = _lm(graph, values, options.max_iterations, relative_tolerance=options.stage1_tolerance,
-                                   watch=image_axis_at_corners, watch_tolerance=WATCH_LINE_PX)
+        result, it, error, _ = _lm(graph, values, min(options.max_iterations, STAGE1_MAX_ITERATIONS),
+                                   relative_tolerance=options.stage1_tolerance, watch=image_axis_at_corners,
+                                   watch_tolerance=WATCH_LINE_PX)
         iterations += it
         if fallbacks and error >= (1.0 - STALL_DECREASE) * start_error and start_error > 0.0:
             builder, *fallbacks = fallbacks  # stalled from the start: redo this round with the next model
@@ -596,7 +603,21 @@ def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepar
 
 def _stage1(arm, camera, measurements, pose, setup: _Setup, options) -> list[_Stage1]:
     builders = [_builder(arm, camera, options, model=Model.PROJECTED), _builder(arm, camera, options)]
-    return [_stage1_measurement(builders, m, k, pose, setup.prepared[k], options) for k, m in enumerate(measurements)]
+    return [_stage1_measurement(builders, m, k, pose, setup.prepared[k], options,
+                                _start_line(camera, setup.axes[k], setup.lines[k], pose))
+            for k, m in enumerate(measurements)]
+
+
+def _start_line(camera: Camera, axis, image_axis: np.ndarray, pose: gtsam.Pose3) -> gtsam.Rot3:
+    """Stage 1's start: the FK axis seen from ``pose``, turned onto the image axis through the ellipse centres.
+
+    The image decides the projection plane and the pose only the tilt within it, so a poor pose (wrong joint
+    angles) does not start the circles far from their tracks.
+    """
+    camera_T_arm = pose.inverse()
+    line, _ = rot3_from_line(camera_T_arm.transformFrom(axis.point),
+                             camera_T_arm.rotation().matrix() @ axis.direction)
+    return align_line(line, plane_normal(camera.K, image_axis))
 
 
 # ---------------------------------------------------------------------------------------------------
