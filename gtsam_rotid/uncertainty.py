@@ -18,6 +18,14 @@ UNOBSERVABLE_SIGMA_RAD = np.radians(5.0)
 UNOBSERVABLE_SIGMA_M = 0.05
 #: Eigenvalues below this fraction of the largest are numerically zero.
 RELATIVE_ZERO = 1e-10
+#: A numerically null direction whose rotation part (rad per m of translation) is below this is taken as a pure
+#: translation. The exact symmetries of this problem (scale about the camera when every wrist axis passes through
+#: one point; a shift along the axes when they are parallel) move only the camera position, and the rotation part
+#: of the computed eigenvector (~1e-7) is rounding error; left in, the 1e12 variance put on that direction would
+#: leak into the rotation block (1e12 x (1e-7)^2 rad^2, degrees of spurious rotation sigma).
+PURE_TRANSLATION_ROTATION = 1e-3
+#: Variance (rad^2 or m^2) given to an undetermined direction: sigma = 1e6, i.e. 1000 km or 1e6 rad.
+UNDETERMINED_VARIANCE = 1e12
 
 
 def marginal_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, key: int, dim: int) -> np.ndarray:
@@ -77,13 +85,28 @@ class Observability:
         return list(self.words)
 
     def covariance(self, information: np.ndarray) -> np.ndarray:
-        """Inverse of the information; undetermined directions get a variance of 1e12 (σ = 1000 km or rad)."""
-        w, V = np.linalg.eigh(0.5 * (information + information.T))
-        w = np.where(w > RELATIVE_ZERO * max(w.max(), 1e-300), w, 1e-12)
-        for direction in self.unobservable_directions:
-            i = int(np.argmax(np.abs(V.T @ direction)))
-            w[i] = 1e-12
-        return (V / w) @ V.T
+        """Inverse of the information on the determined directions; each undetermined direction gets a variance of
+        ``UNDETERMINED_VARIANCE`` (σ = 1000 km or 1e6 rad) along itself and nothing anywhere else.
+
+        With ``N`` an orthonormal basis of the undetermined directions and ``Q`` of the rest, this is
+        ``Q (Qᵀ I Q)⁻¹ Qᵀ + 1e12 N Nᵀ``: the determined block is the covariance given the undetermined
+        coordinates, so a (snapped, pure-translation) null direction cannot inflate the rotation sigmas.
+        """
+        information = 0.5 * (information + information.T)
+        if not self.unobservable_directions:
+            w, V = np.linalg.eigh(information)
+            w = np.where(w > RELATIVE_ZERO * max(w.max(), 1e-300), w, 1.0 / UNDETERMINED_VARIANCE)
+            return (V / w) @ V.T
+        basis, _, _ = np.linalg.svd(np.column_stack(self.unobservable_directions), full_matrices=True)
+        k = len(self.unobservable_directions)
+        N, Q = basis[:, :k], basis[:, k:]
+        covariance = UNDETERMINED_VARIANCE * (N @ N.T)
+        if Q.shape[1]:
+            w, V = np.linalg.eigh(Q.T @ information @ Q)
+            w = np.where(w > RELATIVE_ZERO * max(np.abs(information).max(), 1e-300), w, 1.0 / UNDETERMINED_VARIANCE)
+            QV = Q @ V
+            covariance += (QV / w) @ QV.T
+        return 0.5 * (covariance + covariance.T)
 
     def to_dict(self) -> dict:
         return {
@@ -115,6 +138,9 @@ def analyse_observability(information: np.ndarray, arm_T_camera: gtsam.Pose3) ->
         if sigma <= limit:
             continue
         v = v if v[np.argmax(np.abs(v))] > 0 else -v
+        if not np.isfinite(sigma) and rotation_part < PURE_TRANSLATION_ROTATION * np.linalg.norm(v[3:]):
+            v = np.concatenate([np.zeros(3), v[3:] / np.linalg.norm(v[3:])])
+            rotation_part = 0.0
         unobservable.append(v)
         t_arm = R @ v[3:]
         r_arm = R @ v[:3]

@@ -20,9 +20,6 @@ REQUIRED = ("reference_jaco2", "noise_monte_carlo", "single_crossing", "minimal_
 SCENARIOS = sorted(p.stem for p in SCENARIO_DIR.glob("*.py") if not p.name.startswith("_"))
 #: scenario -> why it fails today (an estimator problem its verdict reports; see the scenario's output)
 KNOWN_FAILURES = {
-    "single_crossing": "the report calls the orientation 'not determined' (rotation 1 sigma 2-7 deg) where the "
-                       "information's rotation marginal is ~0.2 deg: Observability.covariance puts its 1e12 variance "
-                       "on the numerical null eigenvector, whose tiny rotation part then swamps the rotation block",
     "minimal_three": "three measurements: the image-axis equations have several exact solutions and calibrate "
                      "returns a wrong one (1.7 m, 130 deg off) with a millimetre covariance",
 }

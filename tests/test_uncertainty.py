@@ -1,0 +1,60 @@
+"""Observability analysis and the covariance it hands to the report (gtsam_rotid.uncertainty)."""
+
+import gtsam
+import numpy as np
+
+from gtsam_rotid.uncertainty import UNDETERMINED_VARIANCE, analyse_observability
+
+
+def information_with_null(null: np.ndarray, seed: int = 0) -> np.ndarray:
+    """A well-conditioned 6x6 information (rad, m) with ``null`` (unit) as its exact null direction."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(6, 6))
+    scale = np.diag([3e5] * 3 + [1e5] * 3)  # ~0.1 deg and ~3 mm
+    info = scale @ (A @ A.T + 6 * np.eye(6)) @ scale / 36
+    P = np.eye(6) - np.outer(null, null)
+    return P @ info @ P
+
+
+def test_pure_translation_null_does_not_leak_into_the_rotation_block():
+    t = np.array([0.6, -0.2, -0.7])
+    null = np.concatenate([np.zeros(3), t / np.linalg.norm(t)])
+    info = information_with_null(null)
+    # rounding in the eigen-solver gives the null eigenvector a tiny rotation part; emulate a slightly worse one
+    tilt = np.concatenate([[2e-7, -1e-7, 1.5e-7], np.zeros(3)])
+    noisy = null + tilt
+    noisy /= np.linalg.norm(noisy)
+    info = info + 1e-9 * np.outer(noisy, noisy)  # numerically zero eigenvalue, eigenvector with rotation part
+    obs = analyse_observability(info, gtsam.Pose3())
+    assert len(obs.unobservable_directions) == 1
+    d = obs.unobservable_directions[0]
+    np.testing.assert_allclose(d[:3], 0.0)
+    np.testing.assert_allclose(abs(d @ null), 1.0, atol=1e-9)
+    cov = obs.covariance(info)
+    # rotation block: the covariance of the determined directions given the undetermined one (here, pinv)
+    reference = np.linalg.pinv(information_with_null(null))[:3, :3]
+    np.testing.assert_allclose(cov[:3, :3], reference, rtol=1e-6)
+    assert np.all(np.degrees(np.sqrt(np.diag(cov[:3, :3]))) < 1.0)
+    # the undetermined direction carries the huge variance, and only it
+    np.testing.assert_allclose(null @ cov @ null, UNDETERMINED_VARIANCE, rtol=1e-6)
+    assert np.all(np.sqrt(np.diag(cov[3:, 3:])) > 1e3)  # every translation axis has a part along the ray
+
+
+def test_observable_information_is_inverted_exactly():
+    info = information_with_null(np.eye(6)[0]) + 1e8 * np.outer(np.eye(6)[0], np.eye(6)[0])
+    obs = analyse_observability(info, gtsam.Pose3())
+    assert obs.is_observable
+    np.testing.assert_allclose(obs.covariance(info), np.linalg.inv(info), rtol=1e-9)
+
+
+def test_a_coupled_null_direction_is_not_snapped():
+    """A null direction with a real rotation part (a rotation about a point away from the camera) is kept whole:
+    the rotation about it is undetermined too and must be reported so."""
+    null = np.array([0.3, 0.0, 0.0, 0.0, 0.5, 0.2])
+    null /= np.linalg.norm(null)
+    info = information_with_null(null)
+    obs = analyse_observability(info, gtsam.Pose3())
+    assert len(obs.unobservable_directions) == 1
+    np.testing.assert_allclose(abs(obs.unobservable_directions[0] @ null), 1.0, atol=1e-9)
+    cov = obs.covariance(info)
+    assert np.sqrt(cov[0, 0]) > 1e3  # rotation about x undetermined
