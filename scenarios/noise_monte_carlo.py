@@ -17,8 +17,12 @@ every trial calibrated. With ``--quick`` (2 trials, 10 s spins) only what a few 
 trial calibrates, no trial's error lies outside its reported 99.9 % region, and the reported 1σ is within 25 % of
 the bound.
 
-Trials run in parallel processes (``--jobs``, default: all CPUs; joblib is not a dependency, so
-``concurrent.futures``), with a progress bar. CustomFactors cannot be pickled: every worker builds its own graphs.
+Trials run in parallel processes (joblib's loky backend, ``--jobs``, default: all CPUs) or, with ``--scheduler
+ADDRESS``, on a Dask cluster (joblib's dask backend), with a progress bar that ticks once per finished trial. Both
+come with the ``scenarios`` extra (``pip install -e ".[scenarios]"``; ``.[test]`` includes it). Every trial draws from
+its own seed, so the numbers do not depend on where or in which order the trials ran. CustomFactors cannot be
+pickled: every worker builds its own graphs. The Dask workers need ``gtsam_rotid`` installed and this checkout's
+``scenarios/`` directory at the same path (the same machine or a shared file system) or on their ``PYTHONPATH``.
 
 Run: ``python scenarios/noise_monte_carlo.py [--quick] [--out DIR] [--seed N] [--trials 100] [--jobs N]
 [--duration 60] [--scheduler ADDRESS]``.
@@ -29,7 +33,7 @@ from __future__ import annotations
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
 
 import numpy as np
 from _common import (
@@ -47,8 +51,10 @@ from tqdm import tqdm
 
 NOISE_VARS = (0.1, 0.5, 1.0, 1.5)
 METHODS = ("paper", "weighted", "joint")
-#: Trials per worker process before it is replaced (see :func:`run_trials`).
-TASKS_PER_WORKER = 8
+#: This directory (the trials import ``_common`` from it, also inside Dask workers).
+SCENARIO_DIR = str(Path(__file__).resolve().parent)
+#: Dask: seconds to wait for the scheduler to answer, and then for a worker.
+SCHEDULER_TIMEOUT = 10.0
 #: Normal quantile of the judged NEES interval (99.9 %, two-sided).
 Z999 = 3.290527
 
@@ -129,6 +135,8 @@ def stage1_line_bounds(dataset, truth, noise_var: float) -> np.ndarray:
 
 def trial(noise_var: float, seed: int, duration: float, joint_angles, methods) -> dict:
     """Simulate, bound and calibrate one trial; plain arrays only (the result crosses a process boundary)."""
+    if SCENARIO_DIR not in sys.path:  # a Dask worker started elsewhere than this script
+        sys.path.append(SCENARIO_DIR)
     from _common import crlb
 
     from gtsam_rotid import simulate
@@ -181,41 +189,96 @@ def trial(noise_var: float, seed: int, duration: float, joint_angles, methods) -
 # running the trials
 
 
-def run_trials(tasks, jobs: int, scheduler: str | None) -> list[dict]:
-    """Every task's trial, in ``jobs`` worker processes, with a progress bar.
+class SchedulerError(ConnectionError):
+    """``--scheduler ADDRESS``: no Dask scheduler answers at that address, or it has no worker."""
 
-    ``calibrate`` keeps ~40 MB per call alive in its process (reference scene, 60 s spins): a worker of a 400-trial
-    run grew to 12 GB and was killed. So the trials run in batches of ``TASKS_PER_WORKER`` per worker, each batch
-    in a fresh pool (``max_tasks_per_child`` can deadlock in Python 3.11's ``concurrent.futures``).
+
+def make_tasks(seed: int, noise_vars, trials: int, first_seed: int, duration: float, methods=METHODS) -> list[tuple]:
+    """The arguments of :func:`trial` for every (noise level, trial): the arm poses of the reference scene of
+    ``seed``, trial i with seed ``first_seed + i`` at every level."""
+    from gtsam_rotid import simulate
+
+    _, scene = simulate.reference_scene(seed=seed, duration=1.0, min_track_length=2)
+    joint_angles = tuple(tuple(m.joint_angles.tolist()) for m in scene.measurements)
+    return [(float(v), first_seed + i, float(duration), joint_angles, tuple(methods))
+            for v in noise_vars for i in range(trials)]
+
+
+def indexed_trial(index: int, task: tuple) -> tuple[int, dict]:
+    return index, trial(*task)
+
+
+def run_trials(tasks, jobs: int = 1, scheduler: str | None = None, *, timeout: float | None = None,
+               progress: bool = True) -> list[dict]:
+    """Every task's :func:`trial`, in task order, with a progress bar (one tick per finished trial).
+
+    Without ``scheduler``: in ``jobs`` worker processes (joblib, loky backend; in this process when ``jobs`` is 1).
+    With ``scheduler``: on the Dask cluster at that address (joblib's dask backend, every worker thread of the
+    cluster); raises :class:`SchedulerError` when the scheduler does not answer within ``timeout`` seconds
+    (default ``SCHEDULER_TIMEOUT``) or has no worker.
     """
-    if scheduler:  # pragma: no cover - dask is not a dependency of this project
-        raise SystemExit("--scheduler needs dask.distributed, which is not installed in this environment")
-    results = []
-    with tqdm(total=len(tasks), desc="trials", unit="trial") as bar:
-        if jobs <= 1:
-            for task in tasks:
-                results.append(trial(*task))
+    results: list[dict | None] = [None] * len(tasks)
+    with tqdm(total=len(tasks), desc="trials", unit="trial", disable=not progress) as bar:
+        def collect(finished) -> None:
+            for index, result in finished:
+                results[index] = result
                 bar.update()
-            return results
-        batch = jobs * TASKS_PER_WORKER
-        for first in range(0, len(tasks), batch):
-            with ProcessPoolExecutor(max_workers=jobs) as pool:
-                futures = [pool.submit(trial, *task) for task in tasks[first:first + batch]]
-                for future in as_completed(futures):
-                    results.append(future.result())
-                    bar.update()
+
+        indexed = list(enumerate(tasks))
+        if scheduler:
+            run_on_dask(indexed, scheduler, timeout or SCHEDULER_TIMEOUT, collect)
+        else:
+            collect(parallel(jobs, "loky")(indexed))
     return results
+
+
+def parallel(n_jobs: int, backend: str | None):
+    """``run(indexed_tasks)`` -> generator of (index, result) in the order the trials finish."""
+    from joblib import Parallel, delayed
+
+    runner = Parallel(n_jobs=n_jobs, backend=backend, batch_size=1, return_as="generator_unordered")
+    return lambda indexed: runner(delayed(indexed_trial)(i, task) for i, task in indexed)
+
+
+def connect(address: str, timeout: float):
+    """A ``distributed.Client`` of the scheduler at ``address`` that has at least one worker, or SchedulerError."""
+    from distributed import Client
+
+    try:
+        client = Client(address, timeout=timeout, set_as_default=False)
+    except Exception as error:  # refused, timed out, not an address, or not a Dask scheduler answering
+        raise SchedulerError(f"cannot reach the Dask scheduler at {address!r} within {timeout:g} s "
+                             f"({type(error).__name__}: {error}); start one with `dask scheduler` and workers "
+                             "with `dask worker ADDRESS`, and pass the address it prints") from error
+    try:
+        client.wait_for_workers(1, timeout=timeout)
+    except (TimeoutError, OSError) as error:
+        client.close()
+        raise SchedulerError(f"the Dask scheduler at {address!r} has no worker after {timeout:g} s; start one with "
+                             f"`dask worker {address}`") from error
+    return client
+
+
+def run_on_dask(indexed, address: str, timeout: float, collect) -> None:
+    """Run ``indexed`` (index, task) pairs on the Dask cluster at ``address``, passing what finishes to ``collect``."""
+    from joblib import parallel_config
+
+    with connect(address, timeout) as client, parallel_config(backend="dask", client=client):
+        collect(parallel(-1, None)(indexed))
 
 
 def extra_arguments(parser) -> None:
     parser.add_argument("--trials", type=int, help="trials per noise level (default 100; --quick 2)")
-    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default %(default)s)")
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                        help="worker processes (joblib, loky; default %(default)s; 1: in this process; not used "
+                             "with --scheduler)")
     parser.add_argument("--duration", type=float, help="seconds of spin per measurement (default 60; --quick 10)")
     parser.add_argument("--first-seed", type=int, default=1000, help="seed of trial 0 (default %(default)s)")
     parser.add_argument("--noise-vars", default=",".join(f"{v:g}" for v in NOISE_VARS),
                         help="comma-separated pixel noise variances, px^2 (default %(default)s)")
     parser.add_argument("--scheduler", metavar="ADDRESS",
-                        help="run the trials on this Dask scheduler (needs dask.distributed; not installed here)")
+                        help="run the trials on the Dask cluster of this scheduler (e.g. tcp://HOST:8786), on "
+                             "every worker thread")
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -342,14 +405,15 @@ def main(argv=None) -> int:
     header(args, "pixel-noise Monte Carlo against the Cramér-Rao bound (the paper's figures)",
            [f"reference scene (arm poses of seed {args.seed}), six {duration:g} s spins, sigma^2 in "
             f"{noise_vars} px^2, {trials} trials per level (seeds {args.first_seed}-{args.first_seed + trials - 1}), "
-            f"methods {', '.join(methods)}, {jobs} worker processes"])
-    from gtsam_rotid import simulate
-
-    _, scene = simulate.reference_scene(seed=args.seed, duration=1.0, min_track_length=2)
-    joint_angles = tuple(tuple(m.joint_angles.tolist()) for m in scene.measurements)
-    tasks = [(v, args.first_seed + i, duration, joint_angles, methods) for v in noise_vars for i in range(trials)]
+            f"methods {', '.join(methods)}, "
+            + (f"on the Dask cluster at {args.scheduler}" if args.scheduler else f"{jobs} worker processes")])
+    tasks = make_tasks(args.seed, noise_vars, trials, args.first_seed, duration, methods)
     start = time.perf_counter()
-    results = run_trials(tasks, jobs, args.scheduler)
+    try:
+        results = run_trials(tasks, jobs, args.scheduler)
+    except SchedulerError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
     wall = time.perf_counter() - start
     by_level = {v: sorted([r for r in results if r["noise_var"] == v], key=lambda r: r["seed"]) for v in noise_vars}
     print(f"{len(tasks)} trials in {wall:.0f} s wall")
