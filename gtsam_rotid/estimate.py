@@ -138,6 +138,30 @@ class MeasurementReport:
 
 
 @dataclass
+class Alternative:
+    """Another ``arm_T_camera`` that the estimator found to explain the data (a distinct local minimum).
+
+    ``delta_chi2`` is its chi-square minus the estimate's, both on the same tracks and pixel noise (the joint
+    graph, re-solved from each): ``2 ln`` of the likelihood ratio in favour of the estimate.
+    """
+
+    arm_T_camera: gtsam.Pose3
+    delta_chi2: float
+
+    def to_dict(self) -> dict:
+        return {"arm_T_camera": self.arm_T_camera.matrix().tolist(), "delta_chi2": self.delta_chi2}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Alternative:
+        return cls(gtsam.Pose3(np.array(data["arm_T_camera"])), float(data["delta_chi2"]))
+
+
+#: An alternative whose chi-square exceeds the estimate's by less than this (likelihood ratio 1000:1) makes the
+#: calibration ambiguous: the data cannot tell the two apart.
+AMBIGUITY_CHI2 = 2.0 * np.log(1000.0)
+
+
+@dataclass
 class CalibrationResult:
     """``arm_T_camera`` (camera pose in the arm-base frame) with its covariance and diagnostics."""
 
@@ -153,10 +177,17 @@ class CalibrationResult:
     #: residual degrees of freedom of ``final_error``'s graph (residuals minus parameters); 2 * final_error is
     #: its chi-square at the noise the graph assumed
     dof: int | None = None
+    #: other local minima the estimator examined (several starts), with how much worse they fit
+    alternatives: list[Alternative] = field(default_factory=list)
+
+    @property
+    def ambiguous(self) -> bool:
+        """True when another, distinct pose fits the data almost as well (see :data:`AMBIGUITY_CHI2`)."""
+        return any(a.delta_chi2 < AMBIGUITY_CHI2 for a in self.alternatives)
 
     @property
     def covariance_usable(self) -> bool:
-        return self.observability.is_observable
+        return self.observability.is_observable and not self.ambiguous
 
     @property
     def sigma_deg(self) -> np.ndarray:
@@ -187,10 +218,14 @@ class CalibrationResult:
             f"  translation (mm):  {t[0]:9.2f} {t[1]:9.2f} {t[2]:9.2f}",
             f"  roll/pitch/yaw (deg): {rpy[0]:8.3f} {rpy[1]:8.3f} {rpy[2]:8.3f}",
         ]
+        if self.ambiguous:
+            lines.append("  AMBIGUOUS: " + ambiguity_words(self))
         if self.covariance_usable:
             s, r = self.sigma_mm_arm, self.sigma_deg
             lines.append(f"  1-sigma position, arm frame (mm): {s[0]:.3f} {s[1]:.3f} {s[2]:.3f}")
             lines.append(f"  1-sigma rotation (deg):           {r[0]:.4f} {r[1]:.4f} {r[2]:.4f}")
+        elif self.ambiguous:
+            lines.append("  COVARIANCE UNUSABLE: it describes one of several poses that fit the data")
         else:
             lines.append("  COVARIANCE UNUSABLE: the arm poses do not determine the calibration")
         lines.extend("  " + line for line in self.observability.describe())
@@ -223,6 +258,8 @@ class CalibrationResult:
                 for m in self.measurements
             ],
             "observability": self.observability.to_dict(),
+            "ambiguous": self.ambiguous,
+            "alternatives": [a.to_dict() for a in self.alternatives],
         }
 
     @classmethod
@@ -243,6 +280,7 @@ class CalibrationResult:
                 for m in data["measurements"]
             ],
             observability=Observability.from_dict(data["observability"]),
+            alternatives=[Alternative.from_dict(a) for a in data.get("alternatives", [])],
         )
 
     def report(self, dataset=None, **kwargs):
@@ -258,6 +296,24 @@ class CalibrationResult:
     def load(cls, path: str | os.PathLike) -> CalibrationResult:
         with open(path, encoding="utf-8") as handle:
             return cls.from_dict(json.load(handle))
+
+
+def ambiguity_words(result: CalibrationResult) -> str:
+    """Plain words for an ambiguous result: which other poses fit, and what to do."""
+    close = sorted((a for a in result.alternatives if a.delta_chi2 < AMBIGUITY_CHI2), key=lambda a: a.delta_chi2)
+    t = np.asarray(result.arm_T_camera.translation(), dtype=float)
+    where = "; ".join(
+        f"camera at {np.round(1000 * np.asarray(a.arm_T_camera.translation(), dtype=float), 1).tolist()} mm, "
+        f"{1000 * np.linalg.norm(np.asarray(a.arm_T_camera.translation(), dtype=float) - t):.0f} mm and "
+        f"{np.degrees(np.linalg.norm(result.arm_T_camera.rotation().localCoordinates(a.arm_T_camera.rotation()))):.1f}"
+        f"° from this estimate, chi-square only {max(a.delta_chi2, 0.0):.3g} worse" for a in close)
+    return (f"{len(close)} other pose{'s' if len(close) > 1 else ''} of the camera fit the pixels almost as well "
+            f"({where}; a difference below {AMBIGUITY_CHI2:.1f} is a likelihood ratio under 1000:1): the data cannot "
+            f"tell them apart, so neither this estimate nor its covariance can be trusted. "
+            + ("With three arm poses the wrist axes give exactly as many equations as the six unknowns, and those "
+               "have several exact solutions" if len(result.measurements) == MIN_MEASUREMENTS else
+               "The chosen wrist axes do not single one out")
+            + "; add arm poses whose wrist axes are tilted from the others and miss their common point")
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -277,6 +333,14 @@ WATCH_POSE = 1e-7
 #: from the best start and its image-axis error is below this multiple of the best (+ 1 px^2).
 TWIN_MIN_ANGLE_DEG = 10.0
 TWIN_ERROR_RATIO = 4.0
+#: Paper method: restart minima whose error (unit-noise px^2) is within this of the lowest are tied.
+TIE_PX2 = 0.5
+#: Two results turned less than this (deg) from each other are the same solution when no covariance can say.
+SAME_ANGLE_DEG = 1.0
+#: 99.9 % point of chi-square with 6 dof.
+CHI2_6_999 = 22.457744484825326
+#: At most this many starts (the best, other minima of the image-axis fit, the twin) go on to the circle fits.
+MAX_STARTS = 4
 #: The image-axis (stage-2) graphs hold the pose near the start along directions whose information is below this
 #: fraction of the largest (reference scene: >= 8e-4; single crossing: ~3e-6), by a prior of sigma GAUGE_SIGMA
 #: (rad, m); see :func:`_gauge_prior`.
@@ -377,7 +441,8 @@ def _stage2_graph(axes, lines, K, noises) -> gtsam.NonlinearFactorGraph:
     return graph
 
 
-def _gauge_prior(graph: gtsam.NonlinearFactorGraph, anchor: gtsam.Pose3) -> gtsam.PriorFactorPose3 | None:
+def _gauge_prior(graph: gtsam.NonlinearFactorGraph, anchor: gtsam.Pose3,
+                 scale: float = 1.0) -> gtsam.PriorFactorPose3 | None:
     """A prior at ``anchor`` along the pose directions the image-axis graph leaves (nearly) undetermined there.
 
     Pixel noise tilts the cost along such a direction (single crossing: the camera's ray to the crossing point,
@@ -385,7 +450,9 @@ def _gauge_prior(graph: gtsam.NonlinearFactorGraph, anchor: gtsam.Pose3) -> gtsa
     kilometres, along it. Directions whose information is below ``WEAK_RELATIVE`` of the largest get a prior of
     sigma ``GAUGE_SIGMA`` (rad, m); the others one of information ``GAUGE_FLOOR`` (it moves nothing there: the
     data's information is >= 1e5 times larger), so that the prior is a full-rank Gaussian. None when nothing is
-    weak.
+    weak. ``scale`` multiplies the prior's information: a graph whose noise models are not the data's (the paper's
+    unit line noise) passes the variance those units stand for, so that the prior pulls as hard, relative to the
+    data, as in a graph weighted by the real noise.
     """
     values = gtsam.Values()
     values.insert(POSE_KEY, anchor)
@@ -396,30 +463,40 @@ def _gauge_prior(graph: gtsam.NonlinearFactorGraph, anchor: gtsam.Pose3) -> gtsa
     weak = w < WEAK_RELATIVE * max(w.max(), 1e-300)
     if not weak.any():
         return None
-    prior = np.where(weak, GAUGE_SIGMA**-2, GAUGE_FLOOR)
+    prior = scale * np.where(weak, GAUGE_SIGMA**-2, GAUGE_FLOOR)
     return gtsam.PriorFactorPose3(POSE_KEY, anchor, gtsam.noiseModel.Gaussian.Information((V * prior) @ V.T))
 
 
-def _best_stage2(graph, starts, options, max_iterations: int | None = None,
-                 anchor: gtsam.Pose3 | None = None) -> tuple[gtsam.Pose3, float, int, int]:
-    """LM from each start, with the :func:`_gauge_prior` at ``anchor`` (default: at the start); returns (pose,
-    error, iterations, index of the start) of the lowest error."""
-    best = None
+def _stage2_minima(graph, starts, options, max_iterations: int | None = None, anchor: gtsam.Pose3 | None = None,
+                   gauge_scale: float = 1.0) -> list[tuple[gtsam.Pose3, float, int, int]]:
+    """LM from each start, with the :func:`_gauge_prior` at ``anchor`` (default: at the start); (pose, error,
+    iterations, index of the start) per start, in the order of ``starts``."""
+    out = []
     for i, start in enumerate(starts):
         values = gtsam.Values()
         values.insert(POSE_KEY, start)
         gauged = graph
-        prior = _gauge_prior(graph, start if anchor is None else anchor)
+        prior = _gauge_prior(graph, start if anchor is None else anchor, gauge_scale)
         if prior is not None:
             gauged = gtsam.NonlinearFactorGraph()
             gauged.push_back(graph)
             gauged.add(prior)
         result, iterations, _, _ = _lm(gauged, values, max_iterations or options.max_iterations,
                                        diagonal_damping=False)
-        error = graph.error(result)
-        if best is None or error < best[1]:
-            best = (result.atPose3(POSE_KEY), error, iterations, i)
-    return best
+        out.append((result.atPose3(POSE_KEY), graph.error(result), iterations, i))
+    return out
+
+
+def _best_stage2(graph, starts, options, max_iterations: int | None = None,
+                 anchor: gtsam.Pose3 | None = None) -> tuple[gtsam.Pose3, float, int, int]:
+    """(pose, error, iterations, index of the start) of the lowest error of :func:`_stage2_minima`."""
+    return min(_stage2_minima(graph, starts, options, max_iterations, anchor), key=lambda m: m[1])
+
+
+def _distinct(pose: gtsam.Pose3, others) -> bool:
+    """``pose`` is turned more than TWIN_MIN_ANGLE_DEG from each of ``others`` (positions are not compared: along
+    an undetermined direction they differ arbitrarily between starts of the same solution)."""
+    return all(np.linalg.norm(other.localCoordinates(pose)[:3]) > np.radians(TWIN_MIN_ANGLE_DEG) for other in others)
 
 
 def _random_restarts(pose: gtsam.Pose3, n: int, rng: np.random.Generator) -> list[gtsam.Pose3]:
@@ -471,12 +548,20 @@ def _initial(arm, camera, measurements, options) -> tuple[list[gtsam.Pose3], _Se
                                "and that the tracks belong to the wrist")
     unit = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(setup.axes)
     graph = _stage2_graph(setup.axes, setup.lines, K, unit)
-    pose, error, _, best = _best_stage2(graph, candidates, options)
+    minima = sorted(_stage2_minima(graph, candidates, options), key=lambda m: m[1])
+    pose, error, _, best = minima[0]
     rms = np.sqrt(2.0 * error / (2 * len(setup.axes)))
     if rms > options.max_initial_rms_px:
         raise CalibrationError(
             f"initialisation ended in a poor minimum: the FK axes miss the image axes by {rms:.1f} px RMS "
             f"(limit {options.max_initial_rms_px} px); check joint angles, camera intrinsics and tracks")
+    # Other minima that explain the image axes about as well are kept for the circles to decide: with three
+    # measurements the image axes give exactly six equations, which have several exact solutions.
+    starts, anchors = [pose], [candidates[best]]
+    for other, other_error, _, i in minima[1:]:
+        if len(starts) < MAX_STARTS and other_error < TWIN_ERROR_RATIO * error + 1.0 and _distinct(other, starts):
+            starts.append(other)
+            anchors.append(candidates[i])
     # Near a single crossing the half-turned twin explains the image axes as well: keep it for the circles
     # to decide (elsewhere LM takes the twin back to ``pose``).
     # A genuine twin is a minimum next to its start; elsewhere LM would crawl back to ``pose`` for many
@@ -484,10 +569,10 @@ def _initial(arm, camera, measurements, options) -> tuple[list[gtsam.Pose3], _Se
     crossing = closest_point(setup.axes)
     twin, twin_error, _, _ = _best_stage2(graph, [twin_pose(pose, crossing)], options,
                                           max_iterations=TWIN_ITERATIONS)
-    distinct = np.linalg.norm(pose.localCoordinates(twin)[:3]) > np.radians(TWIN_MIN_ANGLE_DEG)
-    if distinct and twin_error < TWIN_ERROR_RATIO * error + 1.0:
-        return [pose, twin], setup, [candidates[best], twin_pose(candidates[best], crossing)]
-    return [pose], setup, [candidates[best]]
+    if len(starts) < MAX_STARTS and twin_error < TWIN_ERROR_RATIO * error + 1.0 and _distinct(twin, starts):
+        starts.append(twin)
+        anchors.append(twin_pose(candidates[best], crossing))
+    return starts, setup, anchors
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -794,7 +879,16 @@ def _paper(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResu
     noises = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(stage1)
     graph = _stage2_graph(setup.axes, [s.line for s in stage1], camera.K, noises)
     starts = [init_pose, *_random_restarts(init_pose, options.restarts, rng)]
-    pose, error, iterations, _ = _best_stage2(graph, starts, options, anchor=anchor)
+    # the unit line noise stands for the lines' real noise: the gauge prior is scaled to match (a prior of
+    # GAUGE_SIGMA against 1 px lines would drag a weakly determined direction to the anchor)
+    line_var = float(np.median([np.mean(np.diag(_axis_distances(camera, axis, s, init_pose)[1]))
+                                for axis, s in zip(setup.axes, stage1, strict=True)]))
+    minima = _stage2_minima(graph, starts, options, anchor=anchor, gauge_scale=line_var)
+    # Minima within TIE_PX2 of the lowest fit the lines equally well (three measurements: several exact
+    # solutions); the start was chosen by the circles, so the one nearest it is taken.
+    lowest = min(m[1] for m in minima)
+    pose, error, iterations, _ = min((m for m in minima if m[1] <= lowest + TIE_PX2),
+                                     key=lambda m: _turned(m[0], init_pose))
     chi2 = _chi2(camera, setup.axes, stage1, pose)
     if np.median(chi2) > options.outlier_measurement_chi2:  # the unweighted fit is suboptimal: judge loosely
         raise _poor_minimum(chi2, options.outlier_measurement_chi2, "most measurements disagree")
@@ -955,26 +1049,99 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
     measurements = [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements]
     starts, setup, anchors = _initial(arm, camera, measurements, options)
     runs = [(start, _stage1(arm, camera, measurements, start, setup, options)) for start in starts]
-    if len(runs) > 1:  # image axes cannot choose between twin starts: the joint fit of the circles does
+    alternatives = []
+    if len(runs) > 1:  # the image axes cannot choose between the starts: the joint fit of the circles does
         joints, failures = [], []
         for (start, stage1), anchor in zip(runs, anchors, strict=True):
-            try:
-                joints.append(_joint(arm, camera, measurements, setup, stage1, start, options, anchor))
-            except CalibrationError as failure:  # the wrong twin's circles cannot fit: its estimate is a poor one
+            try:  # a wrong start's circles may not fit at all: its estimate is then a poor one
+                joint = _joint(arm, camera, measurements, setup, stage1, start, options, anchor)
+                _check_scale(joint, setup, stage1, options)
+                joints.append(joint)
+            except CalibrationError as failure:
                 joints.append(None)
                 failures.append(failure)
         if len(failures) == len(runs):
             raise failures[0]
-        best = int(np.argmin([np.inf if r is None else r.sigma_px for r in joints]))
+        best, alternatives = _choose(arm, camera, measurements, setup, joints, options)
         if method is Method.JOINT:
-            _check_scale(joints[best], setup, runs[best][1], options)
+            joints[best].alternatives = alternatives
             return joints[best]
         runs, anchors = [runs[best]], [anchors[best]]
     init_pose, stage1 = runs[0]
     result = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
     _check_scale(result, setup, stage1, options)
+    result.alternatives = alternatives
     return result
 
+
+def _turned(a: gtsam.Pose3, b: gtsam.Pose3) -> float:
+    """Rotation angle (rad) between two poses."""
+    return float(np.linalg.norm(a.localCoordinates(b)[:3]))
+
+
+def _same_solution(result: CalibrationResult, pose: gtsam.Pose3) -> bool:
+    """``pose`` is ``result``'s solution again: inside its 99.9 % region when the covariance is usable, else
+    turned less than SAME_ANGLE_DEG from it (positions differ arbitrarily along undetermined directions)."""
+    xi = result.arm_T_camera.localCoordinates(pose)
+    if not result.observability.is_observable:
+        return float(np.linalg.norm(xi[:3])) < np.radians(SAME_ANGLE_DEG)
+    try:
+        return float(xi @ np.linalg.solve(result.covariance, xi)) <= CHI2_6_999
+    except np.linalg.LinAlgError:
+        return float(np.linalg.norm(xi[:3])) < np.radians(SAME_ANGLE_DEG)
+
+
+def _common_chi2(arm, camera, measurements, setup, results: list[CalibrationResult],
+                 options) -> tuple[np.ndarray, list[gtsam.Pose3]]:
+    """Chi-square and pose of each result re-solved (from its pose) on one joint graph: the measurements and tracks
+    that none of ``results`` rejected, each measurement at the smallest of their pixel sigmas."""
+    used = [k for k in range(len(measurements)) if not any(r.measurements[k].outlier for r in results)]
+    sigmas = {k: max(min(r.measurements[k].residual_rms_px for r in results), options.min_sigma_px) for k in used}
+    skip = {k: set().union(*(r.measurements[k].rejected_tracks for r in results)) for k in used}
+    builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model)
+    chi2, poses = [], []
+    for r in results:
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        values.insert(POSE_KEY, r.arm_T_camera)
+        try:
+            for k in used:
+                builder.add_measurement(graph, values, k, measurements[k], skip_tracks=skip[k],
+                                        track_sigmas=dict.fromkeys(setup.prepared[k].usable, sigmas[k]),
+                                        prepared=setup.prepared[k])
+        except RotIdError:  # this pose cannot carry those tracks (e.g. an ellipse behind the camera)
+            chi2.append(np.inf)
+            poses.append(r.arm_T_camera)
+            continue
+        start = r.arm_T_camera
+        solved, _, error, _ = _lm(graph, values, options.max_iterations, anchor=True, watch_tolerance=WATCH_POSE,
+                                  watch=lambda v, start=start: start.localCoordinates(v.atPose3(POSE_KEY)))
+        chi2.append(2.0 * error)
+        poses.append(solved.atPose3(POSE_KEY))
+    return np.array(chi2), poses
+
+
+def _choose(arm, camera, measurements, setup, joints: list[CalibrationResult | None],
+            options) -> tuple[int, list[Alternative]]:
+    """The joint result that fits best and the other distinct ones as :class:`Alternative`.
+
+    The results may have rejected different tracks and estimated different pixel noise, so their own errors are
+    not comparable: each pose is re-solved on one graph (the tracks and measurements none of them rejected, one
+    pixel sigma per measurement) and the chi-squares of that graph compared.
+    """
+    ok = [i for i, r in enumerate(joints) if r is not None]
+    if len(ok) == 1:
+        return ok[0], []
+    results = [joints[i] for i in ok]
+    chi2, poses = _common_chi2(arm, camera, measurements, setup, results, options)
+    order = [int(j) for j in np.argsort(chi2)]
+    best = results[order[0]]
+    alternatives: list[Alternative] = []
+    for j in order[1:]:
+        if not np.isfinite(chi2[j]) or _same_solution(best, poses[j]) or any(
+                _turned(a.arm_T_camera, poses[j]) < np.radians(SAME_ANGLE_DEG) for a in alternatives):
+            continue
+        alternatives.append(Alternative(poses[j], float(chi2[j] - chi2[order[0]])))
+    return ok[order[0]], alternatives
 
 
 def _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchor) -> CalibrationResult:

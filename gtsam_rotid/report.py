@@ -32,6 +32,7 @@ import gtsam
 import numpy as np
 
 from .errors import InputError
+from .estimate import ambiguity_words
 from .export import check_output_file, load_result, quaternion_xyzw, ros_covariance, write_text
 from .geometry import Line3
 from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD
@@ -280,6 +281,8 @@ class CalibrationReport:
     measurements: list = field(default_factory=list)  # MeasurementReport
     crossing_point_mm: np.ndarray | None = None
     crossing_miss_mm: float | None = None
+    #: another, distinct pose fits the data almost as well (``result.alternatives``): nothing is determined
+    ambiguous: bool = False
 
     @property
     def bound95_position_mm(self) -> np.ndarray:
@@ -337,7 +340,10 @@ class CalibrationReport:
     def _uncertainty_lines(self) -> list[str]:
         q = self.quaternion_xyzw
         lines = [f"quaternion (x, y, z, w): {_vec(q, '{:.8f}')}"]
-        if not self.covariance_usable:
+        if self.ambiguous:
+            lines.append("COVARIANCE UNUSABLE: several camera poses fit the data (see observability); the 1σ below "
+                         "describe only the one shown")
+        elif not self.covariance_usable:
             lines.append("COVARIANCE UNUSABLE: the arm poses do not determine the calibration (see observability); "
                          "the 1σ of undetermined directions is meaningless")
         lines.append(f"rotation 1σ about the arm axes X, Y, Z (deg): {_vec(self.sigma_rotation_arm_deg, '{:.4g}')}; "
@@ -429,6 +435,7 @@ class CalibrationReport:
             "covariance": arr(self.covariance),
             "covariance_order": COVARIANCE_ORDER,
             "covariance_usable": self.covariance_usable,
+            "ambiguous": self.ambiguous,
             "sigma": {"position_mm": arr(self.sigma_position_mm), "rpy_deg": arr(self.sigma_rpy_deg),
                       "rotation_arm_deg": arr(self.sigma_rotation_arm_deg),
                       "rotation_camera_deg": arr(self.sigma_rotation_camera_deg)},
@@ -568,6 +575,12 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         used = [m.index for m in result.measurements if m.weight > 0 and m.index in axes]
         geometry = axis_geometry([axes[k] for k in used], used)
     words, suggestion = _observability(result, cov, geometry)
+    ambiguous = bool(getattr(result, "ambiguous", False))
+    if ambiguous:  # which of the poses is right is not known: no coordinate of the one shown is determined
+        determined = np.zeros(6, dtype=bool)
+        words.insert(0, "AMBIGUOUS: " + ambiguity_words(result))
+        suggestion = suggestion or ("add arm poses whose wrist axes are tilted from the others and miss their "
+                                    "common point")
     pos_dir, pos_sigma = _strongest(cov[:3, :3])
     rot_axis, rot_sigma = _strongest(cov[3:, 3:])
     crossing = geometry is not None and geometry.is_crossing
@@ -586,7 +599,7 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         weakest_position=(pos_dir, 1000.0 * pos_sigma), weakest_rotation=(rot_axis, float(np.degrees(rot_sigma))),
         measurements=list(result.measurements),
         crossing_point_mm=1000.0 * geometry.point if crossing else None,
-        crossing_miss_mm=1000.0 * float(np.max(geometry.miss)) if crossing else None,
+        crossing_miss_mm=1000.0 * float(np.max(geometry.miss)) if crossing else None, ambiguous=ambiguous,
     )
 
 

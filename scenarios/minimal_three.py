@@ -3,7 +3,10 @@
 "To avoid this condition [a single crossing], a minimum of three measurements are required, with one measurement
 having a different position from the other two." Each measurement's wrist axis gives two equations (its image
 line), so three give the six of ``arm_T_camera``: the two-stage methods have no redundancy left, the joint one
-still has every pixel. This scenario calibrates (a) two axes through a point P plus one that misses it: every
+still has every pixel. Those six equations have several exact solutions (here one 130 deg and 1.7 m from the
+truth); the estimator fits the circles from each and keeps the one the pixels prefer, listing the others with how
+much worse they fit (``result.alternatives``), or reports the calibration AMBIGUOUS when the pixels cannot tell
+them apart. This scenario calibrates (a) two axes through a point P plus one that misses it: every
 degree of freedom determined, error inside the reported region; (b) three axes through P: the report names the
 undetermined direction; (c) two measurements: refused with a clear message.
 
@@ -81,10 +84,22 @@ def main(argv=None) -> int:
     joint = results.get("joint")
     if joint is not None:
         print_observability(joint, minimal, indent="    ")
+        for a in joint.alternatives:
+            print(f"    other solution examined: {rotation_error_deg(a.arm_T_camera, truth.arm_T_camera):.1f} deg and "
+                  f"{np.linalg.norm(position_error_mm(a.arm_T_camera, truth.arm_T_camera)):.0f} mm from the truth, "
+                  f"chi-square {a.delta_chi2:.1f} worse than the estimate")
+        verdict.check(joint.alternatives and not joint.ambiguous,
+                      f"(a) joint: the other exact solutions of the image axes were fitted to the circles and "
+                      f"rejected ({len(joint.alternatives)} examined, chi-square at least "
+                      f"{min((a.delta_chi2 for a in joint.alternatives), default=float('nan')):.1f} worse)")
+        r = rotation_error_deg(joint.arm_T_camera, truth.arm_T_camera)
+        verdict.check(r < 5.0, f"(a) joint: the right solution is kept (rotation error {r:.3f} deg < 5 deg)")
         verdict.check(joint.covariance_usable, "(a) joint: all six degrees of freedom determined by three measurements")
         honest, d2 = within_3_sigma(joint, truth.arm_T_camera)
+        # with three 10 s spins (--quick) the joint cost has local minima ~30 mm apart and the linearised
+        # covariance is optimistic (README, Known limits): judged at full size only
         verdict.check(honest, f"(a) joint: error inside the reported 99.9 % region (e^T Sigma^-1 e = {d2:.2f} <= "
-                      f"{CHI2_6_999:.1f})")
+                      f"{CHI2_6_999:.1f})", robust_when_quick=False)
         figures.append(save_figure(plot_pose_3d(joint, minimal), args.out, "minimal_pose_3d.png"))
     weighted = results.get("weighted")
     if weighted is not None:

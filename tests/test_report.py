@@ -278,3 +278,35 @@ def test_cli_report_with_dataset_and_plots(crossing, tmp_path, capsys):
     with pytest.raises(OutputError, match="overwrite"):
         run_report([str(path), "--plots", str(plots)])
     assert run_report([str(path), "--plots", str(plots), "--overwrite"]) == 0
+
+
+# ---------------------------------------------------------------------------------------------------
+# an ambiguous result (several poses fit: e.g. three measurements)
+
+
+def test_ambiguous_result_is_reported_as_such_and_survives_json(reference):
+    from gtsam_rotid.estimate import AMBIGUITY_CHI2, Alternative, CalibrationResult
+
+    dataset, _, result = reference
+    assert not result.ambiguous and result.covariance_usable
+    other = result.arm_T_camera.compose(gtsam.Pose3(gtsam.Rot3.Rz(np.radians(120.0)), np.array([0.3, 0.0, 0.1])))
+    far = Alternative(result.arm_T_camera.compose(gtsam.Pose3(gtsam.Rot3.Rx(1.0), np.zeros(3))), 500.0)
+    clear = copy.copy(result)
+    clear.alternatives = [far]  # a clearly worse alternative leaves the result as it was
+    assert not clear.ambiguous and clear.covariance_usable
+    assert not make_report(clear, dataset).ambiguous
+    ambiguous = copy.copy(result)
+    ambiguous.alternatives = [far, Alternative(other, 0.5 * AMBIGUITY_CHI2)]
+    assert ambiguous.ambiguous and not ambiguous.covariance_usable
+    assert "AMBIGUOUS" in ambiguous.summary()
+    report = make_report(ambiguous, dataset)
+    assert report.ambiguous and not report.covariance_usable and not report.determined.any()
+    text = report.to_text()
+    assert "AMBIGUOUS: 1 other pose" in text and "not determined" in text and "SUGGESTION: add" in text
+    # the other pose is located in the words (its camera position in mm)
+    assert f"{round(1000 * other.translation()[0], 1)}" in text
+    assert json.loads(report.to_json())["ambiguous"] is True
+    back = CalibrationResult.from_dict(json.loads(json.dumps(ambiguous.to_dict())))
+    assert back.ambiguous and len(back.alternatives) == 2
+    np.testing.assert_allclose(back.alternatives[1].arm_T_camera.matrix(), other.matrix(), atol=1e-12)
+    assert back.alternatives[1].delta_chi2 == pytest.approx(0.5 * AMBIGUITY_CHI2)
