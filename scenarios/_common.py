@@ -319,3 +319,111 @@ def safe_crlb(dataset, truth, noise_var: float) -> np.ndarray | None:
     except np.linalg.LinAlgError:
         return None
     return bound if np.all(np.isfinite(bound)) else None
+
+
+# ---------------------------------------------------------------------------------------------------
+# a weak direction's 1σ as the scene nears a degeneracy (parallel_axes, near_degenerate)
+
+
+@dataclass
+class SweepScene:
+    """One scene of a sweep towards a degenerate geometry (:func:`sweep_scene`): the simulated ``dataset`` and
+    ``truth``, the wrist axes' ``geometry``, the Cramér-Rao bound (None when singular) and its 1σ along the weak
+    direction ``crlb`` (mm, inf when singular), and the joint calibration: ``result`` (None and ``failure`` when
+    ``calibrate`` refused), ``seconds``, its ``report``, the reported 1σ along the direction ``sigma`` (mm, inf when
+    the covariance is unusable) and the error along it ``along`` (mm, signed)."""
+
+    dataset: object
+    truth: object
+    geometry: object
+    bound: np.ndarray | None
+    crlb: float
+    result: object
+    seconds: float
+    failure: str | None
+    report: object = None
+    sigma: float | None = None
+    along: float | None = None
+
+    def print_along(self, what: str) -> None:
+        """Print the report's observability words and the error and 1σ (reported, Cramér-Rao) along the
+        direction, which ``what`` names."""
+        for line in self.report.observability:
+            print("  report: " + line)
+        print(f"  {what}: error {self.along:+.2f} mm, reported 1 sigma "
+              + (f"{self.sigma:.3g} mm" if np.isfinite(self.sigma) else "not determined")
+              + ", Cramér-Rao 1 sigma " + (f"{self.crlb:.3g} mm" if np.isfinite(self.crlb) else "infinite (singular)"))
+
+
+def sweep_scene(config, poses, direction: np.ndarray, *, seed: int, arm, noise_var: float) -> SweepScene:
+    """Simulate the scene of these arm poses (``config`` with explicit joint angles, pixel noise ``noise_var``),
+    compute its Cramér-Rao bound, calibrate it (``joint``) and measure it along the unit arm-frame ``direction``."""
+    from gtsam_rotid.report import axis_geometry
+
+    dataset, truth = simulate(config.with_(joint_angles=tuple(tuple(q) for q in poses), n_measurements=len(poses)),
+                              seed=seed, arm=arm)
+    geometry = axis_geometry([m.axis for m in truth.measurements])
+    bound = safe_crlb(dataset, truth, noise_var)
+    result, seconds, failure = run_calibration(dataset, "joint")
+    scene = SweepScene(dataset, truth, geometry, bound, bound_along(bound, truth.arm_T_camera, direction), result,
+                       seconds, failure)
+    if result is not None:
+        scene.report = result.report(dataset)
+        scene.sigma = sigma_along(result, direction) if result.covariance_usable else float("inf")
+        scene.along = float(position_error_mm(result.arm_T_camera, truth.arm_T_camera) @ direction)
+    return scene
+
+
+@dataclass(frozen=True)
+class Growth:
+    """The scenes whose parameter ``x`` (the distance from the degenerate scene at x = 0, e.g. a tilt or a miss)
+    is positive and whose reported 1σ along the weak direction is finite, in the order they ran (x increasing):
+    that 1σ (mm), the Cramér-Rao 1σ (mm) and the |error| (mm) along the same direction."""
+
+    x: np.ndarray
+    sigma: np.ndarray
+    bound: np.ndarray
+    error: np.ndarray
+
+    @classmethod
+    def of(cls, rows) -> Growth | None:
+        """From ``(x, sigma, bound, error)`` per scene (sigma None: calibrate failed; inf: not determined); None
+        when fewer than two scenes qualify."""
+        kept = [(x, s, c, abs(e)) for x, s, c, e in rows if x > 0 and s is not None and np.isfinite(s)]
+        return cls(*np.array(kept, dtype=float).T) if len(kept) >= 2 else None
+
+    @property
+    def slope(self) -> float:
+        """Log-log slope of the reported 1σ between the two smallest x (-1: it goes as 1 / x)."""
+        return float(np.log(self.sigma[1] / self.sigma[0]) / np.log(self.x[1] / self.x[0]))
+
+    def check(self, verdict: Verdict, slope_range: tuple[float, float], grows_text: str, slope_text: str) -> None:
+        """Two checks: the 1σ at the smallest x exceeds twice that at the largest, and :attr:`slope` lies inside
+        the open ``slope_range``."""
+        verdict.check(self.sigma[0] > 2.0 * self.sigma[-1], grows_text)
+        verdict.check(slope_range[0] < self.slope < slope_range[1], slope_text)
+
+
+def growth_cells(sigma: float | None, bound: float, error: float | None) -> tuple[str, str, str]:
+    """Table cells of one scene: the reported 1σ ('failed', 'not determined' or mm), the Cramér-Rao 1σ (mm, 'inf'
+    when singular) and the signed error (mm; empty when calibrate failed)."""
+    s = "failed" if sigma is None else (f"{sigma:.3g}" if np.isfinite(sigma) else "not determined")
+    c = f"{bound:.3g}" if np.isfinite(bound) else "inf"
+    return s, c, "" if error is None else f"{error:+.2f}"
+
+
+def growth_figure(growth: Growth, *, along: str, variable: str, x_label: str, y_label: str, title: str):
+    """Log-log: the reported 1σ, the Cramér-Rao 1σ and the |error| along the weak direction (``along``, e.g.
+    'along a') against x, with a line through the first point that goes as 1 / ``variable``."""
+    fig = new_figure(6.0, 4.2)
+    ax = fig.subplots()
+    x = growth.x
+    ax.loglog(x, growth.sigma, "o-", label=f"reported 1σ {along}")
+    ax.loglog(x, growth.bound, "s--", label=f"Cramér-Rao 1σ {along}")
+    ax.loglog(x, growth.error, "x", ms=8, label=f"|error| {along}")
+    ax.loglog(x, growth.sigma[0] * x[0] / x, ":", color="0.5", label=f"∝ 1 / {variable}")
+    ax.set_xlabel(x_label)
+    ax.set_ylabel(y_label)
+    ax.set_title(title, fontsize=8)
+    ax.legend(fontsize=7)
+    return fig

@@ -17,24 +17,21 @@ import sys
 import numpy as np
 from _common import (
     CHI2_6_999,
+    Growth,
     Verdict,
-    bound_along,
+    growth_cells,
+    growth_figure,
     header,
-    new_figure,
     parse_args,
     perpendicular,
-    position_error_mm,
-    run_calibration,
-    safe_crlb,
     save_figure,
-    sigma_along,
     solve_axis,
+    sweep_scene,
     within_3_sigma,
 )
 
 from gtsam_rotid import Arm, simulate
 from gtsam_rotid.plots import plot_pose_3d
-from gtsam_rotid.report import axis_geometry
 from gtsam_rotid.simulate import SceneConfig
 
 NOISE_VAR = 1.5
@@ -75,28 +72,19 @@ def main(argv=None) -> int:
         if poses is None:
             print(f"\nmiss {miss:g} mm: no reachable poses, skipped")
             continue
-        dataset, truth = simulate.simulate(config.with_(joint_angles=tuple(tuple(q) for q in poses),
-                                                        n_measurements=len(poses)), seed=args.seed + 1, arm=arm)
-        geometry = axis_geometry([m.axis for m in truth.measurements])
-        bound = safe_crlb(dataset, truth, NOISE_VAR)
-        crlb_ray = bound_along(bound, truth.arm_T_camera, ray)
-        result, seconds, failure = run_calibration(dataset, "joint")
+        scene = sweep_scene(config, poses, ray, seed=args.seed + 1, arm=arm, noise_var=NOISE_VAR)
+        dataset, truth, geometry = scene.dataset, scene.truth, scene.geometry
+        result, report = scene.result, scene.report
         print(f"\nmiss {miss:g} mm (axes within {1000 * geometry.miss.max():.2f} mm of their common point): "
-              f"{seconds:.1f} s")
-        if failure:
-            print(f"  calibrate FAILED: {failure}")
+              f"{scene.seconds:.1f} s")
+        if scene.failure:
+            print(f"  calibrate FAILED: {scene.failure}")
             verdict.check(False, f"miss {miss:g} mm: calibrate returns an estimate")
-            rows.append((miss, None, crlb_ray, None, None))
+            rows.append((miss, None, scene.crlb, None, None))
             continue
-        report = result.report(dataset)
-        for line in report.observability:
-            print("  report: " + line)
-        sigma = sigma_along(result, ray) if result.covariance_usable else float("inf")
-        along = float(position_error_mm(result.arm_T_camera, truth.arm_T_camera) @ ray)
-        print(f"  camera position along its ray to P: error {along:+.2f} mm, reported 1 sigma "
-              + (f"{sigma:.3g} mm" if np.isfinite(sigma) else "not determined")
-              + ", Cramér-Rao 1 sigma " + (f"{crlb_ray:.3g} mm" if np.isfinite(crlb_ray) else "infinite (singular)"))
-        rows.append((miss, sigma, crlb_ray, along, result.covariance_usable))
+        scene.print_along("camera position along its ray to P")
+        sigma, crlb_ray = scene.sigma, scene.crlb
+        rows.append((miss, sigma, crlb_ray, scene.along, result.covariance_usable))
         if result.covariance_usable:
             honest, d2 = within_3_sigma(result, truth.arm_T_camera)
             # one draw per level: a statistical check, judged at full size only (a Monte Carlo of 16 seeds at
@@ -118,38 +106,24 @@ def main(argv=None) -> int:
 
     print("\n  miss mm  reported 1 sigma along the ray (mm)  Cramér-Rao (mm)  error along the ray (mm)")
     for miss, sigma, crlb_ray, along, _ in rows:
-        s = "failed" if sigma is None else (f"{sigma:.3g}" if np.isfinite(sigma) else "not determined")
-        c = f"{crlb_ray:.3g}" if np.isfinite(crlb_ray) else "inf"
-        e = "" if along is None else f"{along:+.2f}"
+        s, c, e = growth_cells(sigma, crlb_ray, along)
         print(f"  {miss:7g}  {s:>35}  {c:>15}  {e:>23}")
-    finite = [(r[0], r[1]) for r in rows if r[0] > 0 and r[1] is not None and np.isfinite(r[1])]
-    if len(finite) >= 2:
-        m, s = np.array(finite).T
-        slope = float(np.log(s[1] / s[0]) / np.log(m[1] / m[0]))
-        verdict.check(s[0] > 2.0 * s[-1], f"the reported 1 sigma along the ray grows as the axes close in "
-                      f"({s[-1]:.3g} mm at {m[-1]:g} mm, {s[0]:.3g} mm at {m[0]:g} mm)")
-        verdict.check(-1.4 < slope < -0.6, f"at small misses about as 1 / miss (log-log slope {slope:.2f} between "
-                      f"{m[0]:g} and {m[1]:g} mm)")
-        figures.append(save_figure(growth_figure(rows), args.out, "sigma_vs_miss.png"))
+    growth = Growth.of(r[:4] for r in rows)
+    if growth is not None:
+        m, s = growth.x, growth.sigma
+        growth.check(verdict, (-1.4, -0.6),
+                     f"the reported 1 sigma along the ray grows as the axes close in ({s[-1]:.3g} mm at {m[-1]:g} mm, "
+                     f"{s[0]:.3g} mm at {m[0]:g} mm)",
+                     f"at small misses about as 1 / miss (log-log slope {growth.slope:.2f} between {m[0]:g} and "
+                     f"{m[1]:g} mm)")
+        fig = growth_figure(growth, along="along the ray to P", variable="miss",
+                            x_label="distance of the wrist axes from the common point P (mm)",
+                            y_label="camera position along its ray to P (mm)",
+                            title="near single crossing: how the covariance grows as the axes close in")
+        figures.append(save_figure(fig, args.out, "sigma_vs_miss.png"))
     summary = "near-degenerate crossing: 1 sigma along the camera's ray to P " + ", ".join(
         f"{r[1]:.3g} mm at {r[0]:g} mm" for r in rows if r[1] is not None and np.isfinite(r[1]))
     return verdict.finish(summary, figures)
-
-
-def growth_figure(rows):
-    fig = new_figure(6.0, 4.2)
-    ax = fig.subplots()
-    pts = [(r[0], r[1], r[2], abs(r[3])) for r in rows if r[0] > 0 and r[1] is not None and np.isfinite(r[1])]
-    m, s, c, e = np.array(pts).T
-    ax.loglog(m, s, "o-", label="reported 1σ along the ray to P")
-    ax.loglog(m, c, "s--", label="Cramér-Rao 1σ")
-    ax.loglog(m, e, "x", ms=8, label="|error| along the ray")
-    ax.loglog(m, s[0] * m[0] / m, ":", color="0.5", label="∝ 1 / miss")
-    ax.set_xlabel("distance of the wrist axes from the common point P (mm)")
-    ax.set_ylabel("camera position along its ray to P (mm)")
-    ax.set_title("near single crossing: how the covariance grows as the axes close in", fontsize=8)
-    ax.legend(fontsize=7)
-    return fig
 
 
 if __name__ == "__main__":

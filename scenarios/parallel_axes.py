@@ -16,25 +16,22 @@ import sys
 import numpy as np
 from _common import (
     CHI2_6_999,
+    Growth,
     Verdict,
-    bound_along,
+    growth_cells,
+    growth_figure,
     header,
-    new_figure,
     parse_args,
     perpendicular,
-    position_error_mm,
     rotate_towards,
-    run_calibration,
-    safe_crlb,
     save_figure,
-    sigma_along,
     solve_axis,
+    sweep_scene,
     within_3_sigma,
 )
 
 from gtsam_rotid import Arm, simulate
 from gtsam_rotid.plots import plot_pose_3d
-from gtsam_rotid.report import axis_geometry
 from gtsam_rotid.simulate import SceneConfig
 
 NOISE_VAR = 1.5
@@ -92,27 +89,18 @@ def main(argv=None) -> int:
         if poses is None:
             print(f"\ntilt {tilt:g} deg: no reachable poses, skipped")
             continue
-        dataset, truth = simulate.simulate(config.with_(joint_angles=tuple(tuple(q) for q in poses),
-                                                        n_measurements=len(poses)), seed=args.seed + 1, arm=arm)
-        geometry = axis_geometry([m.axis for m in truth.measurements])
-        bound = safe_crlb(dataset, truth, NOISE_VAR)
-        result, seconds, failure = run_calibration(dataset, "joint")
-        print(f"\ntilt {tilt:g} deg (largest angle between two axes {geometry.spread_deg:.1f} deg): {seconds:.1f} s")
-        if failure:
-            print(f"  calibrate FAILED: {failure}")
-            rows.append((tilt, geometry.spread_deg, None, bound_along(bound, truth.arm_T_camera, a), None, None, None))
+        scene = sweep_scene(config, poses, a, seed=args.seed + 1, arm=arm, noise_var=NOISE_VAR)
+        dataset, truth, geometry = scene.dataset, scene.truth, scene.geometry
+        result, report = scene.result, scene.report
+        print(f"\ntilt {tilt:g} deg (largest angle between two axes {geometry.spread_deg:.1f} deg): "
+              f"{scene.seconds:.1f} s")
+        if scene.failure:
+            print(f"  calibrate FAILED: {scene.failure}")
+            rows.append((tilt, geometry.spread_deg, None, scene.crlb, None, None, None))
             verdict.check(False, f"tilt {tilt:g} deg: calibrate returns an estimate")
             continue
-        report = result.report(dataset)
-        for line in report.observability:
-            print("  report: " + line)
-        sigma = sigma_along(result, a) if result.covariance_usable else float("inf")
-        crlb_a = bound_along(bound, truth.arm_T_camera, a)
-        error = position_error_mm(result.arm_T_camera, truth.arm_T_camera)
-        along = float(error @ a)
-        print(f"  camera position along a: error {along:+.2f} mm, reported 1 sigma "
-              + (f"{sigma:.3g} mm" if np.isfinite(sigma) else "not determined")
-              + ", Cramér-Rao 1 sigma " + (f"{crlb_a:.3g} mm" if np.isfinite(crlb_a) else "infinite (singular)"))
+        scene.print_along("camera position along a")
+        sigma, crlb_a, along = scene.sigma, scene.crlb, scene.along
         honest = None
         if result.covariance_usable:
             honest, d2 = within_3_sigma(result, truth.arm_T_camera)
@@ -139,38 +127,24 @@ def main(argv=None) -> int:
 
     print("\n  tilt deg  spread deg  reported 1 sigma along a (mm)  Cramér-Rao (mm)  error along a (mm)")
     for tilt, spread, sigma, crlb_a, along, _, _ in rows:
-        s = "failed" if sigma is None else (f"{sigma:.3g}" if np.isfinite(sigma) else "not determined")
-        c = f"{crlb_a:.3g}" if np.isfinite(crlb_a) else "inf"
-        e = "" if along is None else f"{along:+.2f}"
+        s, c, e = growth_cells(sigma, crlb_a, along)
         print(f"  {tilt:8g}  {spread:10.1f}  {s:>29}  {c:>15}  {e:>17}")
-    finite = [(r[0], r[2]) for r in rows if r[0] > 0 and r[2] is not None and np.isfinite(r[2])]
-    if len(finite) >= 2:
-        t, s = np.array(finite).T
-        verdict.check(s[0] > 2.0 * s[-1], f"the reported 1 sigma along a shrinks as the axes tilt apart "
-                      f"({s[0]:.3g} mm at {t[0]:g} deg, {s[-1]:.3g} mm at {t[-1]:g} deg)")
-        small = float(np.log(s[1] / s[0]) / np.log(t[1] / t[0]))
-        verdict.check(-1.3 < small < -0.7, f"at small tilts it grows as 1 / tilt (log-log slope {small:.2f} between "
-                      f"{t[0]:g} and {t[1]:g} deg; larger tilts saturate where other directions limit it)")
-        figures.append(save_figure(growth_figure(rows), args.out, "sigma_vs_tilt.png"))
+    growth = Growth.of(r[:1] + r[2:5] for r in rows)
+    if growth is not None:
+        t, s = growth.x, growth.sigma
+        growth.check(verdict, (-1.3, -0.7),
+                     f"the reported 1 sigma along a shrinks as the axes tilt apart ({s[0]:.3g} mm at {t[0]:g} deg, "
+                     f"{s[-1]:.3g} mm at {t[-1]:g} deg)",
+                     f"at small tilts it grows as 1 / tilt (log-log slope {growth.slope:.2f} between {t[0]:g} and "
+                     f"{t[1]:g} deg; larger tilts saturate where other directions limit it)")
+        fig = growth_figure(growth, along="along a", variable="tilt",
+                            x_label="tilt of each axis from the common direction (deg)",
+                            y_label="camera position along a (mm)",
+                            title="parallel wrist axes tilted apart: what the covariance says (tilt 0: not determined)")
+        figures.append(save_figure(fig, args.out, "sigma_vs_tilt.png"))
     summary = "parallel axes: position along the common direction undetermined and named; " + ", ".join(
         f"{r[0]:g} deg -> {r[2]:.3g} mm" for r in rows if r[2] is not None and np.isfinite(r[2]))
     return verdict.finish(summary, figures)
-
-
-def growth_figure(rows):
-    fig = new_figure(6.0, 4.2)
-    ax = fig.subplots()
-    pts = [(r[0], r[2], r[3], abs(r[4])) for r in rows if r[0] > 0 and r[2] is not None and np.isfinite(r[2])]
-    t, s, c, e = np.array(pts).T
-    ax.loglog(t, s, "o-", label="reported 1σ along a")
-    ax.loglog(t, c, "s--", label="Cramér-Rao 1σ along a")
-    ax.loglog(t, e, "x", ms=8, label="|error| along a")
-    ax.loglog(t, s[0] * t[0] / t, ":", color="0.5", label="∝ 1 / tilt")
-    ax.set_xlabel("tilt of each axis from the common direction (deg)")
-    ax.set_ylabel("camera position along a (mm)")
-    ax.set_title("parallel wrist axes tilted apart: what the covariance says (tilt 0: not determined)", fontsize=8)
-    ax.legend(fontsize=7)
-    return fig
 
 
 if __name__ == "__main__":

@@ -14,15 +14,13 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO_DIR = ROOT / "scenarios"
-#: The scenarios issue 6 asks for that exist so far (from_pixels comes with the pixel pipeline).
+#: Every scenario issue 6 asks for.
 REQUIRED = ("reference_jaco2", "noise_monte_carlo", "single_crossing", "minimal_three", "parallel_axes",
-            "near_degenerate", "outlier_tracks", "other_arms", "slam_graph")
+            "near_degenerate", "outlier_tracks", "other_arms", "slam_graph", "from_pixels")
 SCENARIOS = sorted(p.stem for p in SCENARIO_DIR.glob("*.py") if not p.name.startswith("_"))
-#: scenario -> why it fails today (an estimator problem its verdict reports; see the scenario's output)
-KNOWN_FAILURES = {
-    "minimal_three": "three measurements: the image-axis equations have several exact solutions and calibrate "
-                     "returns a wrong one (1.7 m, 130 deg off) with a millimetre covariance",
-}
+#: scenario -> why it fails today (an estimator problem its verdict reports; see the scenario's output). Empty:
+#: every scenario passes with --quick.
+KNOWN_FAILURES: dict[str, str] = {}
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
