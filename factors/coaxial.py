@@ -1219,14 +1219,36 @@ class CoaxialLineFactor:
         scale = self._scales(state)[1]
         return float(0.5 * np.sum(state.sse * scale**2))
 
-    def information(self, x=None) -> np.ndarray:
-        """(3, 3) ``J^T J`` of the (weighted) factor: the Schur complement of the full graph's Gauss-Newton
-        Hessian, from the per-track sums (no N-sized work)."""
+    def track_scores(self, x=None) -> np.ndarray:
+        """(m, 3) each track's score ``J_j^T e_j`` (whitened and robust-weighted, as GTSAM sees the factor): its
+        part of the gradient at the line variable.
+
+        ``sum_j s_j s_j^T`` estimates the information the pixels carry when different tracks' errors are
+        independent but one track's may be correlated (a tracker's sub-pixel bias that follows a dot): the
+        "meat" of a cluster-robust (sandwich) covariance. With white pixel noise of the assumed sigma its
+        expectation is :meth:`information`.
+        """
+        state = self._state(self._rot(x))
+        irls = self._scales(state)[0]
+        Je = self._jacobian(state, irls) * self._residual(state, irls)[:, None]
+        tracks = self.tracks
+        flat_track = tracks._flat(np.broadcast_to(tracks._layout.row_track[:, None], state.ev.V[0].shape))
+        return np.stack([np.bincount(flat_track, weights=Je[:, k], minlength=tracks.n_tracks) for k in range(3)],
+                        axis=1)
+
+    def track_information(self, x=None) -> np.ndarray:
+        """(m, 3, 3) each track's ``J_j^T J_j`` (weighted, its circle projected out): its part of
+        :meth:`information`, from the per-track sums (no N-sized work)."""
         state = self._state(self._rot(x))
         w = self._scales(state)[0] ** 2
         G = state.gram
         per_track = G[:, 3:6, 3:6] - np.einsum("jki,jkl->jil", G[:, 1:3, 3:6], state.M)
-        return np.einsum("j,jil->il", w, per_track)
+        return w[:, None, None] * per_track
+
+    def information(self, x=None) -> np.ndarray:
+        """(3, 3) ``J^T J`` of the (weighted) factor: the Schur complement of the full graph's Gauss-Newton
+        Hessian, from the per-track sums (no N-sized work)."""
+        return self.track_information(x).sum(axis=0)
 
 
 def _robust_setup(robust, counts):

@@ -59,7 +59,13 @@ from .graph import (
 )
 from .initialise import initial_image_axis, plane_normal, pose_candidates
 from .jsonio import write_json_atomic
-from .uncertainty import Observability, analyse_observability, marginal_information, pose_information
+from .uncertainty import (
+    Observability,
+    analyse_observability,
+    marginal_information,
+    pose_information,
+    sandwich_marginal,
+)
 
 MIN_MEASUREMENTS = 3
 
@@ -634,6 +640,44 @@ def _noise_variance(stats: dict[int, tuple[float, int]], line_dof: int, options:
     return max(sse / dof, options.min_sigma_px**2)
 
 
+def _track_correlation(factor, values, sigma2: float = 1.0) -> np.ndarray:
+    """(3, 3) information ``D`` that the line's pixels lack when their errors are correlated within a track.
+
+    ``H = sum_j H_j`` (the factor's information, per track) assumes independent pixel errors of the factor's
+    sigma. The per-track scores ``s_j`` give the cluster-robust meat ``B = sum_j s_j s_j^T`` (independent tracks,
+    any correlation inside a track: a tracker's sub-pixel bias that follows its dot), with two corrections:
+
+    - the scores are taken at the measurement's own optimum, ``s_j - H_j H^-1 sum s`` (in the joint graph the
+      pose holds the line away from it, and the summed score is that pull, not noise);
+    - each is corrected for its track's leverage ``A_j = H^-1/2 H_j H^-1/2`` (CR2: ``(I - A_j)^-1/2`` on the
+      whitened score), so that under white noise of variance ``sigma2`` (in the factor's units) the whitened
+      meat ``M = H^-1/2 B H^-1/2`` has expectation ``sigma2 I`` exactly.
+
+    An eigenvalue of ``M / sigma2`` counts as correlation only beyond ``1 + 3 sd`` (``sd^2 = 2 sum_j h_j^2``,
+    ``h_j`` the tracks' leverages along it: its scatter under white noise; a few long arcs carry most of a
+    line's information). ``D = H^1/2 (M / sigma2 - (1 + 3 sd))_+ H^1/2``, so that the covariance becomes
+    ``H^-1 (H + D) H^-1``; it only grows (the noise model is the floor).
+    """
+    per_track = factor.track_information(values)
+    H = per_track.sum(axis=0)
+    S = factor.track_scores(values)
+    S = S - per_track @ np.linalg.lstsq(H, S.sum(axis=0), rcond=None)[0]
+    w, V = np.linalg.eigh(0.5 * (H + H.T))
+    keep = w > 1e-12 * max(w.max(), 1e-300)
+    root = V[:, keep] * np.sqrt(w[keep])  # H = root root^T
+    W = (V[:, keep] / np.sqrt(w[keep])).T  # whitening: W H W^T = I
+    Z = S @ W.T
+    A = np.einsum("ab,jbc,dc->jad", W, per_track, W)
+    a, Q = np.linalg.eigh(0.5 * (A + np.swapaxes(A, 1, 2)))
+    shrink = 1.0 / np.sqrt(1.0 - np.clip(a, 0.0, 1.0 - 1e-9))
+    Z = np.einsum("jab,jb,jcb,jc->ja", Q, shrink, Q, Z)
+    m, U = np.linalg.eigh(Z.T @ Z)
+    h = np.einsum("ai,jab,bi->ji", U, A, U)  # leverage of each track along each eigenvector
+    allowance = 3.0 * np.sqrt(2.0 * np.sum(h**2, axis=0))
+    excess = np.maximum(m / sigma2 - 1.0 - allowance, 0.0)
+    return root @ ((U * excess) @ U.T) @ root.T
+
+
 def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepared, options,
                         start_line: gtsam.Rot3 | None = None) -> _Stage1:
     """Coaxial circles of one measurement, rejecting outlier tracks round by round.
@@ -665,7 +709,8 @@ def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepar
                                    relative_tolerance=options.stage1_tolerance, watch=image_axis_at_corners,
                                    watch_tolerance=WATCH_LINE_PX)
         iterations += it
-        if fallbacks and error >= (1.0 - STALL_DECREASE) * start_error and start_error > 0.0:
+        # (a later round starts at the previous round's solution: a small decrease there is convergence)
+        if fallbacks and rounds == 0 and error >= (1.0 - STALL_DECREASE) * start_error and start_error > 0.0:
             builder, *fallbacks = fallbacks  # stalled from the start: redo this round with the next model
             continue
         rounds += 1
@@ -681,9 +726,12 @@ def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepar
     info = marginal_information(graph, result, keys.line, 3)  # unit pixel noise
     w, V = np.linalg.eigh(info)
     cov_R = (V / np.maximum(w, 1e-12 * max(w.max(), 1e-300))) @ V.T
+    sigma2 = _noise_variance(stats, 3, options)
+    if keys.coaxial is not None:  # errors shared along a track: the cluster-robust line covariance
+        cov_R = cov_R + cov_R @ _track_correlation(keys.coaxial, result, sigma2) @ cov_R
     circles = dict(zip(keys.tracks, _circles(keys, result), strict=True))
-    return _Stage1(keys, R, circles, line, J @ cov_R @ J.T, _noise_variance(stats, 3, options),
-                   sum(n for _, n in stats.values()), skip, iterations)
+    return _Stage1(keys, R, circles, line, J @ cov_R @ J.T, sigma2, sum(n for _, n in stats.values()), skip,
+                   iterations)
 
 
 def _stage1(arm, camera, measurements, pose, setup: _Setup, options) -> list[_Stage1]:
@@ -963,6 +1011,11 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
     except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
         covariance = None
+    correlated = {keys[k].line: _track_correlation(keys[k].coaxial, result) for k in used
+                  if keys[k].coaxial is not None}
+    if covariance is not None and correlated:  # errors shared along a track: the cluster-robust covariance
+        robust = sandwich_marginal(graph, result, POSE_KEY, 6, correlated)
+        covariance = covariance if robust is None else robust
     return _finish(pose, covariance, info, Method.JOINT, converged, iterations, error, reports,
                    np.median(list(sigmas.values())), dof=_graph_dof(graph, result))
 

@@ -61,6 +61,38 @@ def marginal_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     return 0.5 * (S + S.T)
 
 
+def sandwich_marginal(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, key: int, dim: int,
+                      extra: dict[int, np.ndarray]) -> np.ndarray | None:
+    """``key``'s block of ``H^-1 (H + D) H^-1``: the covariance when the data carry less information than the
+    graph's noise models say, ``D`` (per variable, ``extra[variable] = D_block``) being the excess of the
+    estimated meat (e.g. summed per-cluster scores) over ``H``. None when ``H`` is singular."""
+    linear = graph.linearize(values)
+    ordering = gtsam.Ordering()
+    ordering.push_back(key)
+    for other in values.keys():
+        if other != key:
+            ordering.push_back(other)
+    H, _ = linear.hessian(ordering)
+    H = 0.5 * (H + H.T)
+    zeros = values.zeroVectors()
+    offsets, offset = {}, 0
+    for i in range(ordering.size()):
+        offsets[ordering.at(i)] = offset
+        offset += len(zeros.at(ordering.at(i)))
+    D = np.zeros_like(H)
+    for variable, block in extra.items():
+        o = offsets[variable]
+        D[o:o + len(block), o:o + len(block)] += block
+    try:
+        X = np.linalg.solve(H, np.eye(len(H))[:, :dim])  # the key's columns of H^-1
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(X)):
+        return None
+    C = X.T @ (H + D) @ X
+    return 0.5 * (C + C.T)
+
+
 def pose_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, pose_key: int) -> np.ndarray:
     """6x6 information of the Pose3 ``pose_key``, all other variables marginalised (Schur complement)."""
     return marginal_information(graph, values, pose_key, 6)

@@ -517,3 +517,51 @@ def test_input_checks(measurement):
         coaxial.evaluate(m.line, m.circles[:-1, 0], m.circles[:-1, 1])
     with pytest.raises(ValueError, match="no previous solution"):
         coaxial.solve_circles(m.line)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# per-track scores: the "meat" of a cluster-robust covariance
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def test_track_scores_are_each_tracks_gradient(measurement):
+    m = measurement
+    factor = make_coaxial_line_factor(L(0), m.noisy, m.K, m.circles, sigma_px=SIGMA, tol=1e-14)
+    values = line_values(m.line)
+    S = factor.track_scores(values)
+    assert S.shape == (len(m.noisy), 3)
+    circles = factor.circles(values)
+    for j in range(0, len(m.noisy), 7):  # one track's graph, its circle eliminated: its gradient on the line
+        _, gradient = schur_on_line(full_graph([m.noisy[j]], m.K), full_values(m.line, [circles[j]]), 1)
+        np.testing.assert_allclose(S[j], -gradient, rtol=1e-6, atol=1e-9 * np.abs(gradient).max())
+    A, b = vp_graph(factor).linearize(values).jacobian()
+    np.testing.assert_allclose(S.sum(axis=0), -(A.T @ b), rtol=1e-8, atol=1e-9 * np.abs(A.T @ b).max())
+
+
+def whitened_meat(m, offsets_px: float, draws: int, rng) -> np.ndarray:
+    """Mean over noise draws of H^-1/2 (sum_j s_j s_j^T) H^-1/2 at the true line: white pixel noise of SIGMA plus
+    a constant offset per track (standard deviation ``offsets_px`` per coordinate)."""
+    total = np.zeros((3, 3))
+    for _ in range(draws):
+        tracks = [p + SIGMA * rng.standard_normal(p.shape) + offsets_px * rng.standard_normal(2) for p in m.exact]
+        factor = make_coaxial_line_factor(L(0), tracks, m.K, m.circles, sigma_px=SIGMA)
+        values = line_values(m.line)
+        S = factor.track_scores(values)
+        w, V = np.linalg.eigh(factor.information(values))
+        root = (V / np.sqrt(w)) @ V.T
+        total += root @ (S.T @ S) @ root
+    return total / draws
+
+
+def test_track_scores_estimate_the_information_under_white_noise(measurement, rng):
+    """E[sum_j s_j s_j^T] = J^T J when the pixel noise is white with the assumed sigma: whitened, the identity."""
+    eigenvalues = np.linalg.eigvalsh(whitened_meat(measurement, 0.0, 60, rng))
+    # 60 draws: each eigenvalue of the mean is within ~0.2 of 1 (3.5 standard deviations)
+    assert np.all(np.abs(eigenvalues - 1.0) < 0.25), eigenvalues
+
+
+def test_track_scores_see_an_error_shared_by_a_tracks_pixels(measurement, rng):
+    """A constant offset per track (a tracker's bias that follows a dot) is invisible to the white-noise
+    information but not to the scores: the whitened meat grows well beyond the identity."""
+    eigenvalues = np.linalg.eigvalsh(whitened_meat(measurement, 0.5 * SIGMA, 20, rng))
+    assert eigenvalues.max() > 3.0, eigenvalues
