@@ -28,6 +28,23 @@ PURE_TRANSLATION_ROTATION = 1e-3
 UNDETERMINED_VARIANCE = 1e12
 
 
+def _hessian_key_first(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                       key: int) -> tuple[np.ndarray, dict[int, int]]:
+    """The Gauss-Newton Hessian of the linearised graph with ``key``'s block first, and each variable's offset."""
+    ordering = gtsam.Ordering()
+    ordering.push_back(key)
+    for other in values.keys():
+        if other != key:
+            ordering.push_back(other)
+    H, _ = graph.linearize(values).hessian(ordering)
+    zeros = values.zeroVectors()
+    offsets, offset = {}, 0
+    for i in range(ordering.size()):
+        offsets[ordering.at(i)] = offset
+        offset += len(zeros.at(ordering.at(i)))
+    return 0.5 * (H + H.T), offsets
+
+
 def marginal_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, key: int, dim: int) -> np.ndarray:
     """Information (dim x dim) of one variable with every other variable marginalised (Schur complement).
 
@@ -35,14 +52,7 @@ def marginal_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     other variables with (numerically) zero information are dropped, so a degenerate pose shows up as
     small eigenvalues of the result instead of an exception.
     """
-    linear = graph.linearize(values)
-    ordering = gtsam.Ordering()
-    ordering.push_back(key)
-    for other in values.keys():
-        if other != key:
-            ordering.push_back(other)
-    H, _ = linear.hessian(ordering)
-    H = 0.5 * (H + H.T)
+    H, _ = _hessian_key_first(graph, values, key)
     if H.shape[0] == dim:
         return H
     H_pp, H_po, H_oo = H[:dim, :dim], H[:dim, dim:], H[dim:, dim:]
@@ -66,19 +76,7 @@ def sandwich_marginal(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
     """``key``'s block of ``H^-1 (H + D) H^-1``: the covariance when the data carry less information than the
     graph's noise models say, ``D`` (per variable, ``extra[variable] = D_block``) being the excess of the
     estimated meat (e.g. summed per-cluster scores) over ``H``. None when ``H`` is singular."""
-    linear = graph.linearize(values)
-    ordering = gtsam.Ordering()
-    ordering.push_back(key)
-    for other in values.keys():
-        if other != key:
-            ordering.push_back(other)
-    H, _ = linear.hessian(ordering)
-    H = 0.5 * (H + H.T)
-    zeros = values.zeroVectors()
-    offsets, offset = {}, 0
-    for i in range(ordering.size()):
-        offsets[ordering.at(i)] = offset
-        offset += len(zeros.at(ordering.at(i)))
+    H, offsets = _hessian_key_first(graph, values, key)
     D = np.zeros_like(H)
     for variable, block in extra.items():
         o = offsets[variable]
