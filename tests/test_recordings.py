@@ -11,6 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from urdf_arm import URDF_3_JOINTS
 
 from gtsam_rotid import recordings
 from gtsam_rotid.arm import Arm
@@ -30,27 +31,6 @@ from gtsam_rotid.recordings import (
     read_joint_file,
 )
 
-# A 3-joint arm: shoulder yaw, elbow pitch, wrist spin (the last revolute joint).
-URDF = """<?xml version="1.0"?>
-<robot name="tri_arm">
-  <link name="base_link"/><link name="upper_arm"/><link name="forearm"/><link name="wrist_link"/>
-  <joint name="shoulder" type="revolute">
-    <parent link="base_link"/><child link="upper_arm"/>
-    <origin xyz="0 0 0.1" rpy="0 0 0"/><axis xyz="0 0 1"/>
-    <limit lower="-3.0" upper="3.0" effort="10" velocity="1"/>
-  </joint>
-  <joint name="elbow" type="revolute">
-    <parent link="upper_arm"/><child link="forearm"/>
-    <origin xyz="0 0 0.3" rpy="0 0 0"/><axis xyz="0 1 0"/>
-    <limit lower="-2.0" upper="2.0" effort="10" velocity="1"/>
-  </joint>
-  <joint name="wrist" type="revolute">
-    <parent link="forearm"/><child link="wrist_link"/>
-    <origin xyz="0 0 0.25" rpy="0 0 0"/><axis xyz="0 0 1"/>
-    <limit lower="-3.1" upper="3.1" effort="10" velocity="1"/>
-  </joint>
-</robot>
-"""
 K = np.array([[520.5, 0.0, 31.25], [0.0, 522.0, 23.75], [0.0, 0.0, 1.0]])
 DIST = np.array([0.11, -0.21, 0.0012, -0.0008, 0.031])
 WIDTH, HEIGHT = 64, 48
@@ -105,7 +85,7 @@ roi:
 
 @pytest.fixture(scope="module")
 def arm() -> Arm:
-    return Arm.from_urdf_string(URDF)
+    return Arm.from_urdf_string(URDF_3_JOINTS)
 
 
 @pytest.fixture
@@ -572,7 +552,7 @@ def fake_tracking_module(monkeypatch):
 
 def test_cli_track_writes_a_dataset(tmp_path, arm, fake_tracking_module, capsys):
     videos = recording(tmp_path)
-    urdf = write(tmp_path / "arm.urdf", URDF)
+    urdf = write(tmp_path / "arm.urdf", URDF_3_JOINTS)
     stamps, positions, held = joint_series(np.random.default_rng(5))
     joints = write_series_csv(tmp_path / "states.csv", stamps, positions, degrees=True)
     camera_path = write_opencv_camera(tmp_path / "camera.yaml")
@@ -600,7 +580,7 @@ def test_cli_videos_dir_and_errors(tmp_path, fake_tracking_module):
     session.mkdir()
     recording(session)
     (session / "joints.json").write_text(json.dumps(POSES.tolist()))  # neither a video nor an image folder
-    urdf = write(tmp_path / "arm.urdf", URDF)
+    urdf = write(tmp_path / "arm.urdf", URDF_3_JOINTS)
     camera_path = write(tmp_path / "camera_info.yaml", ROS_CAMERA_INFO)
     common = ["--joints", str(session / "joints.json"), "--camera", str(camera_path), "--urdf", str(urdf),
               "--no-progress"]
