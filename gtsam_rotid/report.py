@@ -53,6 +53,10 @@ PARALLEL_TOLERANCE_DEG = 5.0
 SUGGESTED_TILT_DEG = 20.0
 #: The χ² test calls the fit consistent when the upper-tail probability lies in [P_LOW, 1 - P_LOW].
 P_LOW = 0.005
+#: Joint: the pixel noise is estimated from the same residuals, so the test is whether the solve ended where its
+#: noise estimate did: χ²/dof within this of 1 (the noise is re-estimated until it changes by less than 5 %, and
+#: the Huber kernels shrink χ² a little). A P value over ~1e5 residuals would flag a 1 % difference.
+JOINT_REDUCED_TOLERANCE = 0.1
 LABELS = ("x", "y", "z", "rX", "rY", "rZ")
 COVARIANCE_ORDER = ("x, y, z: camera position in the arm-base frame (m); rX, rY, rZ: small rotation about the "
                     "arm-base axes X, Y, Z (rad), R_true = Exp(r) R (ROS PoseWithCovariance layout)")
@@ -177,6 +181,8 @@ def chi2_check(result) -> Chi2Check:
     elif dof <= 0:
         consistent = None
         note = "no redundancy: as many equations as unknowns"
+    elif method == "joint":
+        consistent = bool(abs(chi2 / dof - 1.0) <= JOINT_REDUCED_TOLERANCE)
     else:
         consistent = bool(P_LOW <= p <= 1.0 - P_LOW)
     return Chi2Check(chi2, int(dof), float(p), consistent, what, note, exact)

@@ -310,3 +310,20 @@ def test_ambiguous_result_is_reported_as_such_and_survives_json(reference):
     assert back.ambiguous and len(back.alternatives) == 2
     np.testing.assert_allclose(back.alternatives[1].arm_T_camera.matrix(), other.matrix(), atol=1e-12)
     assert back.alternatives[1].delta_chi2 == pytest.approx(0.5 * AMBIGUITY_CHI2)
+
+
+def test_joint_chi2_judges_the_solve_not_a_p_value(reference):
+    """The joint graph's pixel noise comes from its own residuals: over ~1e4 residuals a P value would call a 2 %
+    difference of χ²/dof from 1 inconsistent; the report judges χ²/dof within JOINT_REDUCED_TOLERANCE of 1."""
+    from gtsam_rotid.report import JOINT_REDUCED_TOLERANCE, chi2_check
+
+    dataset, _, _ = reference
+    joint = calibrate(dataset, method="joint")
+    check = chi2_check(joint)
+    assert check.dof > 5000 and check.consistent is (abs(check.reduced - 1.0) <= JOINT_REDUCED_TOLERANCE)
+    for factor, verdict in ((0.98, True), (1.02, True), (0.85, False), (1.2, False)):
+        shifted = copy.copy(joint)
+        shifted.final_error = 0.5 * factor * check.dof
+        assert chi2_check(shifted).consistent is verdict, factor
+    words = chi2_check(shifted).sentence()
+    assert "INCONSISTENT: the residuals are larger" in words
