@@ -103,27 +103,24 @@ def time_passes(problems, repeats: int, step: float) -> None:
         steps = [p.stepped(rng, step) for p in problems]
         totals = dict.fromkeys(rows, 0.0)
         before = sum(f.work for f, _, _ in vps)
+
+        def timed(name, call, *args, totals=totals, **kwargs):
+            start = time.perf_counter()
+            call(*args, **kwargs)
+            totals[name] += time.perf_counter() - start
+
         for p, (factor, graph, _), (full, vp) in zip(problems, vps, steps, strict=True):
-            start = time.perf_counter()
-            p.graph.error(full)
-            totals["per-track error"] += time.perf_counter() - start
-            start = time.perf_counter()
-            graph.error(vp)
-            totals["VP error (incl. circle solve)"] += time.perf_counter() - start
+            timed("per-track error", p.graph.error, full)
+            timed("VP error (incl. circle solve)", graph.error, vp)
             line = vp.atRot3(p.keys.line)
             d, r = factor.circles(line).T
-            start = time.perf_counter()
-            factor.tracks.evaluate(line, d * (1.0 + 1e-9), r, jacobians=True)
-            totals["CoaxialTracks.evaluate (one pass, no solve)"] += time.perf_counter() - start
+            timed("CoaxialTracks.evaluate (one pass, no solve)", factor.tracks.evaluate, line, d * (1.0 + 1e-9), r,
+                  jacobians=True)
         evaluations.append(sum(f.work for f, _, _ in vps) - before)
         steps = [p.stepped(rng, step) for p in problems]
         for p, (_, graph, _), (full, vp) in zip(problems, vps, steps, strict=True):
-            start = time.perf_counter()
-            p.graph.linearize(full)
-            totals["per-track linearize"] += time.perf_counter() - start
-            start = time.perf_counter()
-            graph.linearize(vp)
-            totals["VP linearize (incl. circle solve)"] += time.perf_counter() - start
+            timed("per-track linearize", p.graph.linearize, full)
+            timed("VP linearize (incl. circle solve)", graph.linearize, vp)
         for name, seconds in totals.items():
             rows[name].append(seconds)
     n_points = sum(p.n_points for p in problems)
