@@ -142,15 +142,21 @@ def plot_tracks(result, dataset, k: int, *, fit: TrackFit | None = None, ax=None
     full, zoomed = fig.subplots(1, 2)
     _draw_tracks(full, result, dataset, k, fit, False)
     _draw_tracks(zoomed, result, dataset, k, fit, True, legend=False)
+    fig.suptitle(_measurement_title(result, k, f"{len(fit.circles)} of {len(dataset[k].tracks)} tracks fitted",
+                                    fit, 2), fontsize=9)
+    return fig
+
+
+def _measurement_title(result, k: int, what: str, fit: TrackFit, digits: int) -> str:
+    """``measurement k: what``, its residual RMS, weight and outlier status, and the fit's problem if any."""
     report = result.measurements[k] if k < len(result.measurements) else None
-    title = f"measurement {k}: {len(fit.circles)} of {len(dataset[k].tracks)} tracks fitted"
+    title = f"measurement {k}: {what}"
     if report is not None:
-        title += (f", residual RMS {report.residual_rms_px:.2f} px, weight {report.weight:.2f}"
+        title += (f", residual RMS {report.residual_rms_px:.{digits}f} px, weight {report.weight:.2f}"
                   + (f", OUTLIER ({report.outlier_reason})" if report.outlier else ""))
     if fit.problem:
         title += f"\n{fit.problem}"
-    fig.suptitle(title, fontsize=9)
-    return fig
+    return title
 
 
 def _draw_tracks(ax, result, dataset, k: int, fit: TrackFit, zoom: bool, legend: bool = True) -> None:
@@ -569,14 +575,7 @@ def plot_overlay(frame, result, dataset, k: int, *, frame_number: int | None = N
     for ax in (raw, detected, arcs, fitted):
         ax.set_aspect("equal")
         ax.tick_params(labelsize=7)
-    report = result.measurements[k] if k < len(result.measurements) else None
-    title = f"measurement {k}: {len(tracks)} tracks"
-    if report is not None:
-        title += (f", residual RMS {report.residual_rms_px:.3f} px, weight {report.weight:.2f}"
-                  + (f", OUTLIER ({report.outlier_reason})" if report.outlier else ""))
-    if fit.problem:
-        title += f"\n{fit.problem}"
-    fig.suptitle(title, fontsize=10)
+    fig.suptitle(_measurement_title(result, k, f"{len(tracks)} tracks", fit, 3), fontsize=10)
     return fig
 
 
