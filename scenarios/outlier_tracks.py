@@ -150,14 +150,18 @@ def main(argv=None) -> int:
         for case, (_, truth) in cases.items():
             if case == "0 % wrong arcs":
                 continue
+            # with --quick's 10 s spins, 30 % short wrong arcs can leave two measurements' image axes in
+            # disagreement, and calibrate refuses (CalibrationError) rather than answer: judged at full size only
+            robust = case != "30 % wrong arcs"
             result = results.get((case, method))
             if result is None:
-                verdict.check(False, f"{method}, {case}: calibrate returns an estimate")
+                verdict.check(False, f"{method}, {case}: calibrate returns an estimate", robust_when_quick=robust)
                 continue
             p = np.linalg.norm(position_error_mm(result.arm_T_camera, truth.arm_T_camera))
             r = rotation_error_deg(result.arm_T_camera, truth.arm_T_camera)
             verdict.check(p <= 2 * ref_p and r <= 2 * ref_r,
-                          f"{method}, {case}: error {p:.3f} mm, {r:.4f} deg within 2x the clean case")
+                          f"{method}, {case}: error {p:.3f} mm, {r:.4f} deg within 2x the clean case",
+                          robust_when_quick=robust)
     for case in ("10 % wrong arcs", "30 % wrong arcs"):
         result = results.get((case, "joint"))
         if result is None:
