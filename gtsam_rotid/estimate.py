@@ -507,7 +507,7 @@ def _best_stage2(graph, starts, options, max_iterations: int | None = None,
 def _distinct(pose: gtsam.Pose3, others) -> bool:
     """``pose`` is turned more than TWIN_MIN_ANGLE_DEG from each of ``others`` (positions are not compared: along
     an undetermined direction they differ arbitrarily between starts of the same solution)."""
-    return all(np.linalg.norm(other.localCoordinates(pose)[:3]) > np.radians(TWIN_MIN_ANGLE_DEG) for other in others)
+    return all(_turned(other, pose) > np.radians(TWIN_MIN_ANGLE_DEG) for other in others)
 
 
 def _random_restarts(pose: gtsam.Pose3, n: int, rng: np.random.Generator) -> list[gtsam.Pose3]:
@@ -734,8 +734,8 @@ def _track_correlation(factor, values, sigma2: float = 1.0) -> np.ndarray:
     Z = S @ W.T
     A = np.einsum("ab,jbc,dc->jad", W, per_track, W)
     a, Q = np.linalg.eigh(0.5 * (A + np.swapaxes(A, 1, 2)))
-    shrink = 1.0 / np.sqrt(1.0 - np.clip(a, 0.0, 1.0 - 1e-9))
-    Z = np.einsum("jab,jb,jcb,jc->ja", Q, shrink, Q, Z)
+    unshrink = 1.0 / np.sqrt(1.0 - np.clip(a, 0.0, 1.0 - 1e-9))
+    Z = np.einsum("jab,jb,jcb,jc->ja", Q, unshrink, Q, Z)
     m, U = np.linalg.eigh(Z.T @ Z)
     h = np.einsum("ai,jab,bi->ji", U, A, U)  # leverage of each track along each eigenvector
     allowance = 3.0 * np.sqrt(2.0 * np.sum(h**2, axis=0))
@@ -1303,12 +1303,12 @@ def _same_solution(result: CalibrationResult, pose: gtsam.Pose3) -> bool:
     """``pose`` is ``result``'s solution again: inside its 99.9 % region when the covariance is usable, else
     turned less than SAME_ANGLE_DEG from it (positions differ arbitrarily along undetermined directions)."""
     xi = result.arm_T_camera.localCoordinates(pose)
-    if not result.observability.is_observable:
-        return float(np.linalg.norm(xi[:3])) < np.radians(SAME_ANGLE_DEG)
-    try:
-        return float(xi @ np.linalg.solve(result.covariance, xi)) <= CHI2_6_999
-    except np.linalg.LinAlgError:
-        return float(np.linalg.norm(xi[:3])) < np.radians(SAME_ANGLE_DEG)
+    if result.observability.is_observable:
+        try:
+            return float(xi @ np.linalg.solve(result.covariance, xi)) <= CHI2_6_999
+        except np.linalg.LinAlgError:
+            pass
+    return float(np.linalg.norm(xi[:3])) < np.radians(SAME_ANGLE_DEG)
 
 
 def _common_chi2(arm, camera, measurements, setup, results: list[CalibrationResult],
