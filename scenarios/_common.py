@@ -205,6 +205,22 @@ def run_calibration(dataset, method: str = "joint", options=None):
     return result, time.perf_counter() - start, None
 
 
+def calibrate_and_print(verdict, dataset, truth_pose: gtsam.Pose3, method: str, label: str, *,
+                        heading: str = "  ", indent: str = "  "):
+    """Calibrate ``dataset`` with ``method`` and print its time (``{heading}{method}: ... s``) and its error against
+    ``truth_pose``; when ``calibrate`` refuses, print why and record the failed check ``{label}: calibrate returns
+    an estimate``. Returns the result, or None."""
+    result, seconds, failure = run_calibration(dataset, method)
+    print(f"{heading}{method}: {seconds:.1f} s")
+    if failure:
+        print(f"{indent}calibrate FAILED: {failure}")
+        verdict.check(False, f"{label}: calibrate returns an estimate")
+        return None
+    for line in error_lines(result, truth_pose, indent=indent):
+        print(line)
+    return result
+
+
 def print_observability(result, dataset=None, indent: str = "  ") -> list[str]:
     """Print (and return) the report's observability words and suggestion."""
     report = result.report(dataset)

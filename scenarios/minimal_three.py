@@ -21,6 +21,7 @@ import numpy as np
 from _common import (
     CHI2_6_999,
     Verdict,
+    calibrate_and_print,
     error_lines,
     header,
     parse_args,
@@ -69,15 +70,10 @@ def main(argv=None) -> int:
     print("\n(a) measurements 0, 1 (through P) and 3 (off P): the minimum")
     results = {}
     for method in ("joint", "weighted") if args.quick else ("joint", "weighted", "paper"):
-        result, seconds, failure = run_calibration(minimal, method)
-        print(f"  {method}: {seconds:.1f} s")
-        if failure:
-            print(f"    calibrate FAILED: {failure}")
-            verdict.check(False, f"(a) {method}: calibrate returns an estimate")
+        result = calibrate_and_print(verdict, minimal, truth.arm_T_camera, method, f"(a) {method}", indent="    ")
+        if result is None:
             continue
         results[method] = result
-        for line in error_lines(result, truth.arm_T_camera, indent="    "):
-            print(line)
         print("    report: " + result.report(minimal).chi2.sentence())
         print("    residual RMS per measurement (px): "
               + ", ".join(f"{m.residual_rms_px:.3f}" for m in result.measurements))

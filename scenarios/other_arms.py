@@ -22,13 +22,12 @@ from _common import (
     CHI2_6_999,
     TANGENT_UNITS,
     Verdict,
-    error_lines,
+    calibrate_and_print,
     header,
     parse_args,
     position_error_mm,
     print_observability,
     rotation_error_deg,
-    run_calibration,
     safe_crlb,
     save_figure,
     within_3_sigma,
@@ -74,14 +73,10 @@ def main(argv=None) -> int:
               f"{sum(m.n_observations for m in dataset)} pixels")
         bound = safe_crlb(dataset, truth, NOISE_VAR)
         for method in methods:
-            result, seconds, failure = run_calibration(dataset, method)
-            print(f"  {method}: {seconds:.1f} s")
-            if failure:
-                print(f"    calibrate FAILED: {failure}")
-                verdict.check(False, f"{robot}, {method}: calibrate returns an estimate")
+            result = calibrate_and_print(verdict, dataset, truth.arm_T_camera, method, f"{robot}, {method}",
+                                         indent="    ")
+            if result is None:
                 continue
-            for line in error_lines(result, truth.arm_T_camera, indent="    "):
-                print(line)
             verdict.check(result.covariance_usable, f"{robot}, {method}: all six degrees of freedom determined")
             if not result.covariance_usable:
                 continue

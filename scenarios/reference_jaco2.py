@@ -18,15 +18,14 @@ from _common import (
     TANGENT_LABELS,
     TANGENT_UNITS,
     Verdict,
+    calibrate_and_print,
     crlb,
-    error_lines,
     header,
     new_figure,
     parse_args,
     position_error_mm,
     print_observability,
     rotation_error_deg,
-    run_calibration,
     save_figure,
     tangent_error,
     within_3_sigma,
@@ -80,15 +79,10 @@ def main(argv=None) -> int:
     verdict = Verdict(args)
     results = {}
     for method in METHODS:
-        result, seconds, failure = run_calibration(dataset, method)
-        print(f"\n{method}: {seconds:.1f} s")
-        if failure:
-            print(f"  calibrate FAILED: {failure}")
-            verdict.check(False, f"{method}: calibrate returns an estimate")
+        result = calibrate_and_print(verdict, dataset, truth.arm_T_camera, method, method, heading="\n")
+        if result is None:
             continue
         results[method] = result
-        for line in error_lines(result, truth.arm_T_camera):
-            print(line)
         sigma = np.sqrt(np.diag(result.covariance)) * TANGENT_UNITS
         print("  reported 1 sigma / bound: " + " ".join(f"{v:.2f}" for v in sigma / bound_sigma))
         print("  |error| / bound:          "
