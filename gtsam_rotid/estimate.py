@@ -63,6 +63,7 @@ from .jsonio import write_json_atomic
 from .uncertainty import (
     Observability,
     analyse_observability,
+    chi2_sf,
     marginal_information,
     pose_information,
     sandwich_marginal,
@@ -124,6 +125,14 @@ class CalibrationOptions:
     max_feature_radius_m: float = 0.5
     #: Floor of the estimated pixel noise (px), so noise-free data keeps finite weights.
     min_sigma_px: float = 1e-3
+    #: weighted, joint: when the measurements' image axes disagree with the FK axes projected by the estimate
+    #: beyond this upper-tail probability, the covariance is scaled by their chi-square per dof (the Birge
+    #: ratio; see :class:`AxisConsistency`). 0 disables the scaling (the test is still reported).
+    axis_consistency_p: float = 0.01
+
+    def __post_init__(self):
+        if not 0.0 <= self.axis_consistency_p < 1.0:
+            raise InputError(f"CalibrationOptions.axis_consistency_p must be in [0, 1), got {self.axis_consistency_p}")
 
 
 @dataclass
@@ -165,6 +174,48 @@ class Alternative:
         return cls(gtsam.Pose3(np.array(data["arm_T_camera"])), float(data["delta_chi2"]))
 
 
+@dataclass
+class AxisConsistency:
+    """Do the measurements' rotation axes agree with one ``arm_T_camera`` as closely as their pixel noise says?
+
+    ``chi2`` sums, over the measurements used, the chi-square (2 dof) of each stage-1 image axis against the FK
+    axis projected by the estimate, at the line covariance the fit assumed (pixel noise from the residuals,
+    cluster-robust over tracks); ``dof`` is ``2 n - 6``. Errors the per-track noise model does not describe
+    (a sub-pixel bias the tracker shares across a measurement's tracks, joint-angle or kinematic errors, wrong
+    intrinsics) move whole axes and show here, while every pixel residual looks white. When the test fails
+    (``p_value`` < ``CalibrationOptions.axis_consistency_p``) the covariance is multiplied by ``scale`` =
+    ``chi2 / dof`` (the Birge ratio, as the Particle Data Group scales inconsistent measurements): the axes'
+    covariance is taken to be understated by a common factor, which their scatter measures. With few
+    measurements that factor is itself uncertain (``2 n - 6`` dof), so add measurements when it is large.
+    """
+
+    chi2: float
+    dof: int
+    p_value: float
+    #: the covariance was multiplied by this (1: consistent, or not scaled)
+    scale: float
+
+    @property
+    def consistent(self) -> bool:
+        return self.scale == 1.0
+
+    def sentence(self) -> str:
+        head = (f"image axes vs the projected FK axes: χ² = {self.chi2:.3g} for {self.dof} dof, "
+                f"P(χ² ≥ this) = {self.p_value:.2g}")
+        if self.scale == 1.0:
+            return f"{head}: consistent with the pixel noise"
+        return (f"{head}: the axes disagree beyond their pixel noise (errors shared across tracks: a tracker "
+                f"bias, joint angles, kinematics or intrinsics); the covariance is scaled by {self.scale:.3g} "
+                f"(χ²/dof)")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> AxisConsistency:
+        return cls(float(data["chi2"]), int(data["dof"]), float(data["p_value"]), float(data["scale"]))
+
+
 #: An alternative whose chi-square exceeds the estimate's by less than this (likelihood ratio 1000:1) makes the
 #: calibration ambiguous: the data cannot tell the two apart.
 AMBIGUITY_CHI2 = 2.0 * np.log(1000.0)
@@ -188,6 +239,8 @@ class CalibrationResult:
     dof: int | None = None
     #: other local minima the estimator examined (several starts), with how much worse they fit
     alternatives: list[Alternative] = field(default_factory=list)
+    #: weighted, joint: the test of the axes against one pose, and the covariance scale it applied
+    axis_consistency: AxisConsistency | None = None
 
     @property
     def ambiguous(self) -> bool:
@@ -238,6 +291,8 @@ class CalibrationResult:
         else:
             lines.append("  COVARIANCE UNUSABLE: the arm poses do not determine the calibration")
         lines.extend("  " + line for line in self.observability.describe())
+        if self.axis_consistency is not None and not self.axis_consistency.consistent:
+            lines.append("  " + self.axis_consistency.sentence())
         for m in self.measurements:
             flag = f"  OUTLIER ({m.outlier_reason})" if m.outlier else ""
             n_rejected = len(m.rejected_tracks)
@@ -269,6 +324,7 @@ class CalibrationResult:
             "observability": self.observability.to_dict(),
             "ambiguous": self.ambiguous,
             "alternatives": [a.to_dict() for a in self.alternatives],
+            "axis_consistency": None if self.axis_consistency is None else self.axis_consistency.to_dict(),
         }
 
     @classmethod
@@ -290,6 +346,8 @@ class CalibrationResult:
             ],
             observability=Observability.from_dict(data["observability"]),
             alternatives=[Alternative.from_dict(a) for a in data.get("alternatives", [])],
+            axis_consistency=None if data.get("axis_consistency") is None
+            else AxisConsistency.from_dict(data["axis_consistency"]),
         )
 
     def report(self, dataset=None, **kwargs):
@@ -951,6 +1009,22 @@ def _chi2(camera, axes, stage1, pose) -> np.ndarray:
     return np.array(out)
 
 
+def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3, sigma2: dict[int, float],
+                      options) -> AxisConsistency | None:
+    """The test of :class:`AxisConsistency` at ``pose``, each measurement's line at its pixel noise variance
+    ``sigma2[k]`` (the one the fit weighted it by); None without redundancy (fewer than 4 measurements)."""
+    dof = 2 * len(used) - 6
+    if dof <= 0:
+        return None
+    chi2 = 0.0
+    for k in used:
+        e, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k])
+        chi2 += float(e @ np.linalg.pinv(cov, hermitian=True) @ e)  # pinv: test points may project badly
+    p = chi2_sf(chi2, dof)
+    scale = chi2 / dof if p < options.axis_consistency_p else 1.0
+    return AxisConsistency(chi2, dof, p, scale)
+
+
 def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsam.Pose3, options, anchor):
     """Stage 2 weighted by the stage-1 line covariances, Huber on whole measurements; returns (pose, its, graph)."""
     pose, iterations, graph = start, 0, None
@@ -1041,13 +1115,18 @@ def _check_scale(result: CalibrationResult, setup: _Setup, stage1: list[_Stage1]
 
 
 def _finish(pose, covariance, info, method, converged, iterations, error, reports, sigma_px,
-            info_scale: float = 1.0, dof: int | None = None) -> CalibrationResult:
-    """Result with the observability of ``info * info_scale`` (the scale makes it a real information)."""
+            info_scale: float = 1.0, dof: int | None = None,
+            consistency: AxisConsistency | None = None) -> CalibrationResult:
+    """Result with the observability of ``info * info_scale`` (the scale makes it a real information); the
+    covariance (of the pose, or the observability's when it is undetermined) is multiplied by
+    ``consistency.scale``."""
     observability = analyse_observability(info * info_scale, pose)
     if covariance is None or not observability.is_observable:
         covariance = observability.covariance(info)
+    if consistency is not None and observability.is_observable:
+        covariance = covariance * consistency.scale
     return CalibrationResult(pose, covariance, method.value, bool(converged), int(iterations), float(error),
-                             reports, observability, float(sigma_px), dof)
+                             reports, observability, float(sigma_px), dof, axis_consistency=consistency)
 
 
 def _graph_dof(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> int:
@@ -1126,8 +1205,10 @@ def _weighted(camera, setup, stage1, init_pose, options, anchor) -> CalibrationR
     values.insert(POSE_KEY, pose)
     sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
     reports = _reports(stage1, setup, sigmas, used, options, chi2)
+    consistency = _axis_consistency(camera, setup, stage1, used, pose, {k: stage1[k].sigma2 for k in used}, options)
     return _finish(pose, None, pose_information(graph, values, POSE_KEY), Method.WEIGHTED, True, iterations,
-                   graph.error(values), reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(graph, values))
+                   graph.error(values), reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(graph, values),
+                   consistency=consistency)
 
 
 def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
@@ -1166,6 +1247,7 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
             break
     info = pose_information(graph, result, POSE_KEY)
     reports = _reports(stage1, setup, sigmas, used, options, chi2)
+    variances = {k: sigmas[k] ** 2 for k in used}
     if options.spin_model == "rigid" and builder.model is not Model.POSE:
         rigid = _rigid_spin(camera, measurements, setup, keys, result, sigmas, options)
         if rigid is not None:
@@ -1173,7 +1255,8 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
             # the free-phase information is the one whose eigen-analysis names undetermined directions; the
             # rigid graph is too large for a dense Schur complement and has the same null directions
             return _finish(pose, covariance, info, Method.JOINT, converged, iterations + it, error, reports,
-                           np.median(list(sigmas.values())))
+                           np.median(list(sigmas.values())),
+                           consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options))
     try:
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
     except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
@@ -1184,7 +1267,8 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
         robust = sandwich_marginal(graph, result, POSE_KEY, 6, correlated)
         covariance = covariance if robust is None else robust
     return _finish(pose, covariance, info, Method.JOINT, converged, iterations, error, reports,
-                   np.median(list(sigmas.values())), dof=_graph_dof(graph, result))
+                   np.median(list(sigmas.values())), dof=_graph_dof(graph, result),
+                   consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options))
 
 
 def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options):

@@ -35,7 +35,7 @@ from .errors import InputError
 from .estimate import ambiguity_words
 from .export import check_output_file, load_result, quaternion_xyzw, ros_covariance, write_text
 from .geometry import Line3
-from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD
+from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  # noqa: F401 (re-export)
 
 #: Two-sided 95 % point of the normal distribution: the 95 % bound of one axis is Z95 σ.
 Z95 = 1.959963984540054
@@ -70,26 +70,6 @@ class ReportFormat(StrEnum):
 
 # ---------------------------------------------------------------------------------------------------
 # numbers
-
-
-def chi2_sf(x: float, dof: int) -> float:
-    """Upper-tail probability P(χ²_dof >= x): exact for dof <= 400 (half-integer incomplete gamma series,
-    summed in log space), Wilson-Hilferty above."""
-    if dof <= 0:
-        return math.nan
-    if x <= 0.0:
-        return 1.0
-    y = 0.5 * x
-    if dof <= 400:
-        if dof % 2 == 0:  # Q(n, y) = e^-y sum_{i<n} y^i / i!
-            logs = [i * math.log(y) - y - math.lgamma(i + 1) for i in range(dof // 2)]
-            return float(min(1.0, sum(math.exp(v) for v in logs)))
-        # Q(n + 1/2, y) = erfc(sqrt(y)) + e^-y sum_{j<n} y^(j + 1/2) / Gamma(j + 3/2)
-        logs = [(j + 0.5) * math.log(y) - y - math.lgamma(j + 1.5) for j in range((dof - 1) // 2)]
-        return float(min(1.0, math.erfc(math.sqrt(y)) + sum(math.exp(v) for v in logs)))
-    h = 2.0 / (9.0 * dof)
-    z = ((x / dof) ** (1.0 / 3.0) - (1.0 - h)) / math.sqrt(h)
-    return 0.5 * math.erfc(z / math.sqrt(2.0))
 
 
 def correlation(covariance: np.ndarray) -> np.ndarray:
@@ -289,6 +269,8 @@ class CalibrationReport:
     crossing_miss_mm: float | None = None
     #: another, distinct pose fits the data almost as well (``result.alternatives``): nothing is determined
     ambiguous: bool = False
+    #: weighted, joint: do the measurements' axes agree with one pose (``result.axis_consistency``)? None: no test
+    axis_consistency: object | None = None
 
     @property
     def bound95_position_mm(self) -> np.ndarray:
@@ -387,6 +369,8 @@ class CalibrationReport:
         out += ["", "fit consistency:", "  " + self.chi2.sentence(), f"  tested: {self.chi2.what}"]
         if self.chi2.note:
             out.append(f"  note: {self.chi2.note}")
+        if self.axis_consistency is not None:
+            out.append("  " + self.axis_consistency.sentence())
         out += ["", "observability:"] + ["  " + line for line in self._observability_lines()]
         out += ["", "measurements:",
                 f"  {'k':>3} {'tracks':>6} {'points':>7} {'RMS px':>7} {'weight':>6} {'rejected':>8}  status"]
@@ -407,6 +391,8 @@ class CalibrationReport:
         out += ["", "## Fit consistency", "", f"- {self.chi2.sentence()}", f"- tested: {self.chi2.what}"]
         if self.chi2.note:
             out.append(f"- note: {self.chi2.note}")
+        if self.axis_consistency is not None:
+            out.append(f"- {self.axis_consistency.sentence()}")
         out += ["", "## Observability", ""] + [f"- {line}" for line in self._observability_lines()]
         out += ["", "## Measurements", "", "| k | tracks | points | RMS (px) | weight | rejected | status |",
                 "|---:|---:|---:|---:|---:|---:|---|"]
@@ -453,6 +439,8 @@ class CalibrationReport:
             "correlation_labels": list(LABELS),
             "strong_correlations": [{"a": a, "b": b, "rho": f(rho)} for a, b, rho in self.strong_correlations],
             "chi2": {k: (f(v) if isinstance(v, float) else v) for k, v in self.chi2.to_dict().items()},
+            "axis_consistency": None if self.axis_consistency is None
+            else {k: (f(v) if isinstance(v, float) else v) for k, v in self.axis_consistency.to_dict().items()},
             "observability": {
                 "words": list(self.observability),
                 "suggestion": self.suggestion,
@@ -606,6 +594,7 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         measurements=list(result.measurements),
         crossing_point_mm=1000.0 * geometry.point if crossing else None,
         crossing_miss_mm=1000.0 * float(np.max(geometry.miss)) if crossing else None, ambiguous=ambiguous,
+        axis_consistency=getattr(result, "axis_consistency", None),
     )
 
 

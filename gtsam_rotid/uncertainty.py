@@ -7,6 +7,7 @@ Pose3 block (every other variable marginalised). Its eigen-decomposition, in the
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import gtsam
@@ -189,3 +190,23 @@ def analyse_observability(information: np.ndarray, arm_T_camera: gtsam.Pose3) ->
         words.insert(0, "DEGENERATE: the chosen arm poses do not determine the calibration; add a pose whose "
                         "wrist axis is not like the others (e.g. one that misses their common point)")
     return Observability(w, V, unobservable, R, condition, words)
+
+
+def chi2_sf(x: float, dof: int) -> float:
+    """Upper-tail probability P(χ²_dof >= x): exact for dof <= 400 (half-integer incomplete gamma series,
+    summed in log space), Wilson-Hilferty above."""
+    if dof <= 0:
+        return math.nan
+    if x <= 0.0:
+        return 1.0
+    y = 0.5 * x
+    if dof <= 400:
+        if dof % 2 == 0:  # Q(n, y) = e^-y sum_{i<n} y^i / i!
+            logs = [i * math.log(y) - y - math.lgamma(i + 1) for i in range(dof // 2)]
+            return float(min(1.0, sum(math.exp(v) for v in logs)))
+        # Q(n + 1/2, y) = erfc(sqrt(y)) + e^-y sum_{j<n} y^(j + 1/2) / Gamma(j + 3/2)
+        logs = [(j + 0.5) * math.log(y) - y - math.lgamma(j + 1.5) for j in range((dof - 1) // 2)]
+        return float(min(1.0, math.erfc(math.sqrt(y)) + sum(math.exp(v) for v in logs)))
+    h = 2.0 / (9.0 * dof)
+    z = ((x / dof) ** (1.0 / 3.0) - (1.0 - h)) / math.sqrt(h)
+    return 0.5 * math.erfc(z / math.sqrt(2.0))

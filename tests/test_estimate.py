@@ -290,3 +290,64 @@ def test_errors_shared_along_a_track_widen_the_covariance(method, monkeypatch):
     assert ratio.max() > 5.0, ratio
     e = biased.error_to(truth.arm_T_camera)
     assert e @ np.linalg.solve(biased.covariance, e) < 22.46  # inside the 99.9 % region
+
+
+def with_measurement_offsets(dataset, sigma_px: float, seed: int) -> Dataset:
+    """The dataset with one constant random image offset (sigma_px per coordinate) shared by every pixel of each
+    measurement: an error common to all of a measurement's tracks, which per-track scores cannot see."""
+    rng = np.random.default_rng(seed)
+    measurements = []
+    for m in dataset:
+        offset = sigma_px * rng.standard_normal(2)
+        tracks = [Track.from_any(t) for t in m.tracks]
+        measurements.append(Measurement(m.joint_angles, [Track(t.pixels + offset, t.frames) for t in tracks]))
+    return Dataset(dataset.arm, dataset.camera, measurements)
+
+
+@pytest.mark.parametrize("method", ["joint", "weighted"])
+def test_axes_consistent_with_white_noise_leave_the_covariance(noisy_scene, method):
+    from gtsam_rotid.estimate import CalibrationOptions
+
+    dataset, _ = noisy_scene
+    result = calibrate(dataset, method=method)
+    test = result.axis_consistency
+    assert test.dof == 2 * len(dataset) - 6
+    assert test.p_value > 0.01 and test.scale == 1.0 and test.consistent
+    unscaled = calibrate(dataset, method=method, options=CalibrationOptions(axis_consistency_p=0.0))
+    np.testing.assert_array_equal(result.covariance, unscaled.covariance)
+    if method == "weighted":  # the same chi-square as the weighted graph's own cost (no Huber weight active here;
+        # the graph's line covariances were evaluated at the pose of its last round, a few 1e-6 rad away)
+        assert test.chi2 == pytest.approx(2.0 * result.final_error, rel=1e-5)
+
+
+def test_axes_that_disagree_beyond_their_noise_scale_the_covariance(noisy_scene, tmp_path):
+    """A 4 px image offset shared by all tracks of each measurement moves whole image axes; every track's residuals
+    stay white, so only the axes' disagreement with one pose shows it, and the covariance grows by chi2 / dof.
+
+    This tests the mechanism, not coverage: an offset per measurement looks much like a change of the pose, which
+    absorbs most of it, so even the scaled covariance stays far too small here (README, Known limits)."""
+    from gtsam_rotid.estimate import CalibrationOptions
+
+    dataset, _ = noisy_scene
+    shifted = with_measurement_offsets(dataset, 4.0, seed=5)
+    result = calibrate(shifted, method="joint")
+    unscaled = calibrate(shifted, method="joint", options=CalibrationOptions(axis_consistency_p=0.0))
+    test = result.axis_consistency
+    assert test.p_value < 0.01 and not test.consistent
+    assert test.scale == pytest.approx(test.chi2 / test.dof) and test.scale > 1.0
+    assert unscaled.axis_consistency.scale == 1.0 and unscaled.axis_consistency.chi2 == pytest.approx(test.chi2)
+    assert result.arm_T_camera.equals(unscaled.arm_T_camera, 1e-12)
+    np.testing.assert_allclose(result.covariance, test.scale * unscaled.covariance, rtol=1e-12)
+    # said in words, in the summary and the report, and kept through save / load
+    assert f"scaled by {test.scale:.3g}" in result.summary()
+    assert "the axes disagree beyond their pixel noise" in result.report(shifted).to_text()
+    assert result.report(shifted).to_dict()["axis_consistency"]["scale"] == pytest.approx(test.scale)
+    result.save(tmp_path / "r.json")
+    assert CalibrationResult.load(tmp_path / "r.json").axis_consistency == test
+
+
+def test_axis_consistency_option_is_checked():
+    from gtsam_rotid.estimate import CalibrationOptions
+
+    with pytest.raises(InputError, match="axis_consistency_p must be in"):
+        CalibrationOptions(axis_consistency_p=1.5)
