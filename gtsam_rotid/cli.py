@@ -58,12 +58,12 @@ def _save_result(result, path: Path, overwrite: bool) -> None:
     print(f"wrote {path}")
 
 
-def _calibrate_timed(dataset, method: str):
+def _calibrate_timed(dataset, method: str, options=None):
     from .estimate import calibrate
 
     print(f"calibrating ({method})...", flush=True)
     start = time.perf_counter()
-    result = calibrate(dataset, method=method)
+    result = calibrate(dataset, method=method, options=options)
     print(f"calibrated in {time.perf_counter() - start:.1f} s")
     return result
 
@@ -109,7 +109,9 @@ def cmd_calibrate(args) -> int:
     dataset = Dataset.load(path)
     truth = _load_truth(path)
     print(dataset.summary())
-    result = _calibrate_timed(dataset, args.method)
+    from .estimate import CalibrationOptions
+
+    result = _calibrate_timed(dataset, args.method, CalibrationOptions(joint_sigma_deg=args.joint_sigma_deg))
     print(result.summary())
     if truth is not None:
         _print_lines(error_vs_truth_lines(result, truth.arm_T_camera))
@@ -196,6 +198,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    f"{TRUTH_FILE} that `simulate` writes, also print the error against it.")
     p.add_argument("dataset", metavar="DATASET", help="dataset directory (as written by `simulate`)")
     _add_method_option(p)
+    p.add_argument("--joint-sigma-deg", type=float, default=0.0, metavar="DEG",
+                   help="standard deviation of each joint-angle reading in degrees, propagated into the "
+                        "covariance (default 0: exact kinematics)")
     p.add_argument("-o", "--output", metavar="RESULT_JSON", help="write the result as JSON to this file")
     p.add_argument("--overwrite", action="store_true", help="replace an existing result file")
     p.set_defaults(func=cmd_calibrate)

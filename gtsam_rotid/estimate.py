@@ -56,6 +56,7 @@ from .graph import (
     chi2_quantile,
     initial_circle,
     lm_params,
+    tie_noise_model,
     track_huber,
 )
 from .initialise import initial_image_axis, plane_normal, pose_candidates
@@ -129,10 +130,17 @@ class CalibrationOptions:
     #: beyond this upper-tail probability, the covariance is scaled by their chi-square per dof (the Birge
     #: ratio; see :class:`AxisConsistency`). 0 disables the scaling (the test is still reported).
     axis_consistency_p: float = 0.01
+    #: weighted, joint: standard deviation (deg) of each joint-angle reading, independent per joint and per arm
+    #: pose (encoder noise, backlash). It moves the FK wrist axis; the projected-axis ties and the stage-2 weights
+    #: include that uncertainty (propagated through the kinematics). 0: the kinematics are taken as exact.
+    joint_sigma_deg: float = 0.0
 
     def __post_init__(self):
         if not 0.0 <= self.axis_consistency_p < 1.0:
             raise InputError(f"CalibrationOptions.axis_consistency_p must be in [0, 1), got {self.axis_consistency_p}")
+        if not (np.isfinite(self.joint_sigma_deg) and self.joint_sigma_deg >= 0.0):
+            raise InputError(f"CalibrationOptions.joint_sigma_deg must be a finite value >= 0 (deg), got "
+                             f"{self.joint_sigma_deg}")
 
 
 @dataclass
@@ -483,6 +491,12 @@ class _Setup:
     axes: list  # FK wrist axes (Line3, arm frame)
     prepared: list[PreparedMeasurement]
     lines: list[np.ndarray]  # initial image axes through the ellipse centres
+    #: per measurement, the axis' test points' derivative by each joint angle times its sigma, (6, n_joints), or
+    #: None (exact kinematics)
+    axis_noise: list[np.ndarray | None] = field(default_factory=list)
+
+    def noise(self, k: int) -> np.ndarray | None:
+        return self.axis_noise[k] if self.axis_noise else None
 
 
 def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: CalibrationOptions) -> _Setup:
@@ -500,7 +514,47 @@ def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: C
                              f"(rejected: {reasons})")
         prepared.append(prep)
         lines.append(initial_image_axis([t.ellipse for t in prep.usable.values()]))
-    return _Setup(axes, prepared, lines)
+    noise = []
+    if options.joint_sigma_deg > 0.0:
+        sigma = np.radians(options.joint_sigma_deg)
+        noise = [sigma * test_point_jacobian(arm, m.joint_angles) for m in measurements]
+    return _Setup(axes, prepared, lines, noise)
+
+
+def test_point_jacobian(arm: Arm, joint_angles, step: float = 1e-6) -> np.ndarray:
+    """(6, n_joints): derivative of the wrist axis' two FK test points (arm frame, m, stacked) by each joint angle
+    (rad), by central differences."""
+    q = np.asarray(joint_angles, dtype=float)
+    J = np.empty((6, q.size))
+    for j in range(q.size):  # one forward kinematics per joint and side
+        dq = np.zeros_like(q)
+        dq[j] = step
+        plus = axis_test_points(arm.wrist_axis(q + dq)).ravel()
+        minus = axis_test_points(arm.wrist_axis(q - dq)).ravel()
+        J[:, j] = (plus - minus) / (2.0 * step)
+    return J
+
+
+def joint_tie_covariance(camera: Camera, axis, line: np.ndarray | None, pose: gtsam.Pose3,
+                         noise: np.ndarray | None, step: float = 1e-3) -> np.ndarray | None:
+    """(2, 2) covariance (px²) of the distances of ``axis``' projected test points to the image ``line`` that
+    the joint-angle noise causes (``noise``: :func:`test_point_jacobian` times each joint's sigma), to first order;
+    None when ``noise`` is None. ``line`` None: the axis' own image under ``pose``."""
+    if noise is None:
+        return None
+    points = axis_test_points(axis)
+    if line is None:
+        ends = camera.project(np.array([pose.transformTo(x) for x in points]), distort=False)
+        line = np.cross([*ends[0], 1.0], [*ends[1], 1.0])
+        line = line / np.hypot(line[0], line[1])
+
+    def distances(p):
+        return line_distances(line, camera.project(np.array([pose.transformTo(x) for x in p]), distort=False))
+
+    # one column per joint: the distances' change along that joint's 1-sigma displacement of the test points
+    D = np.column_stack([(distances(points + step * c.reshape(2, 3)) - distances(points - step * c.reshape(2, 3)))
+                         / (2.0 * step) for c in noise.T])
+    return D @ D.T
 
 
 def _stage2_graph(axes, lines, K, noises) -> gtsam.NonlinearFactorGraph:
@@ -983,18 +1037,21 @@ def _start_line(camera: Camera, axis, image_axis: np.ndarray, pose: gtsam.Pose3)
 
 
 def _axis_distances(camera: Camera, axis, stage1: _Stage1, pose: gtsam.Pose3,
-                    sigma2: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    sigma2: float | None = None, noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Distances of the projected FK test points to the stage-1 image axis, and their covariance (at the
-    measurement's own pixel noise variance unless ``sigma2`` is given)."""
+    measurement's own pixel noise variance unless ``sigma2`` is given; plus the joint-angle noise's, ``noise`` as
+    in :func:`joint_tie_covariance`)."""
     points = np.array([pose.transformTo(p) for p in axis_test_points(axis)])
     pixels = camera.project(points, distort=False)
     e = line_distances(stage1.line, pixels)
     sigma2 = stage1.sigma2 if sigma2 is None else sigma2
     cov = line_distance_covariance(stage1.line_cov * sigma2, pixels) + 1e-12 * np.eye(len(e))
+    if noise is not None:
+        cov = cov + joint_tie_covariance(camera, axis, stage1.line, pose, noise)
     return e, cov
 
 
-def _chi2(camera, axes, stage1, pose) -> np.ndarray:
+def _chi2(camera, setup: _Setup, stage1, pose) -> np.ndarray:
     """Per measurement: chi-square (2 dof) of its stage-1 image axis against the FK axis projected by ``pose``.
 
     The line covariance is scaled by the larger of the measurement's and the median pixel noise variance:
@@ -1003,8 +1060,8 @@ def _chi2(camera, axes, stage1, pose) -> np.ndarray:
     """
     median = float(np.median([s.sigma2 for s in stage1]))
     out = []
-    for axis, s in zip(axes, stage1, strict=True):
-        e, cov = _axis_distances(camera, axis, s, pose, max(s.sigma2, median))
+    for k, (axis, s) in enumerate(zip(setup.axes, stage1, strict=True)):
+        e, cov = _axis_distances(camera, axis, s, pose, max(s.sigma2, median), setup.noise(k))
         out.append(float(e @ np.linalg.pinv(cov, hermitian=True) @ e))  # pinv: test points may project badly
     return np.array(out)
 
@@ -1018,7 +1075,7 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
         return None
     chi2 = 0.0
     for k in used:
-        e, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k])
+        e, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup.noise(k))
         chi2 += float(e @ np.linalg.pinv(cov, hermitian=True) @ e)  # pinv: test points may project badly
     p = chi2_sf(chi2, dof)
     scale = chi2 / dof if p < options.axis_consistency_p else 1.0
@@ -1031,7 +1088,7 @@ def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsa
     for _round in range(3):  # the distance covariance depends on where the test points project
         noises = []
         for k in used:
-            _, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose)
+            _, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, noise=setup.noise(k))
             base = gtsam.noiseModel.Gaussian.Covariance(cov)
             noises.append(gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(3.0), base))
         graph = _stage2_graph([setup.axes[k] for k in used], [stage1[k].line for k in used], camera.K, noises)
@@ -1068,7 +1125,7 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor
     while True:
         pose, it, graph = _weighted_stage2(camera, setup, stage1, used, start, options, anchor)
         iterations += it
-        chi2 = _chi2(camera, setup.axes, stage1, pose)
+        chi2 = _chi2(camera, setup, stage1, pose)
         bad = [k for k in used if chi2[k] > limit]
         if not bad:
             break
@@ -1082,7 +1139,7 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor
             rest = [i for i in used if i != k]
             rest_pose, it, _ = _weighted_stage2(camera, setup, stage1, rest, pose, options, anchor)
             iterations += it
-            rest_chi2 = _chi2(camera, setup.axes, stage1, rest_pose)
+            rest_chi2 = _chi2(camera, setup, stage1, rest_pose)
             score = float(sum(rest_chi2[i] for i in rest))
             if best is None or score < best[0]:
                 best = (score, k, rest_pose)
@@ -1183,7 +1240,7 @@ def _paper(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResu
     lowest = min(m[1] for m in minima)
     pose, error, iterations, _ = min((m for m in minima if m[1] <= lowest + TIE_PX2),
                                      key=lambda m: _turned(m[0], init_pose))
-    chi2 = _chi2(camera, setup.axes, stage1, pose)
+    chi2 = _chi2(camera, setup, stage1, pose)
     if np.median(chi2) > options.outlier_measurement_chi2:  # the unweighted fit is suboptimal: judge loosely
         raise _poor_minimum(chi2, options.outlier_measurement_chi2, "most measurements disagree")
     values = gtsam.Values()
@@ -1230,7 +1287,8 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
         keys = {k: builder.add_measurement(graph, values, k, measurements[k], track_sigmas=dict.fromkeys(
                     setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
                     prepared=setup.prepared[k], initial_circles=circles[k], initial_line=lines[k],
-                    refine_circles=circles[k] is None) for k in used}
+                    refine_circles=circles[k] is None, tie_covariance=joint_tie_covariance(
+                        camera, setup.axes[k], stage1[k].line, pose, setup.noise(k))) for k in used}
         start_pose = pose
         result, it, error, converged = _lm(
             graph, values, options.max_iterations, anchor=True, watch_tolerance=WATCH_POSE,
@@ -1287,7 +1345,9 @@ def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options):
     for k, keys_k in keys.items():
         R = free.atRot3(keys_k.line)
         values.insert(keys_k.line, R)
-        graph.add(make_axis_to_line_variable_factor(gtsam.noiseModel.Isotropic.Sigma(2, options.tie_sigma_px),
+        tie_cov = joint_tie_covariance(camera, setup.axes[k], image_line_from_rot3(K, R)[0], free.atPose3(POSE_KEY),
+                                       setup.noise(k))
+        graph.add(make_axis_to_line_variable_factor(tie_noise_model(options.tie_sigma_px, tie_cov),
                                                     POSE_KEY, keys_k.line, axis_test_points(setup.axes[k]), K))
         spun = []
         for j, (d, r) in zip(keys_k.tracks, _circles(keys_k, free), strict=True):
@@ -1411,7 +1471,8 @@ def _common_chi2(arm, camera, measurements, setup, results: list[CalibrationResu
             for k in used:
                 builder.add_measurement(graph, values, k, measurements[k], skip_tracks=skip[k],
                                         track_sigmas=dict.fromkeys(setup.prepared[k].usable, sigmas[k]),
-                                        prepared=setup.prepared[k])
+                                        prepared=setup.prepared[k], tie_covariance=joint_tie_covariance(
+                                            camera, setup.axes[k], None, r.arm_T_camera, setup.noise(k)))
         except RotIdError:  # this pose cannot carry those tracks (e.g. an ellipse behind the camera)
             chi2.append(np.inf)
             poses.append(r.arm_T_camera)

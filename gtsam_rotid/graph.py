@@ -76,6 +76,16 @@ def chi2_quantile(dof: int, z: float = 3.09) -> float:
     return float(dof * (1.0 - h + z * np.sqrt(h)) ** 3)
 
 
+def tie_noise_model(sigma_px: float, covariance: np.ndarray | None = None):
+    """The projected-axis tie's noise: isotropic ``sigma_px``, plus ``covariance`` (2x2, px²) when given."""
+    if covariance is None:
+        return gtsam.noiseModel.Isotropic.Sigma(2, sigma_px)
+    covariance = np.asarray(covariance, dtype=float)
+    if covariance.shape != (2, 2) or not np.all(np.isfinite(covariance)):
+        raise InputError(f"tie_covariance must be a finite 2x2 matrix (px²), got shape {covariance.shape}")
+    return gtsam.noiseModel.Gaussian.Covariance(sigma_px**2 * np.eye(2) + 0.5 * (covariance + covariance.T))
+
+
 def track_huber(n_points: int):
     """Huber kernel on a whole track: full weight while its chi-square is below the 99.9 % quantile."""
     return gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(chi2_quantile(n_points)))
@@ -261,7 +271,8 @@ class RotIdGraph:
                         track_sigmas: dict[int, float] | None = None, skip_tracks=(), tie: bool = True,
                         prepared: PreparedMeasurement | None = None,
                         initial_circles: dict[int, np.ndarray] | None = None,
-                        initial_line: gtsam.Rot3 | None = None, refine_circles: bool = True) -> MeasurementKeys:
+                        initial_line: gtsam.Rot3 | None = None, refine_circles: bool = True,
+                        tie_covariance: np.ndarray | None = None) -> MeasurementKeys:
         """Add measurement k's variables (with initial values) and factors; return the keys it made.
 
         Initial values come from ``arm_T_camera`` (default: the pose already in ``values``): the FK axis
@@ -276,7 +287,8 @@ class RotIdGraph:
         ``model`` says; in the ``"line"`` model, ``initial_line`` (a line variable from an earlier solve whose
         circles are ``initial_circles``) keeps its tilt within its projection plane, which the tie leaves
         free, and is turned minimally so that its image is the FK axis' image. ``prepared`` reuses
-        :meth:`prepare`'s work.
+        :meth:`prepare`'s work. ``tie_covariance`` (2x2, px²) is added to the tie's ``tie_sigma_px²`` (e.g. the
+        FK axis' uncertainty from the joint-angle readings, :func:`gtsam_rotid.estimate.joint_tie_covariance`).
 
         Nothing is added to ``graph`` or ``values`` unless every check passes.
         """
@@ -355,7 +367,7 @@ class RotIdGraph:
         values.insert(new_values)
         if not tie or bound:
             return keys
-        tie_noise = gtsam.noiseModel.Isotropic.Sigma(2, self.tie_sigma_px)
+        tie_noise = tie_noise_model(self.tie_sigma_px, tie_covariance)
         graph.add(make_axis_to_line_variable_factor(tie_noise, self.pose_key, line_key, axis_test_points(axis), K))
         keys.tie_factor = graph.size() - 1
         return keys

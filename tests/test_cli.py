@@ -195,6 +195,17 @@ def test_calibrate_missing_dataset_is_a_clear_error(tmp_path):
     assert result.returncode == 1 and "dataset.json is missing" in result.stderr
 
 
+def test_calibrate_joint_sigma_widens_the_covariance(noise_free_dataset, tmp_path):
+    """Noise-free pixels give a micrometre covariance; joint readings declared 0.1 deg uncertain give millimetres."""
+    out = tmp_path / "result.json"
+    run("calibrate", str(noise_free_dataset), "--joint-sigma-deg", "0.1", "-o", str(out))
+    loaded, _, translation = error_to_truth(out, noise_free_dataset / "truth.json")
+    assert translation < 1e-6  # the estimate itself is unchanged: the readings are exact here
+    assert np.all(loaded.sigma_mm_arm > 0.1) and np.all(loaded.sigma_mm_arm < 20.0), loaded.sigma_mm_arm
+    bad = run("calibrate", str(noise_free_dataset), "--joint-sigma-deg", "-1", check=False)
+    assert bad.returncode != 0 and "joint_sigma_deg must be a finite value >= 0" in bad.stderr
+
+
 def test_calibrate_bad_method_is_a_usage_error(noise_free_dataset):
     result = run("calibrate", str(noise_free_dataset), "--method", "best", check=False)
     assert result.returncode == 2 and "invalid choice" in result.stderr
