@@ -297,6 +297,7 @@ class RotIdGraph:
                 raise InputError("insert an initial arm_T_camera into values (or pass arm_T_camera=) first")
             arm_T_camera = values.atPose3(self.pose_key)
         bound = tie and self.model is Model.POSE
+        tie_noise = tie_noise_model(self.tie_sigma_px, tie_covariance) if tie and not bound else None
         line_key = None if bound else self.line_key(k)
         if line_key is not None and values.exists(line_key):
             raise InputError(f"measurement {k}: key {gtsam.DefaultKeyFormatter(line_key)} already exists in values")
@@ -367,7 +368,6 @@ class RotIdGraph:
         values.insert(new_values)
         if not tie or bound:
             return keys
-        tie_noise = tie_noise_model(self.tie_sigma_px, tie_covariance)
         graph.add(make_axis_to_line_variable_factor(tie_noise, self.pose_key, line_key, axis_test_points(axis), K))
         keys.tie_factor = graph.size() - 1
         return keys

@@ -132,3 +132,25 @@ def test_projected_model_equals_the_line_model_on_noisy_spins():
     sigma = np.sqrt(np.diag(cov_line))
     assert np.all(np.abs(pose_line.localCoordinates(pose_projected)) < 1e-3 * sigma)
     np.testing.assert_allclose(np.sqrt(np.diag(cov_projected)), sigma, rtol=1e-3)
+
+
+def test_tie_covariance_widens_the_tie_and_a_bad_one_adds_nothing(scene):
+    """The joint readings' uncertainty as a tie covariance: the tie's noise model is sigma^2 I + C, and a C that is
+    not 2x2 is refused before anything is added."""
+    from gtsam_rotid.estimate import joint_tie_covariance, test_point_jacobian
+
+    dataset, truth = scene
+    builder = RotIdGraph(dataset.arm, dataset.camera, pose_key=X(0), line_symbol="m", model=Model.LINE,
+                         tie_sigma_px=1e-3)  # "l" would meet the user graph's landmark L(0)
+    graph, values = user_graph(truth.arm_T_camera, truth.arm_T_camera, np.full(6, 0.1))
+    size, keys_before = graph.size(), set(values.keys())
+    with pytest.raises(InputError, match="tie_covariance must be a finite 2x2 matrix"):
+        builder.add_measurement(graph, values, 0, dataset[0], tie_covariance=np.eye(3))
+    assert graph.size() == size and set(values.keys()) == keys_before
+    q = dataset[0].joint_angles
+    C = joint_tie_covariance(dataset.camera, dataset.arm.wrist_axis(q), None, truth.arm_T_camera,
+                             np.radians(0.05) * test_point_jacobian(dataset.arm, q))
+    assert C.shape == (2, 2) and np.all(np.linalg.eigvalsh(C) >= 0) and np.trace(C) > 1e-4  # px², not nothing
+    keys = builder.add_measurement(graph, values, 0, dataset[0], tie_covariance=C)
+    R = graph.at(keys.tie_factor).noiseModel().R()  # square-root information: R^T R = (sigma^2 I + C)^-1
+    np.testing.assert_allclose(np.linalg.inv(R.T @ R), 1e-6 * np.eye(2) + C, rtol=1e-9, atol=1e-15)
