@@ -249,6 +249,17 @@ class CalibrationResult:
     alternatives: list[Alternative] = field(default_factory=list)
     #: weighted, joint: the test of the axes against one pose, and the covariance scale it applied
     axis_consistency: AxisConsistency | None = None
+    #: the joint-angle sigma (deg) propagated into the covariance (CalibrationOptions.joint_sigma_deg); 0: the
+    #: kinematics were taken as exact (always so for ``paper``)
+    joint_sigma_deg: float = 0.0
+
+    def kinematics_words(self) -> str:
+        """What the covariance assumes of the joint readings, in words."""
+        if self.joint_sigma_deg > 0.0:
+            return (f"kinematics: joint readings uncertain by {self.joint_sigma_deg:g} deg (1 sigma, per joint and "
+                    "arm pose), propagated into the covariance")
+        return ("kinematics: joint readings taken as exact; their errors are not in this covariance (declare them "
+                "with CalibrationOptions.joint_sigma_deg / --joint-sigma-deg)")
 
     @property
     def ambiguous(self) -> bool:
@@ -301,6 +312,7 @@ class CalibrationResult:
         lines.extend("  " + line for line in self.observability.describe())
         if self.axis_consistency is not None and not self.axis_consistency.consistent:
             lines.append("  " + self.axis_consistency.sentence())
+        lines.append("  " + self.kinematics_words())
         for m in self.measurements:
             flag = f"  OUTLIER ({m.outlier_reason})" if m.outlier else ""
             n_rejected = len(m.rejected_tracks)
@@ -333,6 +345,7 @@ class CalibrationResult:
             "ambiguous": self.ambiguous,
             "alternatives": [a.to_dict() for a in self.alternatives],
             "axis_consistency": None if self.axis_consistency is None else self.axis_consistency.to_dict(),
+            "joint_sigma_deg": self.joint_sigma_deg,
         }
 
     @classmethod
@@ -356,6 +369,7 @@ class CalibrationResult:
             alternatives=[Alternative.from_dict(a) for a in data.get("alternatives", [])],
             axis_consistency=None if data.get("axis_consistency") is None
             else AxisConsistency.from_dict(data["axis_consistency"]),
+            joint_sigma_deg=float(data.get("joint_sigma_deg", 0.0)),
         )
 
     def report(self, dataset=None, **kwargs):
@@ -1429,12 +1443,14 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
         best, alternatives = _choose(arm, camera, measurements, setup, joints, options)
         if method is Method.JOINT:
             joints[best].alternatives = alternatives
+            joints[best].joint_sigma_deg = options.joint_sigma_deg
             return joints[best]
         runs, anchors = [runs[best]], [anchors[best]]
     init_pose, stage1 = runs[0]
     result = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
     _check_scale(result, setup, stage1, options)
     result.alternatives = alternatives
+    result.joint_sigma_deg = 0.0 if method is Method.PAPER else options.joint_sigma_deg
     return result
 
 

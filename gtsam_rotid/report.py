@@ -271,6 +271,9 @@ class CalibrationReport:
     ambiguous: bool = False
     #: weighted, joint: do the measurements' axes agree with one pose (``result.axis_consistency``)? None: no test
     axis_consistency: object | None = None
+    #: the joint-angle sigma (deg) the covariance includes; 0: exact kinematics (``result.kinematics_words()``)
+    joint_sigma_deg: float = 0.0
+    kinematics: str = ""
 
     @property
     def bound95_position_mm(self) -> np.ndarray:
@@ -323,7 +326,7 @@ class CalibrationReport:
         return [f"method {self.method}, {state} after {self.iterations} iterations, pixel noise {self.sigma_px:.3f} "
                 "px (estimated from the residuals)",
                 "arm_T_camera: the camera pose (OpenCV optical frame: x right, y down, z forward) in the arm-base "
-                "frame"]
+                "frame", *([self.kinematics] if self.kinematics else [])]
 
     def _uncertainty_lines(self) -> list[str]:
         q = self.quaternion_xyzw
@@ -439,6 +442,7 @@ class CalibrationReport:
             "correlation_labels": list(LABELS),
             "strong_correlations": [{"a": a, "b": b, "rho": f(rho)} for a, b, rho in self.strong_correlations],
             "chi2": {k: (f(v) if isinstance(v, float) else v) for k, v in self.chi2.to_dict().items()},
+            "joint_sigma_deg": f(self.joint_sigma_deg),
             "axis_consistency": None if self.axis_consistency is None
             else {k: (f(v) if isinstance(v, float) else v) for k, v in self.axis_consistency.to_dict().items()},
             "observability": {
@@ -595,6 +599,8 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         crossing_point_mm=1000.0 * geometry.point if crossing else None,
         crossing_miss_mm=1000.0 * float(np.max(geometry.miss)) if crossing else None, ambiguous=ambiguous,
         axis_consistency=getattr(result, "axis_consistency", None),
+        joint_sigma_deg=float(getattr(result, "joint_sigma_deg", 0.0)),
+        kinematics=result.kinematics_words() if hasattr(result, "kinematics_words") else "",
     )
 
 

@@ -400,6 +400,10 @@ def test_joint_angle_noise_is_in_the_covariance_when_declared(method):
 
     assert chi2(exact) > 100.0
     assert chi2(declared) < 22.46  # chi2(6) 99.9 % point
+    # what the covariance assumes is said, and kept through save / load
+    assert exact.joint_sigma_deg == 0.0 and "joint readings taken as exact" in exact.summary()
+    assert declared.joint_sigma_deg == 0.1 and "uncertain by 0.1 deg" in declared.report(noisy).to_text()
+    assert CalibrationResult.from_dict(declared.to_dict()).joint_sigma_deg == 0.1
     assert declared.axis_consistency.consistent  # the axes now agree with the pose within their noise
     # millimetres of error, and a covariance that says so
     assert np.all(declared.sigma_mm_arm > 0.5) and np.all(declared.sigma_mm_arm < 10.0)
