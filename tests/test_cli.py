@@ -171,7 +171,7 @@ def test_calibrate_keeps_a_result_file_that_appears_while_it_runs(noise_free_dat
     out = tmp_path / "result.json"
     theirs = b'{"written": "by someone else during the calibration"}\n'
 
-    def calibrate_while_someone_writes(dataset, method):
+    def calibrate_while_someone_writes(dataset, method, options=None):
         out.write_bytes(theirs)
         return _StubResult()
 
