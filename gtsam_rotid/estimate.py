@@ -59,7 +59,7 @@ from .graph import (
     tie_noise_model,
     track_huber,
 )
-from .initialise import initial_image_axis, plane_normal, pose_candidates
+from .initialise import initial_image_axis, line_through_points, plane_normal, pose_candidates
 from .jsonio import write_json_atomic
 from .uncertainty import (
     Observability,
@@ -557,13 +557,14 @@ def joint_tie_covariance(camera: Camera, axis, line: np.ndarray | None, pose: gt
     if noise is None:
         return None
     points = axis_test_points(axis)
-    if line is None:
-        ends = camera.project(np.array([pose.transformTo(x) for x in points]), distort=False)
-        line = np.cross([*ends[0], 1.0], [*ends[1], 1.0])
-        line = line / np.hypot(line[0], line[1])
+
+    def projected(p):
+        return camera.project(np.array([pose.transformTo(x) for x in p]), distort=False)
+
+    line = line_through_points(projected(points)) if line is None else line
 
     def distances(p):
-        return line_distances(line, camera.project(np.array([pose.transformTo(x) for x in p]), distort=False))
+        return line_distances(line, projected(p))
 
     # one column per joint: the distances' change along that joint's 1-sigma displacement of the test points
     D = np.column_stack([(distances(points + step * c.reshape(2, 3)) - distances(points - step * c.reshape(2, 3)))
@@ -1065,17 +1066,22 @@ def _axis_distances(camera: Camera, axis, stage1: _Stage1, pose: gtsam.Pose3,
     return e, cov
 
 
-def _chi2(camera, setup: _Setup, stage1, pose) -> np.ndarray:
+def _chi2(camera, setup: _Setup, stage1, pose, sigma2: dict[int, float] | None = None) -> np.ndarray:
     """Per measurement: chi-square (2 dof) of its stage-1 image axis against the FK axis projected by ``pose``.
 
-    The line covariance is scaled by the larger of the measurement's and the median pixel noise variance:
-    the geometric distance to a strongly curved (near edge-on) projected circle absorbs part of the noise,
-    so a measurement's own residuals can understate it, and a test at that scale would reject good data.
+    The line covariance is at ``sigma2[k]`` when given; otherwise at the larger of the measurement's and the
+    median pixel noise variance: the geometric distance to a strongly curved (near edge-on) projected circle
+    absorbs part of the noise, so a measurement's own residuals can understate it, and a test at that scale
+    would reject good data. Measurements missing from ``sigma2`` get NaN.
     """
     median = float(np.median([s.sigma2 for s in stage1]))
     out = []
     for k, (axis, s) in enumerate(zip(setup.axes, stage1, strict=True)):
-        e, cov = _axis_distances(camera, axis, s, pose, max(s.sigma2, median), setup.noise(k))
+        if sigma2 is not None and k not in sigma2:
+            out.append(np.nan)
+            continue
+        variance = max(s.sigma2, median) if sigma2 is None else sigma2[k]
+        e, cov = _axis_distances(camera, axis, s, pose, variance, setup.noise(k))
         out.append(float(e @ np.linalg.pinv(cov, hermitian=True) @ e))  # pinv: test points may project badly
     return np.array(out)
 
@@ -1087,10 +1093,7 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
     dof = 2 * len(used) - 6
     if dof <= 0:
         return None
-    chi2 = 0.0
-    for k in used:
-        e, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup.noise(k))
-        chi2 += float(e @ np.linalg.pinv(cov, hermitian=True) @ e)  # pinv: test points may project badly
+    chi2 = float(np.sum(_chi2(camera, setup, stage1, pose, {k: sigma2[k] for k in used})[used]))
     p = chi2_sf(chi2, dof)
     scale = chi2 / dof if p < options.axis_consistency_p else 1.0
     return AxisConsistency(chi2, dof, p, scale)
