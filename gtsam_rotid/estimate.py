@@ -255,11 +255,7 @@ class CalibrationResult:
 
     def kinematics_words(self) -> str:
         """What the covariance assumes of the joint readings, in words."""
-        if self.joint_sigma_deg > 0.0:
-            return (f"kinematics: joint readings uncertain by {self.joint_sigma_deg:g} deg (1 sigma, per joint and "
-                    "arm pose), propagated into the covariance")
-        return ("kinematics: joint readings taken as exact; their errors are not in this covariance (declare them "
-                "with CalibrationOptions.joint_sigma_deg / --joint-sigma-deg)")
+        return kinematics_words(self.joint_sigma_deg)
 
     @property
     def ambiguous(self) -> bool:
@@ -385,6 +381,15 @@ class CalibrationResult:
     def load(cls, path: str | os.PathLike) -> CalibrationResult:
         with open(path, encoding="utf-8") as handle:
             return cls.from_dict(json.load(handle))
+
+
+def kinematics_words(joint_sigma_deg: float) -> str:
+    """What a covariance that includes joint-angle noise of ``joint_sigma_deg`` (0: none) assumes, in words."""
+    if joint_sigma_deg > 0.0:
+        return (f"kinematics: joint readings uncertain by {joint_sigma_deg:g} deg (1 sigma, per joint and arm "
+                "pose), propagated into the covariance")
+    return ("kinematics: joint readings taken as exact; their errors are not in this covariance (declare them "
+            "with CalibrationOptions.joint_sigma_deg / --joint-sigma-deg)")
 
 
 def ambiguity_words(result: CalibrationResult) -> str:

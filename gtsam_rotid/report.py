@@ -32,7 +32,7 @@ import gtsam
 import numpy as np
 
 from .errors import InputError
-from .estimate import ambiguity_words
+from .estimate import ambiguity_words, kinematics_words
 from .export import check_output_file, load_result, quaternion_xyzw, ros_covariance, write_text
 from .geometry import Line3
 from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  # noqa: F401 (re-export)
@@ -271,9 +271,8 @@ class CalibrationReport:
     ambiguous: bool = False
     #: weighted, joint: do the measurements' axes agree with one pose (``result.axis_consistency``)? None: no test
     axis_consistency: object | None = None
-    #: the joint-angle sigma (deg) the covariance includes; 0: exact kinematics (``result.kinematics_words()``)
+    #: the joint-angle sigma (deg) the covariance includes; 0: exact kinematics (``result.joint_sigma_deg``)
     joint_sigma_deg: float = 0.0
-    kinematics: str = ""
 
     @property
     def bound95_position_mm(self) -> np.ndarray:
@@ -326,7 +325,7 @@ class CalibrationReport:
         return [f"method {self.method}, {state} after {self.iterations} iterations, pixel noise {self.sigma_px:.3f} "
                 "px (estimated from the residuals)",
                 "arm_T_camera: the camera pose (OpenCV optical frame: x right, y down, z forward) in the arm-base "
-                "frame", *([self.kinematics] if self.kinematics else [])]
+                "frame", kinematics_words(self.joint_sigma_deg)]
 
     def _uncertainty_lines(self) -> list[str]:
         q = self.quaternion_xyzw
@@ -600,7 +599,6 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         crossing_miss_mm=1000.0 * float(np.max(geometry.miss)) if crossing else None, ambiguous=ambiguous,
         axis_consistency=getattr(result, "axis_consistency", None),
         joint_sigma_deg=float(getattr(result, "joint_sigma_deg", 0.0)),
-        kinematics=result.kinematics_words() if hasattr(result, "kinematics_words") else "",
     )
 
 
