@@ -28,6 +28,8 @@ import gtsam
 import numpy as np
 from tqdm import tqdm
 
+from gtsam_rotid.uncertainty import chi2_mean_interval
+
 METHODS = ("joint", "weighted", "paper")
 AXES = ("rx deg", "ry deg", "rz deg", "tx mm", "ty mm", "tz mm")
 #: tangent (rad, m) -> (deg, mm)
@@ -82,13 +84,6 @@ def trial(seed: int, duration: float, noise_var: float, joint_model: str, spin_m
             "seconds": time.perf_counter() - start,
         }
     return out
-
-
-def chi2_mean_interval(dof: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """95 % interval of the mean of n chi-square(dof) samples (Wilson–Hilferty on chi-square(n dof))."""
-    k = n * dof
-    h = 2.0 / (9.0 * k)
-    return tuple(k * (1.0 - h + s * z * np.sqrt(h)) ** 3 / n for s in (-1.0, 1.0))
 
 
 def main(argv=None) -> int:

@@ -29,8 +29,8 @@ import numpy as np
 from gtsam_rotid import simulate
 from gtsam_rotid.dataset import Dataset
 from gtsam_rotid.estimate import calibrate
-from gtsam_rotid.graph import chi2_quantile
 from gtsam_rotid.render import RenderConfig
+from gtsam_rotid.uncertainty import chi2_mean_interval
 
 METHODS = ("joint", "weighted")
 CHI2_999_6DOF = 22.458
@@ -72,11 +72,6 @@ def evaluate(seed: int, duration: float, cache: Path) -> dict:
     return row
 
 
-def nees_interval(n: int, z: float = 3.29) -> tuple[float, float]:
-    """Two-sided 99.9 % interval of the mean of n chi-square(6) values."""
-    return chi2_quantile(6 * n, -z) / n, chi2_quantile(6 * n, z) / n
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenes", type=int, default=13)
@@ -116,7 +111,7 @@ def main(argv=None) -> int:
             cells.append(f"{axes:>20} {r['scale']:6.2f} {r['chi2']:7.2f} {r['chi2_unscaled']:8.2f} "
                          f"{r['position_mm']:6.3f}")
         print(f"{row['seed']:>4} {row['rms_px']:8.3f} " + " ".join(cells))
-    low, high = nees_interval(len(rows))
+    low, high = chi2_mean_interval(6, len(rows), 3.29)
     print(f"\nNEES (mean chi-square of the true error; 6 when honest, 99.9 % interval for {len(rows)} scenes "
           f"[{low:.2f}, {high:.2f}]); scenes outside the 99.9 % region (chi-square > {CHI2_999_6DOF}):")
     for m in METHODS:

@@ -256,11 +256,6 @@ def crlb(dataset, truth, noise_var: float) -> np.ndarray:
     return accuracy_module().crlb(dataset, truth, noise_var)
 
 
-def chi2_mean_interval(dof: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """Interval of the mean of n chi-square(dof) samples (95 % at the default normal quantile z)."""
-    return accuracy_module().chi2_mean_interval(dof, n, z)
-
-
 # ---------------------------------------------------------------------------------------------------
 # arm poses
 

@@ -41,13 +41,14 @@ from _common import (
     TANGENT_LABELS,
     TANGENT_UNITS,
     Verdict,
-    chi2_mean_interval,
     header,
     new_figure,
     parse_args,
     save_figure,
 )
 from tqdm import tqdm
+
+from gtsam_rotid.uncertainty import chi2_mean_interval
 
 NOISE_VARS = (0.1, 0.5, 1.0, 1.5)
 METHODS = ("paper", "weighted", "joint")
