@@ -36,15 +36,16 @@ METHODS = ("joint", "weighted")
 CHI2_999_6DOF = 22.458
 
 
-def tracked_scene(seed: int, duration: float, cache: Path) -> tuple[Dataset, dict]:
-    """The tracked dataset of one seed (from the cache, or rendered, tracked and cached) and its tracking summary."""
+def tracked_scene(seed: int, duration: float, cache: Path) -> tuple[Dataset, object, dict]:
+    """The tracked dataset of one seed (from the cache, or rendered, tracked and cached), the scene's ground truth
+    and its tracking summary."""
     from gtsam_rotid.pixels import dataset_from_video
 
     folder = cache / f"seed{seed}_{duration:g}s"
     summary_path = folder.with_suffix(".json")
-    if folder.is_dir() and summary_path.is_file():
-        return Dataset.load(folder), json.loads(summary_path.read_text())
     dataset, truth = simulate.reference_scene(seed=seed, duration=duration)
+    if folder.is_dir() and summary_path.is_file():
+        return Dataset.load(folder), truth, json.loads(summary_path.read_text())
     start = time.perf_counter()
     scene = dataset_from_video(dataset, truth, RenderConfig(seed=seed), progress=False)
     accuracy = scene.total_accuracy
@@ -52,12 +53,11 @@ def tracked_scene(seed: int, duration: float, cache: Path) -> tuple[Dataset, dic
                "rms_px": accuracy.rms_px, "bias_px": accuracy.bias_px, "n_tracks": scene.dataset.n_tracks}
     scene.dataset.save(folder, overwrite=True)
     summary_path.write_text(json.dumps(summary))
-    return scene.dataset, summary
+    return scene.dataset, truth, summary
 
 
 def evaluate(seed: int, duration: float, cache: Path) -> dict:
-    tracked, summary = tracked_scene(seed, duration, cache)
-    _, truth = simulate.reference_scene(seed=seed, duration=duration)
+    tracked, truth, summary = tracked_scene(seed, duration, cache)
     row = {"seed": seed, **summary}
     for method in METHODS:
         result = calibrate(tracked, method=method)
