@@ -368,15 +368,15 @@ def _hand_texture(covering: str, hand_color: tuple, texel_mm: float, seed: int) 
         texture = label
     elif covering == "fabric":
         yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
-        period = 2.0 * per_mm  # 2 mm threads
+        period = 3.0 * per_mm  # 3 mm threads
         warp = 0.5 + 0.5 * np.cos(2 * np.pi * xx / period)
         weft = 0.5 + 0.5 * np.cos(2 * np.pi * yy / period)
         twill = ((np.floor(xx / period) + np.floor(yy / period)) % 4 < 2).astype(np.float32)
         twill = cv2.GaussianBlur(twill, (0, 0), 0.3 * period)
         weave = twill * warp + (1 - twill) * weft
         fibre = cv2.GaussianBlur(rng.standard_normal((height, width)).astype(np.float32), (0, 0), 0.7)
-        blotch = _smooth_noise((height, width), 25.0 * per_mm, rng, octaves=2)
-        shade = 0.55 + 0.35 * weave + 0.10 * fibre / max(float(fibre.std()), 1e-6) + 0.06 * blotch
+        blotch = _smooth_noise((height, width), 12.0 * per_mm, rng, octaves=3)
+        shade = 0.5 + 0.35 * weave + 0.10 * fibre / max(float(fibre.std()), 1e-6) + 0.12 * blotch
         denim = np.array([120.0, 72.0, 40.0], np.float32)  # BGR
         texture = np.clip(shade[..., None] * denim * 1.6, 0, 255).astype(np.float32)
     elif covering == "stickers":
@@ -691,7 +691,7 @@ class _Geometry:
         texel = self.config.texel_mm / 1000.0
         cap = self.cap_face[faces]
         tx = np.where(cap, x1 / texel, (phi + np.pi) / (2 * np.pi) * width - 0.5)
-        ty = np.where(cap, x2 / texel, (axial - self.axial_range[0]) / texel)
+        ty = np.where(cap, x2 / texel, (self.axial_range[1] - axial) / texel)  # rows run against the axis
         covered = np.mod(phi + np.pi, 2 * np.pi) < 2 * np.pi * self.config.covered_fraction
         return tx, ty, covered
 
@@ -781,9 +781,14 @@ def _inside_convex(polygon: np.ndarray, xy: np.ndarray) -> np.ndarray:
     edges = np.roll(polygon, -1, axis=0) - polygon
     area = np.sum(polygon[:, 0] * np.roll(polygon[:, 1], -1) - np.roll(polygon[:, 0], -1) * polygon[:, 1])
     sign = 1.0 if area >= 0 else -1.0
-    inside = np.ones(len(xy), bool)
+    (x0, y0), (x1, y1) = polygon.min(axis=0), polygon.max(axis=0)
+    rows = np.flatnonzero((xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1))
+    x, y = xy[rows, 0], xy[rows, 1]
+    keep = np.ones(len(rows), bool)
     for p, e in zip(polygon, edges, strict=True):
-        inside &= sign * (e[0] * (xy[:, 1] - p[1]) - e[1] * (xy[:, 0] - p[0])) >= -1e-12
+        keep &= sign * (e[0] * (y - p[1]) - e[1] * (x - p[0])) >= -1e-12
+    inside = np.zeros(len(xy), bool)
+    inside[rows[keep]] = True
     return inside
 
 
