@@ -1138,6 +1138,54 @@ def _videos_in(folder: Path) -> list[Path]:
     return entries
 
 
+def load_tracker_params(path: str | os.PathLike | None = None, **overrides):
+    """:class:`~gtsam_rotid.tracking.TrackerParams` from a YAML or JSON file of its fields (a mapping), with
+    ``overrides`` (None values ignored) on top. An unknown field, a file that is not a mapping or a bad value
+    raises an :class:`InputError` naming the field and the file."""
+    from .tracking import TrackerParams
+
+    names = {f.name for f in dataclasses.fields(TrackerParams)}
+    values: dict[str, Any] = {}
+    where = "the command line"
+    if path is not None:
+        path = Path(path)
+        where = str(path)
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise InputError(f"cannot read the tracker settings file {path}: {exc.strerror or exc}") from None
+        try:
+            document = json.loads(text) if path.suffix.lower() == ".json" else parse_yaml(text)
+        except ValueError as exc:
+            raise InputError(f"the tracker settings file {path} is not valid "
+                             f"{'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from None
+        if document is None:
+            document = {}
+        if not isinstance(document, Mapping):
+            raise InputError(f"the tracker settings file {path} must hold a mapping of TrackerParams fields "
+                             f"(name: value), got {type(document).__name__}")
+        for key, value in document.items():
+            if key not in names:
+                raise InputError(f"{path}: unknown tracker setting {key!r} (not a TrackerParams field; known: "
+                                 f"{', '.join(sorted(names))})")
+            values[key] = value
+    for key, value in overrides.items():
+        if value is None:
+            continue
+        if key not in names:
+            raise InputError(f"unknown tracker setting {key!r}")
+        values[key] = value
+    # whole numbers given for float fields are fine; ints stay ints
+    for f in dataclasses.fields(TrackerParams):
+        if f.name in values and f.type == "float" and isinstance(values[f.name], int) \
+                and not isinstance(values[f.name], bool):
+            values[f.name] = float(values[f.name])
+    try:
+        return TrackerParams(**values)
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
+
+
 def cmd_track(args: argparse.Namespace) -> int:
     """``gtsam-rotid track``: videos + joint angles + camera file -> a dataset directory."""
     output = Path(args.output)
@@ -1159,9 +1207,14 @@ def cmd_track(args: argparse.Namespace) -> int:
         Arm.from_robot(args.robot, wrist_joint=args.wrist_joint)
     joint_options = {"degrees": bool(args.degrees), "spans": spans, "still_tolerance_deg": args.still_tolerance,
                      "min_spin_deg": args.min_spin, "ignore_joints": list(args.ignore_joints)}
-    print(f"{len(videos)} video(s); {arm!r}", flush=True)
+    settings = dict(features=args.features, max_corners=args.max_corners, min_length=args.min_track_length)
+    params = None   # the tracker's defaults
+    if args.tracker_params is not None or any(v is not None for v in settings.values()):
+        params = load_tracker_params(args.tracker_params, **settings)
+    print(f"{len(videos)} video(s); {arm!r}" + ("" if params is None else f"; features: {params.features}"),
+          flush=True)
     dataset = make_dataset(videos, args.joints, args.camera, arm, frame_ranges=frame_ranges,
-                           progress=not args.no_progress, joint_options=joint_options)
+                           progress=not args.no_progress, joint_options=joint_options, tracker_params=params)
     dataset.save(output, overwrite=args.overwrite)
     print(dataset.summary())
     print(f"wrote {output}")
@@ -1198,6 +1251,12 @@ def add_track_parser(subparsers) -> argparse.ArgumentParser:
                    help=f"smallest wrist rotation that counts as a spin (default {MIN_SPIN_DEG:g})")
     p.add_argument("--ignore-joints", nargs="+", default=(), metavar="NAME",
                    help="joint-file columns to ignore (e.g. fingers)")
+    p.add_argument("--tracker-params", metavar="FILE",
+                   help="YAML or JSON file of tracker settings (gtsam_rotid.tracking.TrackerParams fields)")
+    p.add_argument("--features", choices=("auto", "blobs", "corners"),
+                   help="what to track: blobs (dots), corners (ambient texture) or auto (both); default blobs")
+    p.add_argument("--max-corners", type=int, metavar="N", help="most corner tracks at once (default 300)")
+    p.add_argument("--min-track-length", type=int, metavar="N", help="shortest track kept, in points (default 10)")
     p.add_argument("-o", "--output", required=True, metavar="DATASET", help="dataset directory to write")
     p.add_argument("--overwrite", action="store_true", help="replace an existing dataset")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")

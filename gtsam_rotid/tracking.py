@@ -33,6 +33,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .corners import CornerFollower, link_fragments, spin_filter
 from .dataset import Track
 from .errors import InputError
 
@@ -44,6 +45,9 @@ _MAX_SHIFT_MARGIN = 2.0
 _BOUND_SCALE, _BOUND_PAD = 1.5, 3.0  # a blob lies within 1.5 radius + 3 px of its point
 _BUCKET = 8  # window half-sizes are rounded up to a multiple of this; one vectorised pass per size
 _CONTRAST_PIXELS = 5  # the blob's contrast is the mean of its strongest pixels near the estimate
+_BLOB_AREA_MARGIN = 15.0  # features="auto": corner tracks mostly this close to blob tracks' points are dropped
+#: Values of ``TrackerParams.features``.
+FEATURES = ("auto", "blobs", "corners")
 
 
 @dataclass(frozen=True)
@@ -119,19 +123,76 @@ class TrackerParams:
     #: Points in the local fit window (odd, >= 5).
     jump_window: int = 9
 
+    # --- which features: "blobs" (dots: SimpleBlobDetector, sub-pixel re-centring), "corners" (ambient texture:
+    # Shi-Tomasi corners where the image moves, see gtsam_rotid.corners) or "auto" (both: blobs where blobs are
+    # found, corners elsewhere; no corner starts on or near a followed blob, and a corner track that follows a
+    # blob track is dropped as a duplicate)
+    features: str = "blobs"
+    #: At most this many corner tracks at once; new corners every ``seed_every`` frames.
+    max_corners: int = 300
+    seed_every: int = 5
+    #: cv2.goodFeaturesToTrack: quality (relative to the best corner), minimum distance (px), block size (px).
+    corner_quality: float = 0.01
+    corner_min_distance: float = 8.0
+    corner_block_size: int = 5
+    #: LK's minimum eigenvalue (per window pixel) for a corner: weaker texture is not followed.
+    corner_min_eigen: float = 0.001
+    #: Corners start only where the image moved (half-resolution frame difference above ``motion_threshold``
+    #: grey levels) within the last ``motion_memory`` frames: the background and still links never seed.
+    motion_threshold: float = 8.0
+    motion_memory: int = 10
+    #: LK drift: each corner is tracked from an anchor frame renewed every ``anchor_every`` frames (not frame to
+    #: frame); a point where the anchored and frame-to-frame results differ by more than this (px) is missed.
+    anchor_every: int = 30
+    max_anchor_disagreement: float = 1.0
+    #: The spin's shared rotation (one ellipse shape, one rate): refitted every ``model_every`` frames from
+    #: tracks of at least ``model_min_points`` points; it predicts each corner (LK's start) and gates it.
+    model_every: int = 10
+    model_min_points: int = 15
+    #: A point further from its track's ellipse than ``ellipse_sigmas`` robust sigmas (and than
+    #: ``min_ellipse_gate`` px while tracking, ``min_ellipse_gate_offline`` px after) is dropped; a track with more
+    #: than ``max_off_ellipse_fraction`` of its points so far off is rejected (an occluding edge, a highlight).
+    ellipse_sigmas: float = 4.0
+    min_ellipse_gate: float = 1.0
+    min_ellipse_gate_offline: float = 0.3
+    max_off_ellipse_fraction: float = 0.2
+    #: A track whose arc spans this (rad) is tested against its own ellipse, not only the shared shape.
+    own_ellipse_arc: float = 1.5
+    #: A track whose phase rate differs from the spin's by more than this fraction does not turn with the spin.
+    rate_tolerance: float = 0.1
+    #: ... or whose phase strays from the common rate by more than this RMS (px along its ellipse): it slides.
+    max_phase_residual: float = 3.0
+    #: Link fragments of one feature across occlusions: same ellipse (centre and radius within
+    #: ``link_tolerance`` px + 2 % / 1 % of the radius), phase within ``link_phase_tolerance`` rad of the common
+    #: rate's prediction, gap <= ``link_max_gap`` frames, seed patches (turned) correlating >= ``link_min_ncc``.
+    link: bool = True
+    link_max_gap: int = 900
+    link_tolerance: float = 1.5
+    link_phase_tolerance: float = 0.2
+    link_min_ncc: float = 0.8
+
     def __post_init__(self):
         positive = ("min_area", "max_area", "threshold_step", "lk_epsilon", "fb_threshold", "max_recentre_shift",
                     "jump_threshold", "lk_window", "lk_iterations", "detect_every", "detect_after_loss",
                     "centroid_iterations", "min_length", "park_after", "max_radius_growth", "full_detect_every",
-                    "park_extent")
+                    "park_extent", "max_corners", "seed_every", "corner_min_distance", "corner_block_size",
+                    "motion_memory", "anchor_every", "max_anchor_disagreement", "model_every", "model_min_points",
+                    "ellipse_sigmas", "rate_tolerance", "link_max_gap", "link_phase_tolerance",
+                    "max_phase_residual")
         non_negative = ("min_circularity", "min_convexity", "min_inertia_ratio", "min_threshold", "min_contrast",
                         "min_separation", "lk_levels", "max_gap", "min_extent", "centroid_level", "max_skewness",
-                        "detect_margin")
+                        "detect_margin", "corner_quality", "corner_min_eigen", "motion_threshold",
+                        "min_ellipse_gate", "min_ellipse_gate_offline", "max_off_ellipse_fraction", "own_ellipse_arc",
+                        "link_tolerance", "link_min_ncc")
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name == "recentre":
+            if f.name in ("recentre", "link"):
                 if not isinstance(value, bool):
-                    raise InputError(f"TrackerParams.recentre must be True or False, got {value!r}")
+                    raise InputError(f"TrackerParams.{f.name} must be True or False, got {value!r}")
+                continue
+            if f.name == "features":
+                if value not in FEATURES:
+                    raise InputError(f"TrackerParams.features must be one of {', '.join(FEATURES)}, got {value!r}")
                 continue
             if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
                 raise InputError(f"TrackerParams.{f.name} must be a finite number, got {value!r}")
@@ -154,6 +215,13 @@ class TrackerParams:
             raise InputError(f"TrackerParams.centroid_level must be in [0, 1), got {self.centroid_level}")
         if self.min_length < 3:
             raise InputError(f"TrackerParams.min_length must be >= 3, got {self.min_length}")
+        if self.corner_quality >= 1 or self.corner_quality == 0:
+            raise InputError(f"TrackerParams.corner_quality must be in (0, 1), got {self.corner_quality}")
+        if self.max_off_ellipse_fraction >= 1:
+            raise InputError(f"TrackerParams.max_off_ellipse_fraction must be in [0, 1), got "
+                             f"{self.max_off_ellipse_fraction}")
+        if self.motion_memory > 250:
+            raise InputError(f"TrackerParams.motion_memory must be <= 250 frames, got {self.motion_memory}")
 
     @property
     def radius_range(self) -> tuple[float, float]:
@@ -166,6 +234,13 @@ class RejectReason(enum.Enum):
 
     SHORT = "too short"
     STATIC = "barely moves"
+    #: A corner track whose points leave its ellipse (an occluding edge: a silhouette point slides along the
+    #: outline; a highlight; a jump between features).
+    OFF_ELLIPSE = "off its ellipse"
+    #: A corner track whose phase does not advance at the spin's common rate (a highlight, an edge junction).
+    NOT_TURNING = "not turning with the spin"
+    #: A corner track where blob tracks went (features="auto": blobs where blobs are found, corners elsewhere).
+    DUPLICATE = "duplicates a blob track"
 
 
 @dataclass(frozen=True)
@@ -190,6 +265,11 @@ class TrackingResult:
     n_jumps: int = 0
     n_outliers: int = 0
     params: TrackerParams = field(default_factory=TrackerParams)
+    #: Corner tracks: fragments joined into longer arcs, and points dropped off their ellipses.
+    n_links: int = 0
+    n_off_ellipse_points: int = 0
+    #: The spin's common rate (rad per frame, in the frame where its ellipses are circles), NaN if not fitted.
+    spin_rate: float = float("nan")
 
     def summary(self) -> str:
         """Multi-line human-readable description."""
@@ -198,6 +278,9 @@ class TrackingResult:
         lines = [f"Tracked {self.n_frames} frames{size}: {len(self.tracks)} tracks ({points} points) accepted "
                  f"of {self.n_raw_tracks} raw tracks; {self.n_jumps} split at jumps, {self.n_outliers} bad "
                  f"points dropped"]
+        if self.n_links or self.n_off_ellipse_points or math.isfinite(self.spin_rate):
+            lines.append(f"  corners: {self.n_links} fragments linked, {self.n_off_ellipse_points} points off their "
+                         f"ellipse dropped, spin rate {self.spin_rate:+.4f} rad/frame")
         for reason in RejectReason:
             count = sum(r.reason is reason for r in self.rejected)
             if count:
@@ -531,6 +614,8 @@ class Tracker:
         self._lost_since_detection = False
         self._detections = 0
         self._log: list[tuple[int, np.ndarray, np.ndarray]] = []
+        self._blobs_on = params.features in ("blobs", "auto")
+        self._corners = CornerFollower(params) if params.features in ("corners", "auto") else None
 
     @property
     def n_frames(self) -> int:
@@ -553,12 +638,17 @@ class Tracker:
             raise InputError(f"{where} is {size[0]}x{size[1]} but the first frame is "
                              f"{self._size[0]}x{self._size[1]}: every frame must have the same size")
         self._frame += 1
-        if self._prev is not None and len(self._active):
-            self._follow(grey)
-        p = self.params
-        since = self._frame - self._last_detection
-        if since >= p.detect_every or (self._lost_since_detection and since >= p.detect_after_loss):
-            self._detect(grey)
+        if self._blobs_on:
+            if self._prev is not None and len(self._active):
+                self._follow(grey)
+            p = self.params
+            since = self._frame - self._last_detection
+            if since >= p.detect_every or (self._lost_since_detection and since >= p.detect_after_loss):
+                self._detect(grey)
+        if self._corners is not None:
+            a = self._active
+            exclude = np.column_stack([a.pos, a.radius]) if len(a) else None
+            self._corners.feed(grey, self._frame, exclude)
         self._prev = grey
 
     def _refine(self, grey, points, radii, polarity, neighbours) -> Centres:
@@ -689,11 +779,50 @@ class Tracker:
         return [Track(px, fr) for fr, px in zip(np.split(frames, cuts), np.split(pixels, cuts), strict=True)]
 
     def finish(self) -> TrackingResult:
-        """Filter the tracks (see :func:`filter_tracks`) and return the result; the tracker can go on."""
+        """Filter the tracks (see :func:`filter_tracks`; corner tracks are also tested against the spin's shared
+        rotation and linked across occlusions, see :mod:`gtsam_rotid.corners`) and return the result; the
+        tracker can go on."""
         raw = self.raw_tracks()
         accepted, rejected, stats = _filter(raw, self.params)
-        return TrackingResult(accepted, rejected, self.n_frames, self._size, len(raw), stats[0], stats[1],
-                              self.params)
+        result = TrackingResult(accepted, rejected, self.n_frames, self._size, len(raw), stats[0], stats[1],
+                                self.params)
+        if self._corners is not None:
+            self._finish_corners(result)
+        result.tracks.sort(key=lambda t: (int(t.frames[0]), *t.pixels[0]))
+        return result
+
+    def _finish_corners(self, result: TrackingResult) -> None:
+        p = self.params
+        raw, patches, ids = self._corners.raw_tracks()
+        result.n_raw_tracks += len(raw)
+        pieces, piece_patches = [], []
+        for track_, track_id in zip(raw, ids, strict=True):
+            accepted, rejected, (jumps, outliers) = _filter([track_], p)
+            result.rejected.extend(rejected)
+            result.n_jumps += jumps
+            result.n_outliers += outliers
+            for piece in accepted:
+                pieces.append(piece)
+                piece_patches.append(patches.get(track_id) if piece.frames[0] == track_.frames[0] else None)
+        kept, spin_rejected, fit = spin_filter(pieces, p)
+        reasons = {"ellipse": RejectReason.OFF_ELLIPSE, "rate": RejectReason.NOT_TURNING}
+        result.rejected.extend(RejectedTrack(reasons[code], t, detail) for code, t, detail in spin_rejected)
+        result.n_off_ellipse_points = fit.n_dropped_points
+        if fit.model is not None:
+            result.spin_rate = fit.model.omega
+        # spin_filter keeps the order of its input: the patches of the kept tracks
+        kept_patches = _kept_patches(pieces, piece_patches, kept)
+        if p.link:
+            kept, result.n_links = link_fragments(kept, kept_patches, fit, p)
+        blob_area = _blob_area(result.tracks, self._size, _BLOB_AREA_MARGIN)
+        for t in kept:
+            if len(t) < p.min_length:
+                result.rejected.append(RejectedTrack(RejectReason.SHORT, t, f"{len(t)} points after the spin tests"))
+            elif blob_area is not None and (inside := _inside(blob_area, t.pixels)) > 0.5:
+                result.rejected.append(RejectedTrack(RejectReason.DUPLICATE, t, f"{100 * inside:.0f} % of its "
+                                                     f"points within {_BLOB_AREA_MARGIN:g} px of blob tracks"))
+            else:
+                result.tracks.append(t)
 
     def run(self, frames, *, progress: bool = False) -> TrackingResult:
         """Track every frame of ``frames`` (see :func:`track`; after any frames already fed) and
@@ -766,6 +895,40 @@ def _filter(tracks: list[Track], params: TrackerParams):
                 accepted.append(piece)
     accepted.sort(key=lambda t: (int(t.frames[0]) if t.frames is not None else 0, *t.pixels[0]))
     return accepted, rejected, (n_jumps, n_outliers)
+
+
+def _kept_patches(pieces: list[Track], patches: list, kept: list[Track]) -> list:
+    """The patch of each kept track: kept tracks are pieces (maybe with points dropped) in the same order."""
+    out, i = [], 0
+    for t in kept:
+        while i < len(pieces) and not (pieces[i].frames[0] <= t.frames[0] and pieces[i].frames[-1] >= t.frames[-1]
+                                       and np.isin(t.frames, pieces[i].frames).all()):
+            i += 1
+        out.append(patches[i] if i < len(pieces) and pieces[i].frames[0] == t.frames[0] else None)
+        i += 1
+    return out
+
+
+def _blob_area(tracks: list[Track], size, margin: float):
+    """uint8 image of where blob tracks went (their points, dilated by ``margin`` px), or None without any."""
+    if not tracks or size is None:
+        return None
+    width, height = size
+    area = np.zeros((height, width), np.uint8)
+    points = np.rint(np.concatenate([t.pixels for t in tracks])).astype(np.int64)
+    inside = (points[:, 0] >= 0) & (points[:, 0] < width) & (points[:, 1] >= 0) & (points[:, 1] < height)
+    area[points[inside, 1], points[inside, 0]] = 1
+    r = int(math.ceil(margin))
+    return cv2.dilate(area, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+
+
+def _inside(area: np.ndarray, pixels: np.ndarray) -> float:
+    """Fraction of ``pixels`` on the nonzero part of ``area``."""
+    q = np.rint(pixels).astype(np.int64)
+    h, w = area.shape
+    q[:, 0] = np.clip(q[:, 0], 0, w - 1)
+    q[:, 1] = np.clip(q[:, 1], 0, h - 1)
+    return float(np.mean(area[q[:, 1], q[:, 0]] > 0))
 
 
 def loo_residuals(frames, pixels, window: int = 9) -> np.ndarray:

@@ -1,0 +1,120 @@
+"""Tests of the corner tracker for ambient texture (gtsam_rotid.corners via TrackerParams(features=...)) on
+synthetic clips whose true surface-point trajectories are known exactly (tests/ambient_scenes.py)."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from ambient_scenes import spin_clip
+
+from gtsam_rotid import InputError
+from gtsam_rotid.patterns import render_dots, spin_dots
+from gtsam_rotid.recordings import load_tracker_params
+from gtsam_rotid.tracking import RejectReason, Tracker, TrackerParams
+
+CORNERS = TrackerParams(features="corners")
+
+
+@pytest.fixture(scope="module")
+def photo():
+    clip = spin_clip("photo", 90, omega=0.03, seed=0)
+    tracker = Tracker(CORNERS)
+    return clip, tracker, tracker.run(clip.frames)
+
+
+def per_track_rms(clip, tracks) -> np.ndarray:
+    return np.array([np.sqrt(np.mean(np.sum((t.pixels - clip.truth(t)) ** 2, axis=1))) for t in tracks])
+
+
+def test_photo_texture_tracks_follow_their_surface_points(photo):
+    clip, _, result = photo
+    assert len(result.tracks) >= 30
+    rms = per_track_rms(clip, result.tracks)
+    # most tracks stay on their surface point to a few tenths of a pixel over a 2.7 rad arc
+    assert np.median(rms) < 0.6, np.quantile(rms, [0.5, 0.9])
+    assert np.mean(rms < 1.0) > 0.6
+    assert abs(result.spin_rate - clip.omega) < 0.05 * clip.omega
+
+
+def test_background_and_still_links_never_seed(photo):
+    clip, tracker, result = photo
+    raw, _, _ = tracker._corners.raw_tracks()
+    near_disc = cv2.dilate(clip.moving_region.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+    seeds = np.rint(np.array([t.pixels[0] for t in raw])).astype(int)
+    assert near_disc[seeds[:, 1], seeds[:, 0]].all()         # every seed is where the image moves
+    # no kept track starts away from the turning disc
+    starts = np.rint(np.array([t.pixels[0] for t in result.tracks])).astype(int)
+    assert near_disc[starts[:, 1], starts[:, 0]].all()
+
+
+def test_occluding_edges_are_rejected():
+    clip = spin_clip("text", 90, omega=0.03, bar=True, seed=1)
+    result = Tracker(CORNERS).run(clip.frames)
+    new = [r for r in result.rejected if r.reason in (RejectReason.OFF_ELLIPSE, RejectReason.NOT_TURNING)]
+    assert new and all(r.detail for r in new)
+    # the rejected ones include T-junctions on the static bar's edges, which slide along them
+    x0, y0, x1, y1 = clip.bar
+    rows = [r.track.pixels[:, 1] for r in new]
+    on_edge = [v for v in rows if np.any((np.abs(v - y0) < 4) | (np.abs(v - y1) < 4))]
+    assert on_edge
+    rms = per_track_rms(clip, result.tracks)
+    assert np.median(rms) < 0.8
+
+
+def test_auto_on_dots_keeps_only_blob_tracks():
+    frames, truth = render_dots(spin_dots(), 60)
+    blobs = Tracker(TrackerParams(features="blobs")).run(frames)
+    auto = Tracker(TrackerParams(features="auto")).run(frames)
+    assert len(auto.tracks) == len(blobs.tracks)
+    for a, b in zip(auto.tracks, blobs.tracks, strict=True):
+        np.testing.assert_array_equal(a.pixels, b.pixels)
+
+
+@pytest.mark.parametrize("changes, field", [({"features": "sift"}, "features"), ({"link": 1}, "link"),
+                                            ({"corner_quality": 1.5}, "corner_quality"),
+                                            ({"max_corners": 0}, "max_corners")])
+def test_bad_corner_params(changes, field):
+    with pytest.raises(InputError, match=field):
+        TrackerParams(**changes)
+
+
+def test_tracker_params_file(tmp_path):
+    yaml = tmp_path / "tracker.yaml"
+    yaml.write_text("features: corners\nmax_corners: 120\ncorner_quality: 0.02\n")
+    params = load_tracker_params(yaml, min_length=20, max_corners=None)
+    assert (params.features, params.max_corners, params.corner_quality, params.min_length) == \
+        ("corners", 120, 0.02, 20)
+    as_json = tmp_path / "tracker.json"
+    as_json.write_text(json.dumps({"features": "auto", "ellipse_sigmas": 5}))
+    assert load_tracker_params(as_json, features="corners").features == "corners"     # the flag wins
+    assert load_tracker_params(as_json).ellipse_sigmas == 5.0
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("features: corners\nmax_cornerz: 3\n")
+    with pytest.raises(InputError, match=r"bad\.yaml.*max_cornerz"):
+        load_tracker_params(bad)
+    wrong = tmp_path / "wrong.yaml"
+    wrong.write_text("features: sift\n")
+    with pytest.raises(InputError, match=r"wrong\.yaml.*features"):
+        load_tracker_params(wrong)
+    listing = tmp_path / "list.yaml"
+    listing.write_text("- 1\n- 2\n")
+    with pytest.raises(InputError, match="mapping"):
+        load_tracker_params(listing)
+
+
+def test_track_command_takes_tracker_settings(tmp_path):
+    from gtsam_rotid import cli
+
+    parser = cli.build_parser() if hasattr(cli, "build_parser") else None
+    if parser is None:
+        pytest.skip("cli has no build_parser")
+    args = parser.parse_args(["track", "--video", "v.mp4", "--joints", "j.csv", "--camera", "c.yaml", "--robot",
+                              "kinova", "-o", str(tmp_path / "d"), "--features", "corners", "--max-corners", "50",
+                              "--min-track-length", "30", "--tracker-params", str(tmp_path / "t.yaml")])
+    assert (args.features, args.max_corners, args.min_track_length) == ("corners", 50, 30)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["track", "--video", "v.mp4", "--joints", "j.csv", "--camera", "c.yaml", "--robot",
+                           "kinova", "-o", "d", "--features", "sift"])
