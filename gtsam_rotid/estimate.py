@@ -161,6 +161,10 @@ class MeasurementReport:
     image_axis: list[float] | None = None
     #: chi-square (2 dof) of its image axis against the FK axis projected by the estimate (weighted and joint)
     axis_chi2: float | None = None
+    #: the longest arc among its kept tracks (deg, about each track's ellipse); None when unknown
+    arc_span_deg: float | None = None
+    #: too little evidence for a Gaussian image axis: fewer than WEAK_TRACKS kept tracks or no arc of WEAK_ARC_DEG
+    weak: bool = False
 
 
 @dataclass
@@ -252,6 +256,9 @@ class CalibrationResult:
     #: the joint-angle sigma (deg) propagated into the covariance (CalibrationOptions.joint_sigma_deg); 0: the
     #: kinematics were taken as exact (always so for ``paper``)
     joint_sigma_deg: float = 0.0
+    #: why the covariance cannot be trusted although the poses determine the calibration (kind -> measurement
+    #: indices involved); see :data:`UNTRUSTED_KINDS` and :func:`untrusted_words`
+    untrusted: dict[str, list[int]] = field(default_factory=dict)
 
     def kinematics_words(self) -> str:
         """What the covariance assumes of the joint readings, in words."""
@@ -264,7 +271,7 @@ class CalibrationResult:
 
     @property
     def covariance_usable(self) -> bool:
-        return self.observability.is_observable and not self.ambiguous
+        return self.observability.is_observable and not self.ambiguous and not self.untrusted
 
     @property
     def sigma_deg(self) -> np.ndarray:
@@ -303,6 +310,8 @@ class CalibrationResult:
             lines.append(f"  1-sigma rotation (deg):           {r[0]:.4f} {r[1]:.4f} {r[2]:.4f}")
         elif self.ambiguous:
             lines.append("  COVARIANCE UNUSABLE: it describes one of several poses that fit the data")
+        elif self.untrusted:
+            lines.extend("  COVARIANCE UNUSABLE: " + w for w in untrusted_words(self))
         else:
             lines.append("  COVARIANCE UNUSABLE: the arm poses do not determine the calibration")
         lines.extend("  " + line for line in self.observability.describe())
@@ -342,6 +351,7 @@ class CalibrationResult:
             "alternatives": [a.to_dict() for a in self.alternatives],
             "axis_consistency": None if self.axis_consistency is None else self.axis_consistency.to_dict(),
             "joint_sigma_deg": self.joint_sigma_deg,
+            "untrusted": self.untrusted,
         }
 
     @classmethod
@@ -366,6 +376,7 @@ class CalibrationResult:
             axis_consistency=None if data.get("axis_consistency") is None
             else AxisConsistency.from_dict(data["axis_consistency"]),
             joint_sigma_deg=float(data.get("joint_sigma_deg", 0.0)),
+            untrusted={str(k): [int(i) for i in v] for k, v in data.get("untrusted", {}).items()},
         )
 
     def report(self, dataset=None, **kwargs):
@@ -381,6 +392,46 @@ class CalibrationResult:
     def load(cls, path: str | os.PathLike) -> CalibrationResult:
         with open(path, encoding="utf-8") as handle:
             return cls.from_dict(json.load(handle))
+
+
+#: Why a determined calibration's covariance is not trusted (keys of ``CalibrationResult.untrusted``).
+UNTRUSTED_KINDS = {
+    "thin_evidence": "weak measurements whose image axes disagree with the estimate",
+    "inconsistent": "the measurements disagree far beyond their noise",
+    "too_uncertain": "the uncertainty is too large to be a calibration",
+}
+
+
+def evidence_words(m: MeasurementReport) -> str:
+    """A measurement's evidence in words: tracks, points, the longest arc."""
+    arc = "" if m.arc_span_deg is None else f", longest arc {m.arc_span_deg:.0f}°"
+    return f"{m.n_tracks} track{'' if m.n_tracks == 1 else 's'}, {m.n_points} points{arc}"
+
+
+def untrusted_words(result: CalibrationResult) -> list[str]:
+    """Plain words for each reason in ``result.untrusted``: what is wrong, which measurements, what to do."""
+    out = []
+    by_index = {m.index: m for m in result.measurements}
+    for kind, ks in result.untrusted.items():
+        named = "; ".join(f"measurement {k} ({evidence_words(by_index[k])})" for k in ks if k in by_index)
+        if kind == "thin_evidence":
+            c = result.axis_consistency
+            chi2 = "" if c is None else f" (χ² = {c.chi2:.3g} for {c.dof} dof, P = {c.p_value:.2g})"
+            out.append(f"the image axes disagree with the estimate beyond their pixel noise{chi2} and these "
+                       f"measurements have too little evidence for their axes to be Gaussian: {named}. Few or short "
+                       "arcs admit wrong circle fits, so the estimate may be a wrong minimum and no scaling of the "
+                       "covariance can be trusted. Spin the wrist longer (a full turn or more), give the hand more "
+                       "texture (more tracks), or add arm poses; the tracking, not the joint angles, is the weak part")
+        elif kind == "inconsistent":
+            c = result.axis_consistency
+            out.append(f"the measurements' axes disagree with one pose by χ²/dof = {c.scale:.3g}, more than "
+                       f"{MAX_CONSISTENCY_SCALE:g}x their pixel noise: the model does not describe the data (wrong "
+                       "intrinsics, joint angles or kinematics, a moved camera, or tracks that are not on the hand)")
+        elif kind == "too_uncertain":
+            out.append(f"the 1σ position ({np.max(result.sigma_mm_arm):.3g} mm) exceeds "
+                       f"{100 * MAX_RELATIVE_SIGMA:g} % of the camera's distance to the wrist: the data do not "
+                       "determine the calibration in practice; add arm poses, longer spins or more texture")
+    return out
 
 
 def kinematics_words(joint_sigma_deg: float) -> str:
@@ -451,6 +502,20 @@ STAGE1_MAX_ITERATIONS = 60
 STAGE1_ROUNDS = 4
 #: LM iterations allowed from the twin start.
 TWIN_ITERATIONS = 20
+#: A measurement with fewer kept tracks than this, or no arc of WEAK_ARC_DEG, is weak: its image axis need not be
+#: Gaussian (see :func:`_second_opinion`), so an inconsistency it takes part in is not scaled away.
+WEAK_TRACKS = 4
+WEAK_ARC_DEG = 90.0
+#: An axis-consistency scale (chi2/dof) above this is not a modest understatement of the noise but a wrong model.
+MAX_CONSISTENCY_SCALE = 100.0
+#: A 1-sigma camera position larger than this fraction of its distance to the wrist is no calibration.
+MAX_RELATIVE_SIGMA = 0.25
+#: The joint fit is restarted (:func:`_restarted`) when its axis-consistency test has a P value below this.
+RESTART_P = 1e-3
+#: Restarts leave out, in turn, this many of the measurements that disagree most with the estimate.
+RESTART_LEAVE_OUT = 3
+#: A restart's start within this (m) and SAME_ANGLE_DEG of the estimate is the same start.
+RESTART_SAME_M = 1e-3
 
 
 def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int, anchor: bool = False,
@@ -513,6 +578,9 @@ class _Setup:
     #: per measurement, the axis' test points' derivative by each joint angle times its sigma, (6, n_joints), or
     #: None (exact kinematics)
     axis_noise: list[np.ndarray | None] = field(default_factory=list)
+    #: the caller's index of each measurement here (measurements without enough evidence are left out before)
+    index: list[int] = field(default_factory=list)
+    K: np.ndarray | None = None  # the camera matrix
 
     def noise(self, k: int) -> np.ndarray | None:
         return self.axis_noise[k] if self.axis_noise else None
@@ -679,10 +747,12 @@ def initial_pose(arm: Arm, camera: Camera, measurements: list[Measurement],
     return _initial(arm, camera, measurements, options)[0][0]
 
 
-def _initial(arm, camera, measurements, options) -> tuple[list[gtsam.Pose3], _Setup, list[gtsam.Pose3]]:
+def _initial(arm, camera, measurements, options, index=None) -> tuple[list[gtsam.Pose3], _Setup, list[gtsam.Pose3]]:
     """Starting poses (one, or a pose and its twin when the image axes cannot tell them apart), the setup, and
     per start the candidate it came from (before LM: the anchor of :func:`_gauge_prior`)."""
     setup = _setup(arm, camera, measurements, options)
+    setup.index = list(range(len(measurements))) if index is None else list(index)
+    setup.K = camera.K
     K = camera.K
     normals = np.array([plane_normal(K, line) for line in setup.lines])
     candidates = pose_candidates(normals, setup.axes, n_best=options.n_candidates)
@@ -1104,6 +1174,27 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
     return AxisConsistency(chi2, dof, p, scale)
 
 
+def _joint_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3, keys, values,
+                       sigmas: dict[int, float], options) -> AxisConsistency | None:
+    """:class:`AxisConsistency` of the joint fit as a likelihood ratio: each measurement's residual sum of squares
+    with its line tied to the pose minus its free stage-1 fit's, over its pixel noise variance, summed over the
+    measurements (``2 n - 6`` dof). Unlike the linearised test of :func:`_axis_consistency` it holds when an image
+    axis is far from Gaussian (few tracks, short arcs). Falls back to the linearised test without the projected
+    model (no per-measurement sums of squares)."""
+    if any(keys[k].coaxial is None for k in used):
+        return _axis_consistency(camera, setup, stage1, used, pose, {k: sigmas[k] ** 2 for k in used}, options)
+    dof = 2 * len(used) - 6
+    if dof <= 0:
+        return None
+    chi2 = 0.0
+    for k in used:
+        tied = float(np.sum(keys[k].coaxial.track_sse(values)))
+        chi2 += max(tied - _sse(stage1[k]), 0.0) / sigmas[k] ** 2
+    p = chi2_sf(chi2, dof)
+    scale = chi2 / dof if p < options.axis_consistency_p else 1.0
+    return AxisConsistency(chi2, dof, p, scale)
+
+
 def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsam.Pose3, options, anchor):
     """Stage 2 weighted by the stage-1 line covariances, Huber on whole measurements; returns (pose, its, graph)."""
     pose, iterations, graph = start, 0, None
@@ -1123,8 +1214,55 @@ def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsa
     return pose, iterations, graph
 
 
-def _poor_minimum(chi2: np.ndarray, limit: float, what: str) -> CalibrationError:
-    listing = ", ".join(f"{k}: {value:.3g}" for k, value in enumerate(chi2))
+def _span_deg(phi: np.ndarray) -> float:
+    """360 minus the largest gap (deg) between angles (rad)."""
+    phi = np.sort(np.mod(np.asarray(phi, dtype=float), 2.0 * np.pi))
+    if len(phi) < 2:
+        return 0.0
+    gaps = np.diff(np.concatenate([phi, [phi[0] + 2.0 * np.pi]]))
+    return float(np.degrees(2.0 * np.pi - gaps.max()))
+
+
+def arc_span_deg(ideal: np.ndarray, ellipse) -> float:
+    """The arc (deg) that a track's points cover about its own ellipse (mapped to a circle): a rough measure for
+    tracks without a circle fit (a short arc's own ellipse can be far too small, which overstates it)."""
+    theta = np.radians(ellipse.angle_deg)
+    c, sn = np.cos(theta), np.sin(theta)
+    d = np.asarray(ideal, dtype=float) - ellipse.centre
+    u = (d[:, 0] * c + d[:, 1] * sn) / (0.5 * ellipse.axes[0])
+    v = (-d[:, 0] * sn + d[:, 1] * c) / (0.5 * ellipse.axes[1])
+    return _span_deg(np.arctan2(v, u))
+
+
+def circle_arc_span_deg(ideal: np.ndarray, K: np.ndarray, line: gtsam.Rot3, circle) -> float:
+    """The arc (deg) that a track's points cover about its fitted 3-D circle: each pixel's ray met with the circle's
+    plane, and the angle about the circle's centre there (``line`` and ``circle = (d, r)`` as stage 1 fits them)."""
+    R = line.matrix()
+    c0, c1, c2 = R[:, 0], R[:, 1], R[:, 2]
+    d = float(circle[0])
+    rays = np.column_stack([ideal, np.ones(len(ideal))]) @ np.linalg.inv(K).T
+    along = rays @ c1
+    ok = np.abs(along) > 1e-12
+    points = rays[ok] * (d / along[ok])[:, None] - (c0 + d * c1)
+    return _span_deg(np.arctan2(points @ c2, points @ c0))
+
+
+def _evidence(setup: _Setup, s: _Stage1, k: int, K: np.ndarray) -> tuple[float | None, bool]:
+    """(longest arc in deg, weak) of measurement k's kept tracks, about their stage-1 circles."""
+    spans = [circle_arc_span_deg(setup.prepared[k].usable[j].ideal, K, s.rotation, s.circles[j])
+             for j in s.keys.tracks if j in s.circles]
+    longest = max(spans) if spans else None
+    return longest, len(s.keys.tracks) < WEAK_TRACKS or longest is None or longest < WEAK_ARC_DEG
+
+
+def _named(setup: _Setup, ks) -> list[int]:
+    """Internal measurement positions -> the caller's measurement indices."""
+    return [setup.index[k] for k in ks] if setup.index else list(ks)
+
+
+def _poor_minimum(chi2: np.ndarray, limit: float, what: str, setup: _Setup | None = None) -> CalibrationError:
+    names = _named(setup, range(len(chi2))) if setup is not None else list(range(len(chi2)))
+    listing = ", ".join(f"{name}: {value:.3g}" for name, value in zip(names, chi2, strict=True))
     return CalibrationError(
         f"the estimate ended in a poor minimum or the data are inconsistent: {what} (chi-square of each "
         f"measurement's image axis against the projected FK axis, 2 dof, limit {limit:g}: {listing}); check "
@@ -1132,28 +1270,104 @@ def _poor_minimum(chi2: np.ndarray, limit: float, what: str) -> CalibrationError
         "raise CalibrationOptions.outlier_measurement_chi2)")
 
 
-def _robust_weighted(camera, setup, stage1, start, options, anchor
+def _tied_fit(builder: RotIdGraph, measurement, k: int, prepared, s: _Stage1, pose: gtsam.Pose3, options):
+    """Measurement k's circles with its line held on the FK axis projected by ``pose`` (its tilt within the
+    projection plane free): (residual sum of squares in px^2, line variable, circles), or None if it fails."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(POSE_KEY, pose)
+    try:
+        keys = builder.add_measurement(graph, values, k, measurement, prepared=prepared, skip_tracks=s.outliers,
+                                       initial_line=s.rotation, initial_circles=dict(s.circles),
+                                       refine_circles=False, track_sigmas=dict.fromkeys(prepared.usable, 1.0))
+    except RotIdError:
+        return None
+    graph.add(gtsam.NonlinearEqualityPose3(POSE_KEY, pose))
+    result, _, _, _ = _lm(graph, values, min(options.max_iterations, STAGE1_MAX_ITERATIONS),
+                          relative_tolerance=options.stage1_tolerance)
+    sse = sum(v[0] for v in _track_stats(graph, keys, result).values())
+    if not np.isfinite(sse):
+        return None
+    return sse, result.atRot3(keys.line), dict(zip(keys.tracks, _circles(keys, result), strict=True))
+
+
+def _sse(s: _Stage1) -> float:
+    return float(sum(v[0] for v in s.stats.values()))
+
+
+def _second_opinion(arm, camera, measurements, setup: _Setup, stage1: list[_Stage1], k: int, pose: gtsam.Pose3,
+                    options) -> tuple[_Stage1 | None, float]:
+    """Measurement k's disagreement with ``pose`` as a likelihood ratio, and a better stage-1 fit if there is one.
+
+    The linearised chi-square of an image axis (:func:`_chi2`) assumes the axis is Gaussian about the stage-1 fit.
+    With few tracks or short arcs it is not: the fit can sit in a local minimum of its own (two arcs of 60 degrees
+    admit several coaxial circle pairs), or the cost can rise far more slowly than its curvature says, and a good
+    measurement then looks like an outlier (and gets blamed on its joint angles). This fits the measurement's
+    circles with its line tied to the FK axis seen from ``pose``, then frees the line from there: if that free fit is
+    better than stage 1's, stage 1 was in a local minimum and the new fit replaces it. The returned statistic is
+    ``(sse_tied - sse_free) / sigma^2`` (2 dof under the model), at the larger of the measurement's and the median
+    pixel noise variance as in :func:`_chi2`; inf if the tied fit fails.
+    """
+    s = stage1[k]
+    builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
+    if s.keys.coaxial is None:  # a circle-variable stage 1 (its projected fit stalled): no second opinion
+        return None, np.nan
+    tied = _tied_fit(builder, measurements[k], k, setup.prepared[k], s, pose, options)
+    if tied is None:
+        return None, np.inf
+    sse_tied, line, circles = tied
+    graph, keys, result, it, _, _ = _stage1_round(builder, measurements[k], k, pose, setup.prepared[k], s.outliers,
+                                                  line, circles, options)
+    stats = _track_stats(graph, keys, result)
+    refit = None
+    free = _sse(s)
+    new_free = float(sum(v[0] for v in stats.values()))
+    if np.isfinite(new_free) and new_free < free * (1.0 - 1e-9):
+        refit = _stage1_result(builder, graph, keys, result, stats, dict(s.outliers), s.iterations + it, options)
+        free = new_free
+    variance = max(s.sigma2 if refit is None else refit.sigma2, float(np.median([t.sigma2 for t in stage1])))
+    return refit, max(sse_tied - free, 0.0) / variance
+
+
+def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opinion=None
                      ) -> tuple[gtsam.Pose3, int, gtsam.NonlinearFactorGraph, list[int], dict[int, float]]:
     """Weighted stage 2 that leaves out measurements whose image axis disagrees with the FK axis.
 
     At most ``(n - 3) // 2`` measurements are left out, so that the rest still over-determine the pose and
-    the test stays meaningful; more disagreement than that is reported as a poor minimum.
+    the test stays meaningful; more disagreement than that is reported as a poor minimum. A measurement whose
+    linearised chi-square exceeds the limit gets a ``second_opinion(k, pose) -> (refit or None, statistic)``
+    (:func:`_second_opinion`) before it can be left out: a better stage-1 fit found from the estimate replaces its
+    own (``stage1`` is updated in place) and the likelihood-ratio statistic decides instead of the linearised one.
     """
     n = len(stage1)
     used = list(range(n))
     max_excluded = max(0, (n - MIN_MEASUREMENTS) // 2)
     limit = options.outlier_measurement_chi2
     iterations = 0
+    refitted: set[int] = set()
     while True:
         pose, it, graph = _weighted_stage2(camera, setup, stage1, used, start, options, anchor)
         iterations += it
         chi2 = _chi2(camera, setup, stage1, pose)
         bad = [k for k in used if chi2[k] > limit]
+        if bad and second_opinion is not None:
+            opinions = {k: second_opinion(k, pose) for k in bad}
+            new = [k for k, (refit, _) in opinions.items() if refit is not None and k not in refitted]
+            for k in new:
+                stage1[k] = opinions[k][0]
+                refitted.add(k)
+            if new:  # better stage-1 fits: estimate again with them
+                start = pose
+                continue
+            for k, (_, statistic) in opinions.items():
+                if not np.isnan(statistic):
+                    chi2[k] = statistic
+            bad = [k for k in used if chi2[k] > limit]
         if not bad:
             break
         if n - len(used) >= max_excluded:
-            left_out = f", after leaving out {sorted(set(range(n)) - set(used))}" if len(used) < n else ""
-            raise _poor_minimum(chi2, limit, f"measurement(s) {bad} disagree{left_out}")
+            gone = _named(setup, sorted(set(range(n)) - set(used)))
+            left_out = f", after leaving out {gone}" if len(used) < n else ""
+            raise _poor_minimum(chi2, limit, f"measurement(s) {_named(setup, bad)} disagree{left_out}", setup)
         # One at a time, by leave-one-out: a wrong measurement drags the pose, so the largest chi-square may
         # belong to a good one; leave out the one whose absence best reconciles the others.
         best = None
@@ -1223,16 +1437,19 @@ def _reports(stage1: list[_Stage1], setup: _Setup, sigmas: dict[int, float], use
         excluded = k not in used
         sigma = sigmas.get(k, np.sqrt(s.sigma2))
         reason = ""
+        span, weak = _evidence(setup, s, k, setup.K)
         if excluded:
             reason = (f"left out: its image axis disagrees with the FK axis projected by the estimate (chi-square "
-                      f"{chi2[k]:.3g} > {options.outlier_measurement_chi2:g}, 2 dof); check its joint angles")
+                      f"{chi2[k]:.3g} > {options.outlier_measurement_chi2:g}, 2 dof); ")
+            reason += ("its own evidence is thin (few tracks or short arcs): spin longer or add texture, and check "
+                       "its joint angles only if that does not help" if weak else "check its joint angles")
         axis = setup.axes[k]
         reports.append(MeasurementReport(
             k, len(s.keys.tracks), s.n_points, float(sigma),
             0.0 if excluded else median**2 / sigma**2, excluded, rejected, reason,
             axis_point=[float(v) for v in axis.point], axis_direction=[float(v) for v in axis.direction],
             image_axis=[float(v) for v in s.line / np.hypot(s.line[0], s.line[1])],
-            axis_chi2=None if chi2 is None else float(chi2[k])))
+            axis_chi2=None if chi2 is None else float(chi2[k]), arc_span_deg=span, weak=weak))
     _flag_outlier_measurements(reports, options)
     return reports
 
@@ -1264,7 +1481,7 @@ def _paper(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResu
                                      key=lambda m: _turned(m[0], init_pose))
     chi2 = _chi2(camera, setup, stage1, pose)
     if np.median(chi2) > options.outlier_measurement_chi2:  # the unweighted fit is suboptimal: judge loosely
-        raise _poor_minimum(chi2, options.outlier_measurement_chi2, "most measurements disagree")
+        raise _poor_minimum(chi2, options.outlier_measurement_chi2, "most measurements disagree", setup)
     values = gtsam.Values()
     values.insert(POSE_KEY, pose)
     sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
@@ -1278,8 +1495,13 @@ def _paper(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResu
                    reports, np.median(list(sigmas.values())), info_scale=1.0 / line_var, dof=_graph_dof(graph, values))
 
 
-def _weighted(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
-    pose, iterations, graph, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options, anchor)
+def _opinion(arm, camera, measurements, setup, stage1, options):
+    return lambda k, pose: _second_opinion(arm, camera, measurements, setup, stage1, k, pose, options)
+
+
+def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
+    pose, iterations, graph, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options, anchor,
+                                                           _opinion(arm, camera, measurements, setup, stage1, options))
     values = gtsam.Values()
     values.insert(POSE_KEY, pose)
     sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
@@ -1297,7 +1519,55 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
     circles of short arcs can run off to degenerate solutions that LM cannot leave), with the circles
     fitted at that pose (``"line"`` model: the stage-1 lines and circles, see RotIdGraph.add_measurement).
     """
-    pose, iterations, _, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options, anchor)
+    pose, iterations, _, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options, anchor,
+                                                       _opinion(arm, camera, measurements, setup, stage1, options))
+    result = _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used, chi2, options)
+    if result.axis_consistency is None or result.axis_consistency.p_value >= RESTART_P:
+        return result
+    return _restarted(arm, camera, measurements, setup, stage1, result, used, chi2, options, anchor)
+
+
+def _restarted(arm, camera, measurements, setup, stage1, result, used, chi2, options, anchor) -> CalibrationResult:
+    """When the measurements disagree with the joint estimate far beyond their noise, the estimate may be a local
+    minimum that weak measurements (few tracks, short arcs) led stage 2 into: fit again from the stage-2 pose
+    without each measurement in turn, and keep the fit of lowest chi-square on the same tracks (then re-test the
+    measurements left out, which a wrong estimate blames)."""
+    candidates = [result]
+    worst = sorted(used, key=lambda k: -chi2.get(k, 0.0))[:RESTART_LEAVE_OUT]
+    for k in worst:
+        rest = [i for i in used if i != k]
+        start, _, _ = _weighted_stage2(camera, setup, stage1, rest, result.arm_T_camera, options, anchor)
+        if _turned(start, result.arm_T_camera) < np.radians(SAME_ANGLE_DEG) and np.linalg.norm(
+                start.translation() - result.arm_T_camera.translation()) < RESTART_SAME_M:
+            continue
+        try:
+            candidates.append(_joint_fit(arm, camera, measurements, setup, stage1, start, 0, used, chi2, options))
+        except (CalibrationError, RotIdError, RuntimeError):
+            continue
+    if len(candidates) > 1:
+        costs = _common_chi2(arm, camera, measurements, setup, candidates, options)[0]
+        best = candidates[int(np.argmin(costs))]
+    else:
+        best = candidates[0]
+    left_out = [k for k in range(len(stage1)) if k not in used]
+    if left_out:
+        back = [k for k in left_out
+                if _second_opinion(arm, camera, measurements, setup, stage1, k, best.arm_T_camera, options)[1]
+                <= options.outlier_measurement_chi2]
+        if back:
+            again = sorted(used + back)
+            chi2 = dict(chi2)
+            try:
+                best = _joint_fit(arm, camera, measurements, setup, stage1, best.arm_T_camera, best.iterations,
+                                  again, chi2, options)
+            except (CalibrationError, RotIdError, RuntimeError):
+                pass
+    best.iterations += sum(c.iterations for c in candidates if c is not best)
+    return best
+
+
+def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used, chi2, options) -> CalibrationResult:
+    """The joint graph of the measurements ``used`` from ``pose`` (see :func:`_joint`)."""
     builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model)
     sigmas = {k: float(np.sqrt(stage1[k].sigma2)) for k in used}
     circles = {k: None if builder.model is Model.POSE else dict(stage1[k].circles) for k in used}
@@ -1319,6 +1589,10 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
         pose = result.atPose3(POSE_KEY)
         new_sigmas = {k: float(np.sqrt(_noise_variance(_track_stats(graph, keys[k], result), 1, options)))
                       for k in used}
+        failed = [setup.index[k] if setup.index else k for k in used if not np.isfinite(new_sigmas[k])]
+        if failed:
+            raise CalibrationError(f"the joint fit failed: the circles of measurement(s) {failed} have no finite "
+                                   "residuals at the estimate (too little evidence: few tracks or short arcs)")
         circles = {k: dict(zip(keys[k].tracks, _circles(keys[k], result), strict=True)) for k in used}
         lines = {k: None if keys[k].line is None else result.atRot3(keys[k].line) for k in used}
         stable = all(abs(new_sigmas[k] / sigmas[k] - 1.0) < 0.05 for k in used)
@@ -1327,7 +1601,6 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
             break
     info = pose_information(graph, result, POSE_KEY)
     reports = _reports(stage1, setup, sigmas, used, options, chi2)
-    variances = {k: sigmas[k] ** 2 for k in used}
     if options.spin_model == "rigid" and builder.model is not Model.POSE:
         rigid = _rigid_spin(camera, measurements, setup, keys, result, sigmas, options)
         if rigid is not None:
@@ -1336,7 +1609,8 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
             # rigid graph is too large for a dense Schur complement and has the same null directions
             return _finish(pose, covariance, info, Method.JOINT, converged, iterations + it, error, reports,
                            np.median(list(sigmas.values())),
-                           consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options))
+                           consistency=_joint_consistency(camera, setup, stage1, used, pose, keys, result, sigmas,
+                                                          options))
     try:
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
     except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
@@ -1348,7 +1622,7 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
         covariance = covariance if robust is None else robust
     return _finish(pose, covariance, info, Method.JOINT, converged, iterations, error, reports,
                    np.median(list(sigmas.values())), dof=_graph_dof(graph, result),
-                   consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options))
+                   consistency=_joint_consistency(camera, setup, stage1, used, pose, keys, result, sigmas, options))
 
 
 def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options):
@@ -1433,7 +1707,55 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
         raise InputError(f"unknown method {method!r}; choose one of {[m.value for m in Method]}") from None
     options = CalibrationOptions() if options is None else options
     measurements = [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements]
-    starts, setup, anchors = _initial(arm, camera, measurements, options)
+    # a measurement with fewer than two usable tracks has no image axis: it is left out and named, not fatal
+    builder = _builder(arm, camera, options)
+    prepared = [builder.prepare(m, k) for k, m in enumerate(measurements)]
+    kept = [k for k, p in enumerate(prepared) if len(p.usable) >= 2]
+    if len(kept) < MIN_MEASUREMENTS:
+        bad = "; ".join(f"measurement {k}: only {len(p.usable)} usable track(s) (rejected: "
+                        + ", ".join(f"track {j}: {why}" for j, why in p.rejected.items()) + ")"
+                        for k, p in enumerate(prepared) if len(p.usable) < 2)
+        raise InputError(f"need at least {MIN_MEASUREMENTS} measurements (arm poses) with at least 2 usable tracks "
+                         f"each, got {len(kept)} of {len(measurements)}" + (f" ({bad})" if bad else "")
+                         + "; spin the wrist longer or give the hand more texture")
+    result, setup = _calibrate(arm, camera, [measurements[k] for k in kept], method, options, kept)
+    for r in result.measurements:
+        r.index = kept[r.index]
+    for k, p in enumerate(prepared):
+        if k in kept:
+            continue
+        axis = arm.wrist_axis(measurements[k].joint_angles)
+        spans = [arc_span_deg(t.ideal, t.ellipse) for t in p.usable.values()]
+        result.measurements.append(MeasurementReport(
+            k, len(p.usable), sum(len(t.ideal) for t in p.usable.values()), float("nan"), 0.0, True,
+            dict(p.rejected), f"left out: only {len(p.usable)} usable track(s), need at least 2 for an image axis; "
+            "spin longer or give the hand more texture", axis_point=[float(v) for v in axis.point],
+            axis_direction=[float(v) for v in axis.direction], arc_span_deg=max(spans) if spans else None, weak=True))
+    result.measurements.sort(key=lambda r: r.index)
+    result.untrusted = _untrusted(result, setup)
+    return result
+
+
+def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]:
+    """The reasons (see :data:`UNTRUSTED_KINDS`) not to trust a determined result's covariance."""
+    if not result.observability.is_observable or result.ambiguous:
+        return {}
+    out = {}
+    c = result.axis_consistency
+    weak = [m.index for m in result.measurements if m.weak]
+    if c is not None and c.p_value < RESTART_P and weak:
+        out["thin_evidence"] = weak
+    if c is not None and c.scale > MAX_CONSISTENCY_SCALE:
+        out["inconsistent"] = [m.index for m in result.measurements if not m.outlier]
+    distance = float(np.median([np.linalg.norm(result.arm_T_camera.transformTo(a.point)) for a in setup.axes]))
+    limit_mm = 1000.0 * MAX_RELATIVE_SIGMA * distance
+    if not np.all(np.isfinite(result.covariance)) or np.max(result.sigma_mm_arm) > limit_mm:
+        out["too_uncertain"] = []
+    return out
+
+
+def _calibrate(arm, camera, measurements, method, options, index) -> tuple[CalibrationResult, _Setup]:
+    starts, setup, anchors = _initial(arm, camera, measurements, options, index)
     runs = [(start, _stage1(arm, camera, measurements, start, setup, options)) for start in starts]
     alternatives = []
     if len(runs) > 1:  # the image axes cannot choose between the starts: the joint fit of the circles does
@@ -1452,14 +1774,14 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
         if method is Method.JOINT:
             joints[best].alternatives = alternatives
             joints[best].joint_sigma_deg = options.joint_sigma_deg
-            return joints[best]
+            return joints[best], setup
         runs, anchors = [runs[best]], [anchors[best]]
     init_pose, stage1 = runs[0]
     result = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
     _check_scale(result, setup, stage1, options)
     result.alternatives = alternatives
     result.joint_sigma_deg = 0.0 if method is Method.PAPER else options.joint_sigma_deg
-    return result
+    return result, setup
 
 
 def _turned(a: gtsam.Pose3, b: gtsam.Pose3) -> float:
@@ -1537,5 +1859,5 @@ def _estimate(arm, camera, measurements, method, setup, stage1, init_pose, optio
     if method is Method.PAPER:
         return _paper(camera, setup, stage1, init_pose, options, anchor)
     if method is Method.WEIGHTED:
-        return _weighted(camera, setup, stage1, init_pose, options, anchor)
+        return _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
     return _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)

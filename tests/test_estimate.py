@@ -153,12 +153,28 @@ def test_wrong_joint_angles_end_in_a_reported_poor_minimum(noise_free_scene):
             assert not result.covariance_usable and "COVARIANCE UNUSABLE" in result.summary(), method
 
 
-def test_too_few_usable_tracks_names_the_measurement(noise_free_scene):
-    dataset, _ = noise_free_scene
+def test_a_measurement_without_usable_tracks_is_left_out_and_named(noise_free_scene):
+    dataset, truth = noise_free_scene
     measurements = list(dataset)
     short = Measurement(measurements[1].joint_angles, [t.pixels[:5] for t in measurements[1].tracks])
-    with pytest.raises(InputError, match=r"measurement 1: only 0 usable track\(s\).*too short \(5 < 10 points\)"):
-        calibrate(dataset.arm, dataset.camera, [measurements[0], short, *measurements[2:]])
+    result = calibrate(dataset.arm, dataset.camera, [measurements[0], short, *measurements[2:]])
+    assert [m.index for m in result.measurements] == list(range(len(measurements)))
+    left = result.measurements[1]
+    assert left.outlier and left.weight == 0.0 and "only 0 usable track(s)" in left.outlier_reason
+    assert "joint angles" not in left.outlier_reason  # the evidence, not the kinematics, is at fault
+    assert all("too short (5 < 10 points)" in why for why in left.rejected_tracks.values())
+    assert not any(m.outlier for k, m in enumerate(result.measurements) if k != 1)
+    error = result.error_to(truth.arm_T_camera)  # the others still calibrate (noise-free)
+    assert np.max(np.abs(error[3:])) < 1e-4 and np.max(np.abs(error[:3])) < 1e-5
+
+
+def test_too_few_usable_measurements_names_them(noise_free_scene):
+    dataset, _ = noise_free_scene
+    measurements = list(dataset)[:4]
+    shorts = [Measurement(m.joint_angles, [t.pixels[:5] for t in m.tracks]) for m in measurements[1:3]]
+    with pytest.raises(InputError, match=r"got 2 of 4.*measurement 1: only 0 usable track\(s\).*too short "
+                                         r"\(5 < 10 points\).*measurement 2: only 0"):
+        calibrate(dataset.arm, dataset.camera, [measurements[0], *shorts, measurements[3]])
 
 
 @pytest.fixture(scope="module")
@@ -414,3 +430,52 @@ def test_joint_sigma_option_is_checked():
 
     with pytest.raises(InputError, match="joint_sigma_deg must be a finite value >= 0"):
         CalibrationOptions(joint_sigma_deg=-0.1)
+
+
+def _thin(dataset, seed: int, n_tracks: int = 3, shortest: int = 20, longest: int = 90) -> Dataset:
+    """At most ``n_tracks`` tracks per measurement, each cut to a random arc of ``shortest``-``longest`` frames
+    (0.7-3 s at 30 fps: 20-86 degrees of a 0.5 rad/s spin): what a tracker that finds little texture keeps."""
+    rng = np.random.default_rng(seed)
+    measurements = []
+    for m in dataset:
+        tracks = list(m.tracks)
+        rng.shuffle(tracks)
+        cut = []
+        for t in tracks:
+            if len(t) < shortest:
+                continue
+            length = int(rng.integers(shortest, min(longest, len(t)) + 1))
+            first = int(rng.integers(0, len(t) - length + 1))
+            cut.append(Track(t.pixels[first:first + length], t.frames[first:first + length]))
+            if len(cut) == n_tracks:
+                break
+        measurements.append(Measurement(m.joint_angles, cut))
+    return Dataset(dataset.arm, dataset.camera, measurements, metadata=dataset.metadata)
+
+
+@pytest.mark.parametrize("seed", [5, 8])
+def test_thin_evidence_is_flagged_or_holds_its_covariance(seed):
+    # 2-3 short arcs per arm pose (tracked points of ~0.2 px): the image axes are far from Gaussian; on seed 8 the
+    # estimate ends 423 mm off, leaving out a good measurement, with an axis-consistency scale that alone would call
+    # the covariance usable (chi2 of the error ~300). Never a confident wrong number: refused, or the covariance
+    # unusable, or the error inside its 99.9 % region.
+    dataset, truth = simulate.reference_scene(seed=seed, duration=20.0, noise_var=0.05)
+    dataset = _thin(dataset, seed)
+    try:
+        result = calibrate(dataset)
+    except CalibrationError:
+        return
+    error = result.error_to(truth.arm_T_camera)
+    chi2 = float(error @ np.linalg.solve(result.covariance, error))
+    assert not result.covariance_usable or chi2 < 22.46, (seed, chi2, result.summary())
+    weak = [m for m in result.measurements if m.weak]
+    assert weak and all(m.arc_span_deg is not None and m.arc_span_deg < 360.0 for m in weak)
+    if not result.covariance_usable:
+        assert "thin_evidence" in result.untrusted, result.summary()
+        text = result.summary()
+        assert "COVARIANCE UNUSABLE" in text and "not the joint angles" in text
+        for m in result.measurements:
+            if m.outlier:  # a weak measurement left out is not blamed on its joint angles first
+                assert "spin longer or add texture" in m.outlier_reason, m.outlier_reason
+        again = CalibrationResult.from_dict(result.to_dict())
+        assert again.untrusted == result.untrusted and not again.covariance_usable
