@@ -178,6 +178,105 @@ def fit_conic(points: np.ndarray) -> np.ndarray | None:
 
 
 # ---------------------------------------------------------------------------------------------- online
+def _offsets(half: int) -> tuple[np.ndarray, np.ndarray]:
+    o = np.arange(-half, half + 1, dtype=np.float32)
+    u, v = np.meshgrid(o, o)
+    return u.ravel(), v.ravel()
+
+
+def _sample(image: np.ndarray, warp: np.ndarray, half: int) -> np.ndarray:
+    """(n, (2 half + 1)²) float32: bilinear samples of ``image`` at each point's patch, mapped by ``warp`` (n, 2, 3)
+    from patch offsets (u, v, 1) to pixels; one ``cv2.remap`` for all points."""
+    u, v = _offsets(half)
+    w = warp.astype(np.float32)
+    x = w[:, 0, 0, None] * u + w[:, 0, 1, None] * v + w[:, 0, 2, None]
+    y = w[:, 1, 0, None] * u + w[:, 1, 1, None] * v + w[:, 1, 2, None]
+    n, side = len(w), 2 * half + 1
+    if n == 0:
+        return np.zeros((0, side * side), np.float32)
+    out = cv2.remap(image, x.reshape(n * side, side), y.reshape(n * side, side), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(n, side * side).astype(np.float32)
+
+
+def _identity(points: np.ndarray) -> np.ndarray:
+    warp = np.zeros((len(points), 2, 3))
+    warp[:, 0, 0] = warp[:, 1, 1] = 1.0
+    warp[:, :, 2] = points
+    return warp
+
+
+class _Templates:
+    """Per-point appearance templates for affine inverse-compositional Lucas–Kanade (Baker & Matthews), with the
+    patch's brightness and contrast normalised (Gaussian-weighted), vectorised over the points."""
+
+    def __init__(self, half: int, damping: float = 0.5):
+        self.half = half
+        self.damping = damping
+        u, v = _offsets(half)
+        sigma = 0.6 * half
+        w = np.exp(-(u**2 + v**2) / (2 * sigma**2)).astype(np.float32)
+        self.w = w / w.sum()
+        self.u, self.v = u, v
+
+    def make(self, image: np.ndarray, points: np.ndarray):
+        """(T (n, P), SDw (n, 6, P), Hinv (n, 6, 6), Htinv (n, 2, 2), strength (n,)) of patches at ``points``."""
+        half, n = self.half, len(points)
+        side = 2 * half + 1
+        big = _sample(image, _identity(points), half + 1).reshape(n, side + 2, side + 2)
+        t = big[:, 1:-1, 1:-1].reshape(n, -1)
+        gx = (0.5 * (big[:, 1:-1, 2:] - big[:, 1:-1, :-2])).reshape(n, -1)
+        gy = (0.5 * (big[:, 2:, 1:-1] - big[:, :-2, 1:-1])).reshape(n, -1)
+        mean = t @ self.w
+        t = t - mean[:, None]
+        std = np.sqrt((t * t) @ self.w) + 1e-3
+        t /= std[:, None]
+        gx /= std[:, None]
+        gy /= std[:, None]
+        u, v = self.u, self.v
+        sd = np.stack([gx * u, gx * v, gy * u, gy * v, gx, gy], axis=1)          # (n, 6, P)
+        sdw = sd * self.w
+        h = sdw @ np.transpose(sd, (0, 2, 1)) + 1e-6 * np.eye(6, dtype=np.float32)
+        ht = h[:, 4:, 4:].copy()
+        # damping of the linear part (a small window determines it weakly): a fraction of what a patch with the
+        # translation's texture spread evenly over the window would give
+        spread = float(self.w @ (self.u**2))
+        damp = self.damping * spread * 0.5 * np.trace(ht, axis1=1, axis2=2)
+        h[:, np.arange(4), np.arange(4)] += damp[:, None]
+        strength = np.linalg.eigvalsh(ht)[:, 0] * std**2                        # translation min eigenvalue
+        return t, sdw, np.linalg.inv(h), np.linalg.inv(ht), strength
+
+    def track(self, image, warp, t, sdw, hinv, htinv, iterations: int, translation_iterations: int = 1):
+        """Refine warps (n, 2, 3) on ``image``; returns (warp, zncc (n,), last translation step (n,) px)."""
+        n = len(warp)
+        warp = warp.copy()
+        step = np.zeros(n)
+        zncc = np.zeros(n)
+        for it in range(iterations + 1):
+            sample = _sample(image, warp, self.half)
+            sample -= (sample @ self.w)[:, None]
+            sample /= (np.sqrt((sample * sample) @ self.w) + 1e-3)[:, None]
+            r = sample - t
+            zncc = 1.0 - 0.5 * ((r * r) @ self.w)
+            if it == iterations:
+                break
+            b = (sdw @ r[:, :, None])[..., 0].astype(np.float64)                    # (n, 6)
+            if it < translation_iterations:
+                dp = np.zeros((n, 6))
+                dp[:, 4:] = (htinv @ b[:, 4:, None])[..., 0]
+            else:
+                dp = (hinv @ b[:, :, None])[..., 0]
+            # W <- W o W(dp)^-1, W(dp) = [[1 + p0, p1, p4], [p2, 1 + p3, p5]]
+            a, bb, c, d = 1 + dp[:, 0], dp[:, 1], dp[:, 2], 1 + dp[:, 3]
+            det = a * d - bb * c
+            inv = np.stack([np.stack([d, -bb], 1), np.stack([-c, a], 1)], 1) / det[:, None, None]
+            lin = warp[:, :, :2] @ inv
+            warp[:, :, 2] -= (lin @ dp[:, 4:, None])[..., 0]
+            warp[:, :, :2] = lin
+            step = np.hypot(*(warp[:, :, :2] @ dp[:, 4:, None])[..., 0].T)
+        return warp, zncc, step
+
+
 @dataclass
 class _Corners:
     """The corner tracks being followed, one row each."""
@@ -185,14 +284,18 @@ class _Corners:
     ids: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
     pos: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
     vel: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    anchor: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))      # the point in its anchor frame
-    key: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))    # the anchor frame
+    warp: np.ndarray = field(default_factory=lambda: np.empty((0, 2, 2)))     # template -> image, linear part
+    key: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))    # the template's frame
     missed: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
     count: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
     lo: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
     hi: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
     moments: np.ndarray = field(default_factory=lambda: np.empty((0, 6, 6)))  # conic moments, normalised points
     centre: np.ndarray = field(default_factory=lambda: np.full((0, 2), np.nan))  # ellipse centre (px), NaN unknown
+    t: np.ndarray = field(default_factory=lambda: np.empty((0, 0), np.float32))        # templates
+    sdw: np.ndarray = field(default_factory=lambda: np.empty((0, 6, 0), np.float32))
+    hinv: np.ndarray = field(default_factory=lambda: np.empty((0, 6, 6), np.float32))
+    htinv: np.ndarray = field(default_factory=lambda: np.empty((0, 2, 2), np.float32))
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -201,13 +304,24 @@ class _Corners:
         for f in fields(self):
             setattr(self, f.name, getattr(self, f.name)[mask])
 
-    def add(self, ids, pos, key: int) -> None:
+    def add(self, ids, pos, key: int, templates) -> None:
         n = len(ids)
-        new = dict(ids=ids, pos=pos, vel=np.zeros((n, 2)), anchor=pos.copy(), key=np.full(n, key, np.int64),
-                   missed=np.zeros(n, np.int64), count=np.ones(n, np.int64), lo=pos, hi=pos,
-                   moments=np.zeros((n, 6, 6)), centre=np.full((n, 2), np.nan))
+        t, sdw, hinv, htinv = templates
+        new = dict(ids=ids, pos=pos, vel=np.zeros((n, 2)), warp=np.tile(np.eye(2), (n, 1, 1)),
+                   key=np.full(n, key, np.int64), missed=np.zeros(n, np.int64), count=np.ones(n, np.int64),
+                   lo=pos, hi=pos, moments=np.zeros((n, 6, 6)), centre=np.full((n, 2), np.nan), t=t, sdw=sdw,
+                   hinv=hinv, htinv=htinv)
         for name, values in new.items():
-            setattr(self, name, np.concatenate([getattr(self, name), values]))
+            old = getattr(self, name)
+            if len(old) == 0:
+                setattr(self, name, values)
+            else:
+                setattr(self, name, np.concatenate([old, values]))
+
+    def renew(self, idx, templates, key: int) -> None:
+        self.t[idx], self.sdw[idx], self.hinv[idx], self.htinv[idx] = templates
+        self.warp[idx] = np.eye(2)
+        self.key[idx] = key
 
 
 class CornerFollower:
@@ -215,16 +329,13 @@ class CornerFollower:
 
     def __init__(self, params):
         self.p = params
-        self._lk_win = (params.lk_window, params.lk_window)
-        self._criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, int(params.lk_iterations),
-                          float(params.lk_epsilon))
+        self._tpl = _Templates(int(params.corner_window) // 2, float(params.warp_damping))
         self._a = _Corners()
         self._next_id = 0
         self._frame = -1
-        self._prev_pyr = None
         self._prev_small = None
+        self._prev_grey = None
         self._heat = None
-        self._keys: dict[int, list] = {}
         self._last_seed = -(10**9)
         self._parked = np.empty((0, 2))
         self._log: list[tuple[int, np.ndarray, np.ndarray]] = []
@@ -235,6 +346,7 @@ class CornerFollower:
         self._scale = 1.0
         self._omega_votes: list[float] = []
         self._sigma = 0.5                   # robust scale (px) of the online ellipse distances
+        self._size = None
 
     # --- per frame
     def feed(self, grey: np.ndarray, frame: int, exclude: np.ndarray | None = None) -> None:
@@ -243,24 +355,23 @@ class CornerFollower:
         self._frame = frame
         if self._origin is None:
             h, w = grey.shape
+            self._size = (w, h)
             self._origin = np.array([(w - 1) / 2, (h - 1) / 2])
             self._scale = 0.5 * max(w, h)
-        pyr = grey   # OpenCV's Python binding takes images, not prebuilt pyramids
         small = cv2.pyrDown(grey)
         if self._prev_small is not None:
             moving = cv2.compare(cv2.absdiff(small, self._prev_small), float(p.motion_threshold), cv2.CMP_GT)
             self._heat = cv2.max(cv2.subtract(self._heat, 1), cv2.bitwise_and(moving, int(p.motion_memory)))
         else:
             self._heat = np.zeros_like(small)
-        if self._prev_pyr is not None and len(self._a):
-            self._follow(pyr, frame)
+        if len(self._a):
+            self._follow(grey, frame)
         if frame - self._last_seed >= p.seed_every:
-            self._seed(grey, pyr, frame, exclude)
+            self._seed(grey, frame, exclude)
         if frame % p.model_every == 0:
             self._update_model()
-        live = set(int(k) for k in np.unique(self._a.key)) if len(self._a) else set()
-        self._keys = {k: v for k, v in self._keys.items() if k in live or k == frame}
-        self._prev_pyr, self._prev_small = pyr, small
+        self._prev_small = small
+        self._prev_grey = grey
 
     def _predict(self, ahead: np.ndarray) -> np.ndarray:
         a, m = self._a, self.model
@@ -272,50 +383,53 @@ class CornerFollower:
             guess[known] = m.turn(a.pos[known], a.centre[known], m.omega * ahead[known])
         return guess
 
-    def _lk(self, pyr0, pyr1, points, guess, levels):
-        pts, status, _ = cv2.calcOpticalFlowPyrLK(
-            pyr0, pyr1, points.astype(np.float32).reshape(-1, 1, 2), guess.astype(np.float32).reshape(-1, 1, 2),
-            winSize=self._lk_win, maxLevel=levels, criteria=self._criteria, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-            minEigThreshold=float(self.p.corner_min_eigen))
-        return pts.reshape(-1, 2).astype(np.float64), status.ravel() == 1
+    def _coarse(self, grey, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pyramidal LK (translation, forward-backward checked) of ``points`` from the previous frame, on the crop
+        around them only: the first step of a new track, which has no velocity yet."""
+        p = self.p
+        h, w = grey.shape
+        reach = 2 ** (int(p.lk_levels) + 1) * p.lk_window
+        x0, y0 = (np.maximum(np.floor(points.min(axis=0)) - reach, 0)).astype(int)
+        x1, y1 = np.minimum(np.ceil(points.max(axis=0)) + reach + 1, [w, h]).astype(int)
+        prev, cur = self._prev_grey[y0:y1, x0:x1], grey[y0:y1, x0:x1]
+        start = (points - [x0, y0]).astype(np.float32).reshape(-1, 1, 2)
+        lk = dict(winSize=(p.lk_window, p.lk_window), maxLevel=int(p.lk_levels),
+                  criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, int(p.lk_iterations), float(p.lk_epsilon)))
+        fwd, st, _ = cv2.calcOpticalFlowPyrLK(prev, cur, start, None, **lk)
+        back, st_back, _ = cv2.calcOpticalFlowPyrLK(cur, prev, fwd, start.copy(), **lk,
+                                                    flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+        ok = (st.ravel() == 1) & (st_back.ravel() == 1) & \
+            (np.linalg.norm((back - start).reshape(-1, 2), axis=1) < p.fb_threshold)
+        return fwd.reshape(-1, 2).astype(np.float64) + [x0, y0], ok
 
-    def _follow(self, pyr, frame: int) -> None:
+    def _follow(self, grey, frame: int) -> None:
         p, a = self.p, self._a
-        levels = int(p.lk_levels)
-        start = a.pos + a.vel * a.missed[:, None]          # where each point was, had it been seen last frame
         guess = self._predict(a.missed + 1)
-        start = np.where((a.missed > 0)[:, None], self._predict(a.missed), start)
-        fwd, ok = self._lk(self._prev_pyr, pyr, start, guess, levels)
-        back, ok_back = self._lk(pyr, self._prev_pyr, fwd, start, levels)
-        ok &= ok_back & (np.linalg.norm(back - start, axis=1) < p.fb_threshold)
-        # drift: the same points tracked from their anchor frame, started where frame-to-frame LK put them
-        new = fwd.copy()
+        lin0 = a.warp
+        if self.p.predict_turn and self.model is not None and self.model.omega != 0.0:
+            # the patch turns with the spin: its linear part predicted by the shared rotation
+            turn = np.stack([self.model.local_warp(self.model.omega * (m + 1)) for m in range(int(p.max_gap) + 1)])
+            lin0 = turn[np.minimum(a.missed, int(p.max_gap))] @ a.warp
+        fresh = np.flatnonzero((a.count == 1) & (a.missed == 0))
+        coarse_ok = np.ones(len(a), bool)
+        if len(fresh) and self._prev_grey is not None:
+            guess[fresh], coarse_ok[fresh] = self._coarse(grey, a.pos[fresh])
+        warp = np.concatenate([lin0, guess[:, :, None]], axis=2)
+        image = grey.astype(np.float32)
+        warp, zncc, step = self._tpl.track(image, warp, a.t, a.sdw, a.hinv, a.htinv, int(p.ic_iterations))
+        new = warp[:, :, 2]
+        lin = warp[:, :, :2]
+        sv = np.linalg.svd(lin, compute_uv=False)
+        w, h = self._size
+        margin = self._tpl.half + 1
+        # a patch turned or stretched by more than max_template_warp since its template ends its track (taking
+        # the template anew would add drift)
+        ok = (coarse_ok & (zncc >= p.min_zncc) & (np.abs(lin - np.eye(2)).max(axis=(1, 2)) < p.max_template_warp)
+              & (step < p.max_final_step) & (sv[:, 1] > 0.6) & (sv[:, 0] < 1.6)
+              & (np.linalg.norm(new - guess, axis=1) < p.max_anchor_disagreement)
+              & (new[:, 0] >= margin) & (new[:, 0] < w - margin) & (new[:, 1] >= margin) & (new[:, 1] < h - margin)
+              & np.isfinite(new).all(axis=1))
         model = self.model
-        for key in np.unique(a.key[ok]):
-            idx = np.flatnonzero(ok & (a.key == key))
-            if key >= frame - 1 or key not in self._keys:
-                continue
-            reference, anchor = self._keys[key], a.anchor[idx]
-            # the anchor frame's patches have turned with the spin since: one affine warp of that frame for all
-            # its points, measured from their motion (about their ellipse centres when known). LK (translation
-            # only) on a turned patch would be biased by the turn times the offset of the texture in the window.
-            warp = _group_warp(anchor, fwd[idx])
-            if warp is None:
-                renew = idx
-            else:
-                h, w = reference.shape
-                reference = cv2.warpAffine(reference, warp, (w, h), flags=cv2.INTER_CUBIC,
-                                           borderMode=cv2.BORDER_REPLICATE)
-                ref, ok_ref = self._lk(reference, pyr, anchor @ warp[:, :2].T + warp[:, 2], fwd[idx], min(levels, 1))
-                agree = ok_ref & (np.linalg.norm(ref - fwd[idx], axis=1) < p.max_anchor_disagreement)
-                new[idx] = np.where(agree[:, None], ref, fwd[idx])
-                renew = idx[~agree]
-            # where there is no warp or the anchored result disagrees, the point goes on from frame-to-frame LK,
-            # anchored anew here
-            a.anchor[renew] = fwd[renew]
-            a.key[renew] = frame
-            if len(renew):
-                self._keys[frame] = pyr
         # the spin: a point off its track's ellipse (beyond a few sigma) is not taken
         gated = ok & np.isfinite(a.centre[:, 0]) & (a.count >= p.model_min_points)
         if model is not None and gated.any():
@@ -339,15 +453,20 @@ class CornerFollower:
         found = np.flatnonzero(ok)
         if len(found):
             pts = new[found]
-            step = (pts - a.pos[found]) / (a.missed[found] + 1)[:, None]
-            a.vel[found] = np.where((a.count[found] > 1)[:, None], 0.5 * a.vel[found] + 0.5 * step, step)
+            step_px = (pts - a.pos[found]) / (a.missed[found] + 1)[:, None]
+            a.vel[found] = np.where((a.count[found] > 1)[:, None], 0.5 * a.vel[found] + 0.5 * step_px, step_px)
             a.pos[found] = pts
+            a.warp[found] = lin[found]
             a.count[found] += 1
             a.lo[found] = np.minimum(a.lo[found], pts)
             a.hi[found] = np.maximum(a.hi[found], pts)
             d = _design((pts - self._origin) / self._scale)
             a.moments[found] += d[:, :, None] * d[:, None, :]
             self._log.append((frame, a.ids[found].copy(), pts.copy()))
+            # templates older than anchor_every frames are taken anew here, at the tracked points
+            old = found[frame - a.key[found] >= p.anchor_every]
+            if len(old):
+                a.renew(old, self._tpl.make(image, a.pos[old])[:4], frame)
         missed = np.ones(len(a), bool)
         missed[found] = False
         a.missed[missed] += 1
@@ -383,45 +502,71 @@ class CornerFollower:
             dphi = (dphi + np.pi) % (2 * np.pi) - np.pi
             model.omega = float(np.median(dphi))
 
-    def _seed(self, grey, pyr, frame: int, exclude) -> None:
+    def _seed(self, grey, frame: int, exclude) -> None:
         p, a = self.p, self._a
         self._last_seed = frame
         room = int(p.max_corners) - len(a)
         if room <= 0:
             return
-        h, w = grey.shape
-        mask = cv2.resize(cv2.compare(self._heat, 0, cv2.CMP_GT), (w, h), interpolation=cv2.INTER_NEAREST)
-        if not mask.any():
+        heat = cv2.compare(self._heat, 0, cv2.CMP_GT)
+        nz = cv2.findNonZero(heat)
+        if nz is None:
             return
-        taken = np.zeros((h, w), np.uint8)
-        points = np.concatenate([a.pos, self._parked])
+        # only the moving region's bounding box (at full resolution) is searched
+        x, y, bw, bh = cv2.boundingRect(nz)
+        h, w = grey.shape
+        x0, y0, x1, y1 = max(2 * x - 2, 0), max(2 * y - 2, 0), min(2 * (x + bw) + 2, w), min(2 * (y + bh) + 2, h)
+        mask = cv2.resize(heat, (w, h), interpolation=cv2.INTER_NEAREST)[y0:y1, x0:x1]
+        if p.seed_margin > 0:
+            # not within seed_margin px of the moving region's boundary (silhouettes against the still scene)
+            r = int(math.ceil(p.seed_margin))
+            mask = cv2.erode(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+        taken = np.zeros_like(mask)
+        points = np.concatenate([a.pos, self._parked]) - [x0, y0]
         _stamp(taken, points)
         r = int(math.ceil(p.corner_min_distance))
         taken = cv2.dilate(taken, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
         if exclude is not None and len(exclude):
-            blobs = np.zeros((h, w), np.uint8)
-            _stamp(blobs, exclude[:, :2])
+            blobs = np.zeros_like(mask)
+            _stamp(blobs, exclude[:, :2] - [x0, y0])
             rb = int(math.ceil(2.0 * float(np.median(exclude[:, 2])) + p.corner_min_distance))
             taken |= cv2.dilate(blobs, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rb + 1, 2 * rb + 1)))
         mask[taken > 0] = 0
-        border = p.lk_window // 2 + 2
-        mask[:border], mask[-border:], mask[:, :border], mask[:, -border:] = 0, 0, 0, 0
-        found = cv2.goodFeaturesToTrack(grey, maxCorners=room, qualityLevel=float(p.corner_quality),
+        border = self._tpl.half + 3
+        mask[:max(border - y0, 0)] = 0
+        mask[:, :max(border - x0, 0)] = 0
+        if y1 > h - border:
+            mask[mask.shape[0] - (y1 - (h - border)):] = 0
+        if x1 > w - border:
+            mask[:, mask.shape[1] - (x1 - (w - border)):] = 0
+        if not mask.any():
+            return
+        found = cv2.goodFeaturesToTrack(grey[y0:y1, x0:x1], maxCorners=room, qualityLevel=float(p.corner_quality),
                                         minDistance=float(p.corner_min_distance), mask=mask,
                                         blockSize=int(p.corner_block_size))
         if found is None or not len(found):
             return
-        pts = found.reshape(-1, 2).astype(np.float64)
+        pts = found.reshape(-1, 2).astype(np.float64) + [x0, y0]
+        *templates, strength = self._tpl.make(grey.astype(np.float32), pts)
+        strong = strength >= p.corner_min_eigen
+        if self._prev_grey is not None and p.seed_motion_fraction > 0:
+            # a patch straddling a silhouette is partly still: most of a seed's window must have just changed
+            crop = (slice(y0, y1), slice(x0, x1))
+            changed = cv2.compare(cv2.absdiff(grey[crop], self._prev_grey[crop]), float(p.motion_threshold) / 2,
+                                  cv2.CMP_GT)
+            side = int(p.corner_window)
+            support = cv2.boxFilter(changed, cv2.CV_32F, (side, side), normalize=True) / 255.0
+            q = np.rint(pts - [x0, y0]).astype(np.int64)
+            strong &= support[q[:, 1], q[:, 0]] >= p.seed_motion_fraction
+        if not strong.any():
+            return
+        pts = pts[strong]
+        templates = [t[strong] for t in templates]
         ids = np.arange(self._next_id, self._next_id + len(pts))
         self._next_id += len(pts)
-        a.add(ids, pts, frame)
+        a.add(ids, pts, frame, templates)
         d = _design((pts - self._origin) / self._scale)
         a.moments[-len(pts):] += d[:, :, None] * d[:, None, :]
-        self._keys[frame] = pyr
-        # renew the anchors of tracks whose anchor frame is old: they now track from this frame
-        old = (frame - a.key >= p.anchor_every) & (a.missed == 0)
-        a.anchor[old] = a.pos[old]
-        a.key[old] = frame
         self._log.append((frame, ids, pts.copy()))
         self._patch_ids.append(ids)
         self._patches.append(_patches(grey, pts))
@@ -443,25 +588,6 @@ class CornerFollower:
         for pid, patch in zip(self._patch_ids, self._patches, strict=True):
             patches.update(zip(pid.tolist(), patch, strict=True))
         return tracks, patches, track_ids
-
-
-def _group_warp(before: np.ndarray, after: np.ndarray, min_points: int = 6, min_motion: float = 0.5):
-    """The 2x3 affine map ``after ≈ L before + t`` of one anchor group's moving points (RANSAC,
-    ``cv2.estimateAffine2D``). Only its linear part matters to the patches (LK finds each point's own shift:
-    coaxial circles at different heights do not share one translation). None with too few moving points or
-    if L is not close to a turn (det far from 1)."""
-    moving = np.linalg.norm(after - before, axis=1) >= min_motion
-    if moving.sum() < min_points:
-        return None
-    warp, inliers = cv2.estimateAffine2D(before[moving].astype(np.float32), after[moving].astype(np.float32),
-                                         method=cv2.RANSAC, ransacReprojThreshold=1.0, maxIters=200,
-                                         refineIters=10)
-    if warp is None or inliers is None or int(inliers.sum()) < min_points:
-        return None
-    det = float(np.linalg.det(warp[:, :2]))
-    if not 0.8 < det < 1.25:
-        return None
-    return warp.astype(np.float64)
 
 
 def _stamp(image: np.ndarray, points: np.ndarray) -> None:

@@ -135,16 +135,38 @@ class TrackerParams:
     corner_quality: float = 0.01
     corner_min_distance: float = 8.0
     corner_block_size: int = 5
-    #: LK's minimum eigenvalue (per window pixel) for a corner: weaker texture is not followed.
-    corner_min_eigen: float = 0.001
+    #: A corner's template: the smaller eigenvalue of its Gaussian-weighted gradient structure tensor (grey levels²
+    #: per px²) must reach ``corner_min_eigen``: weaker texture is not followed.
+    corner_min_eigen: float = 10.0
     #: Corners start only where the image moved (half-resolution frame difference above ``motion_threshold``
-    #: grey levels) within the last ``motion_memory`` frames: the background and still links never seed.
+    #: grey levels) within the last ``motion_memory`` frames: the background and still links never seed; and not
+    #: within ``seed_margin`` px of that region's boundary (a patch there straddles a silhouette).
     motion_threshold: float = 8.0
     motion_memory: int = 10
-    #: LK drift: each corner is tracked from an anchor frame renewed every ``anchor_every`` frames (not frame to
-    #: frame); a point where the anchored and frame-to-frame results differ by more than this (px) is missed.
-    anchor_every: int = 30
-    max_anchor_disagreement: float = 1.0
+    seed_margin: float = 3.0
+    #: ... and only where at least this fraction of the corner's window changed since the previous frame (a
+    #: window straddling a silhouette is partly still background).
+    seed_motion_fraction: float = 0.5
+    #: Each corner is followed by affine inverse-compositional Lucas–Kanade (``ic_iterations`` steps, the first
+    #: translation only) of a ``corner_window`` px square template (Gaussian-weighted, brightness and contrast
+    #: normalised), predicted by the spin's rotation or the point's velocity; the template is taken anew every
+    #: ``anchor_every`` frames at the tracked point (each renewal adds drift). A point is missed where the warped
+    #: patch correlates below
+    #: ``min_zncc`` with its template (e.g. a patch straddling an occluding edge), where the last step still moved
+    #: it more than ``max_final_step`` px (not converged), or further than ``max_anchor_disagreement`` px from its
+    #: prediction.
+    corner_window: int = 9
+    ic_iterations: int = 5
+    min_zncc: float = 0.9
+    max_final_step: float = 0.05
+    anchor_every: int = 1000
+    #: A track ends where its patch has turned or stretched so that the warp's linear part is further than this
+    #: from the identity (largest entry).
+    max_template_warp: float = 0.5
+    #: Damping of the warp's linear part (relative), and whether the spin's rotation predicts it.
+    warp_damping: float = 0.5
+    predict_turn: bool = True
+    max_anchor_disagreement: float = 1.5
     #: The spin's shared rotation (one ellipse shape, one rate): refitted every ``model_every`` frames from
     #: tracks of at least ``model_min_points`` points; it predicts each corner (LK's start) and gates it.
     model_every: int = 10
@@ -176,17 +198,20 @@ class TrackerParams:
                     "jump_threshold", "lk_window", "lk_iterations", "detect_every", "detect_after_loss",
                     "centroid_iterations", "min_length", "park_after", "max_radius_growth", "full_detect_every",
                     "park_extent", "max_corners", "seed_every", "corner_min_distance", "corner_block_size",
-                    "motion_memory", "anchor_every", "max_anchor_disagreement", "model_every", "model_min_points",
+                    "motion_memory", "anchor_every", "max_anchor_disagreement", "corner_window", "ic_iterations",
+                    "min_zncc", "max_final_step", "max_template_warp", "warp_damping",
+                    "model_every", "model_min_points",
                     "ellipse_sigmas", "rate_tolerance", "link_max_gap", "link_phase_tolerance",
                     "max_phase_residual")
         non_negative = ("min_circularity", "min_convexity", "min_inertia_ratio", "min_threshold", "min_contrast",
                         "min_separation", "lk_levels", "max_gap", "min_extent", "centroid_level", "max_skewness",
-                        "detect_margin", "corner_quality", "corner_min_eigen", "motion_threshold",
+                        "detect_margin", "corner_quality", "corner_min_eigen", "motion_threshold", "seed_margin",
+                        "seed_motion_fraction",
                         "min_ellipse_gate", "min_ellipse_gate_offline", "max_off_ellipse_fraction", "own_ellipse_arc",
                         "link_tolerance", "link_min_ncc")
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name in ("recentre", "link"):
+            if f.name in ("recentre", "link", "predict_turn"):
                 if not isinstance(value, bool):
                     raise InputError(f"TrackerParams.{f.name} must be True or False, got {value!r}")
                 continue
@@ -220,6 +245,10 @@ class TrackerParams:
         if self.max_off_ellipse_fraction >= 1:
             raise InputError(f"TrackerParams.max_off_ellipse_fraction must be in [0, 1), got "
                              f"{self.max_off_ellipse_fraction}")
+        if self.corner_window < 7 or self.corner_window % 2 == 0:
+            raise InputError(f"TrackerParams.corner_window must be odd and >= 7, got {self.corner_window}")
+        if self.min_zncc >= 1:
+            raise InputError(f"TrackerParams.min_zncc must be below 1, got {self.min_zncc}")
         if self.motion_memory > 250:
             raise InputError(f"TrackerParams.motion_memory must be <= 250 frames, got {self.motion_memory}")
 
