@@ -343,7 +343,8 @@ class CalibrationResult:
             "sigma_px": self.sigma_px,
             "dof": self.dof,
             "measurements": [
-                {**asdict(m), "rejected_tracks": {str(k): v for k, v in m.rejected_tracks.items()}}
+                {**asdict(m), "rejected_tracks": {str(k): v for k, v in m.rejected_tracks.items()},
+                 "residual_rms_px": m.residual_rms_px if np.isfinite(m.residual_rms_px) else None}
                 for m in self.measurements
             ],
             "observability": self.observability.to_dict(),
@@ -368,7 +369,9 @@ class CalibrationResult:
             sigma_px=data["sigma_px"],
             dof=data.get("dof"),
             measurements=[
-                MeasurementReport(**{**m, "rejected_tracks": {int(k): v for k, v in m["rejected_tracks"].items()}})
+                MeasurementReport(**{**m, "rejected_tracks": {int(k): v for k, v in m["rejected_tracks"].items()},
+                                     "residual_rms_px": np.nan if m["residual_rms_px"] is None
+                                     else m["residual_rms_px"]})
                 for m in data["measurements"]
             ],
             observability=Observability.from_dict(data["observability"]),
@@ -416,15 +419,22 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
         named = "; ".join(f"measurement {k} ({evidence_words(by_index[k])})" for k in ks if k in by_index)
         if kind == "thin_evidence":
             c = result.axis_consistency
-            chi2 = "" if c is None else f" (χ² = {c.chi2:.3g} for {c.dof} dof, P = {c.p_value:.2g})"
-            out.append(f"the image axes disagree with the estimate beyond their pixel noise{chi2} and these "
-                       f"measurements have too little evidence for their axes to be Gaussian: {named}. Few or short "
-                       "arcs admit wrong circle fits, so the estimate may be a wrong minimum and no scaling of the "
-                       "covariance can be trusted. Spin the wrist longer (a full turn or more), give the hand more "
+            strong = sum(not m.weak and not m.outlier for m in result.measurements)
+            if c is not None and c.p_value < RESTART_P:
+                head = (f"the image axes disagree with the estimate beyond their pixel noise (χ² = {c.chi2:.3g} for "
+                        f"{c.dof} dof, P = {c.p_value:.2g}) and these")
+            elif c is None:
+                head = "nothing tests the image axes against each other (too few measurements), and these"
+            else:
+                head = (f"the estimate rests on weak measurements (only {strong} of the measurements used have strong "
+                        f"evidence; {MIN_MEASUREMENTS} are needed to determine the pose without the weak ones): these")
+            out.append(f"{head} measurements have too little evidence for their axes to be Gaussian: {named}. Few or "
+                       "short arcs admit wrong circle fits, so the estimate may be a wrong minimum and no scaling of "
+                       "the covariance can be trusted. Spin the wrist longer (a full turn or more), give the hand more "
                        "texture (more tracks), or add arm poses; the tracking, not the joint angles, is the weak part")
         elif kind == "inconsistent":
             c = result.axis_consistency
-            out.append(f"the measurements' axes disagree with one pose by χ²/dof = {c.scale:.3g}, more than "
+            out.append(f"the measurements' axes disagree with one pose by χ²/dof = {c.chi2 / c.dof:.3g}, more than "
                        f"{MAX_CONSISTENCY_SCALE:g}x their pixel noise: the model does not describe the data (wrong "
                        "intrinsics, joint angles or kinematics, a moved camera, or tracks that are not on the hand)")
         elif kind == "too_uncertain":
@@ -506,6 +516,8 @@ TWIN_ITERATIONS = 20
 #: Gaussian (see :func:`_second_opinion`), so an inconsistency it takes part in is not scaled away.
 WEAK_TRACKS = 4
 WEAK_ARC_DEG = 90.0
+#: An arc's span is taken between these quantiles of its points' angles (and the upper one's complement).
+ARC_TRIM = 0.05
 #: An axis-consistency scale (chi2/dof) above this is not a modest understatement of the noise but a wrong model.
 MAX_CONSISTENCY_SCALE = 100.0
 #: A 1-sigma camera position larger than this fraction of its distance to the wrist is no calibration.
@@ -581,6 +593,8 @@ class _Setup:
     #: the caller's index of each measurement here (measurements without enough evidence are left out before)
     index: list[int] = field(default_factory=list)
     K: np.ndarray | None = None  # the camera matrix
+    #: k -> the evidence of measurements whose stage-1 fit is weak (for the words of a refusal)
+    weak: dict[int, str] = field(default_factory=dict)
 
     def noise(self, k: int) -> np.ndarray | None:
         return self.axis_noise[k] if self.axis_noise else None
@@ -605,7 +619,7 @@ def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: C
     if options.joint_sigma_deg > 0.0:
         sigma = np.radians(options.joint_sigma_deg)
         noise = [sigma * test_point_jacobian(arm, m.joint_angles) for m in measurements]
-    return _Setup(axes, prepared, lines, noise)
+    return _Setup(axes, prepared, lines, noise, list(range(len(measurements))), camera.K)
 
 
 def test_point_jacobian(arm: Arm, joint_angles, step: float = 1e-6) -> np.ndarray:
@@ -751,8 +765,8 @@ def _initial(arm, camera, measurements, options, index=None) -> tuple[list[gtsam
     """Starting poses (one, or a pose and its twin when the image axes cannot tell them apart), the setup, and
     per start the candidate it came from (before LM: the anchor of :func:`_gauge_prior`)."""
     setup = _setup(arm, camera, measurements, options)
-    setup.index = list(range(len(measurements))) if index is None else list(index)
-    setup.K = camera.K
+    if index is not None:
+        setup.index = list(index)
     K = camera.K
     normals = np.array([plane_normal(K, line) for line in setup.lines])
     candidates = pose_candidates(normals, setup.axes, n_best=options.n_candidates)
@@ -1174,27 +1188,6 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
     return AxisConsistency(chi2, dof, p, scale)
 
 
-def _joint_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3, keys, values,
-                       sigmas: dict[int, float], options) -> AxisConsistency | None:
-    """:class:`AxisConsistency` of the joint fit as a likelihood ratio: each measurement's residual sum of squares
-    with its line tied to the pose minus its free stage-1 fit's, over its pixel noise variance, summed over the
-    measurements (``2 n - 6`` dof). Unlike the linearised test of :func:`_axis_consistency` it holds when an image
-    axis is far from Gaussian (few tracks, short arcs). Falls back to the linearised test without the projected
-    model (no per-measurement sums of squares)."""
-    if any(keys[k].coaxial is None for k in used):
-        return _axis_consistency(camera, setup, stage1, used, pose, {k: sigmas[k] ** 2 for k in used}, options)
-    dof = 2 * len(used) - 6
-    if dof <= 0:
-        return None
-    chi2 = 0.0
-    for k in used:
-        tied = float(np.sum(keys[k].coaxial.track_sse(values)))
-        chi2 += max(tied - _sse(stage1[k]), 0.0) / sigmas[k] ** 2
-    p = chi2_sf(chi2, dof)
-    scale = chi2 / dof if p < options.axis_consistency_p else 1.0
-    return AxisConsistency(chi2, dof, p, scale)
-
-
 def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsam.Pose3, options, anchor):
     """Stage 2 weighted by the stage-1 line covariances, Huber on whole measurements; returns (pose, its, graph)."""
     pose, iterations, graph = start, 0, None
@@ -1214,13 +1207,17 @@ def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsa
     return pose, iterations, graph
 
 
-def _span_deg(phi: np.ndarray) -> float:
-    """360 minus the largest gap (deg) between angles (rad)."""
+def _span_deg(phi: np.ndarray, trim: float = ARC_TRIM) -> float:
+    """The arc (deg) that angles (rad) cover: cut at their largest gap, from the ``trim`` to the ``1 - trim``
+    quantile (a few noisy points at an arc's ends would otherwise widen a short arc)."""
     phi = np.sort(np.mod(np.asarray(phi, dtype=float), 2.0 * np.pi))
     if len(phi) < 2:
         return 0.0
     gaps = np.diff(np.concatenate([phi, [phi[0] + 2.0 * np.pi]]))
-    return float(np.degrees(2.0 * np.pi - gaps.max()))
+    cut = int(np.argmax(gaps))
+    unwrapped = np.concatenate([phi[cut + 1:], phi[:cut + 1] + 2.0 * np.pi])
+    low, high = np.quantile(unwrapped, [trim, 1.0 - trim])
+    return float(np.degrees(high - low))
 
 
 def arc_span_deg(ideal: np.ndarray, ellipse) -> float:
@@ -1247,12 +1244,31 @@ def circle_arc_span_deg(ideal: np.ndarray, K: np.ndarray, line: gtsam.Rot3, circ
     return _span_deg(np.arctan2(points @ c2, points @ c0))
 
 
-def _evidence(setup: _Setup, s: _Stage1, k: int, K: np.ndarray) -> tuple[float | None, bool]:
-    """(longest arc in deg, weak) of measurement k's kept tracks, about their stage-1 circles."""
-    spans = [circle_arc_span_deg(setup.prepared[k].usable[j].ideal, K, s.rotation, s.circles[j])
-             for j in s.keys.tracks if j in s.circles]
+def _evidence(setup: _Setup, s: _Stage1, k: int, tied=None) -> tuple[float | None, bool]:
+    """(longest arc in deg, weak) of measurement k's kept tracks. Each arc is measured about its stage-1 circle and,
+    when ``tied = (line, circles)`` is given (the circles fitted with the line on the estimate's FK axis), about that
+    circle too, and the smaller is taken: a short arc fitted with a circle far too small wraps around it."""
+    spans = []
+    for j in s.keys.tracks:
+        ideal = setup.prepared[k].usable[j].ideal
+        span = circle_arc_span_deg(ideal, setup.K, s.rotation, s.circles[j]) if j in s.circles else np.inf
+        if tied is not None and j in tied[1]:
+            span = min(span, circle_arc_span_deg(ideal, setup.K, tied[0], tied[1][j]))
+        if np.isfinite(span):
+            spans.append(span)
     longest = max(spans) if spans else None
     return longest, len(s.keys.tracks) < WEAK_TRACKS or longest is None or longest < WEAK_ARC_DEG
+
+
+def _tied_circles(arm, camera, measurements, setup: _Setup, stage1, pose: gtsam.Pose3, options, ks) -> dict:
+    """k -> (line, circles) of measurement k fitted with its line on the FK axis seen from ``pose``."""
+    builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
+    out = {}
+    for k in ks:
+        fit = _tied_fit(builder, measurements[k], k, setup.prepared[k], stage1[k], pose, options, setup, fresh=True)
+        if fit is not None:
+            out[k] = fit[1], fit[2]
+    return out
 
 
 def _named(setup: _Setup, ks) -> list[int]:
@@ -1267,18 +1283,34 @@ def _poor_minimum(chi2: np.ndarray, limit: float, what: str, setup: _Setup | Non
         f"the estimate ended in a poor minimum or the data are inconsistent: {what} (chi-square of each "
         f"measurement's image axis against the projected FK axis, 2 dof, limit {limit:g}: {listing}); check "
         "the joint angles, the intrinsics and the wrist joint (if the kinematics are known to be inaccurate, "
-        "raise CalibrationOptions.outlier_measurement_chi2)")
+        "raise CalibrationOptions.outlier_measurement_chi2)" + _weak_words(setup))
 
 
-def _tied_fit(builder: RotIdGraph, measurement, k: int, prepared, s: _Stage1, pose: gtsam.Pose3, options):
+def _weak_words(setup: _Setup | None) -> str:
+    """For a refusal: the measurements whose evidence is thin (from ``setup.weak``), which come first."""
+    if setup is None or not setup.weak:
+        return ""
+    named = "; ".join(f"measurement {_named(setup, [k])[0]}: {why}" for k, why in setup.weak.items())
+    return (f". But first: these measurements have too little evidence for a reliable image axis ({named}); spin the "
+            "wrist longer (a full turn or more) or give the hand more texture: the tracking, more likely than the "
+            "joint angles, is at fault")
+
+
+def _tied_fit(builder: RotIdGraph, measurement, k: int, prepared, s: _Stage1, pose: gtsam.Pose3, options,
+              setup: _Setup, fresh: bool = False):
     """Measurement k's circles with its line held on the FK axis projected by ``pose`` (its tilt within the
-    projection plane free): (residual sum of squares in px^2, line variable, circles), or None if it fails."""
+    projection plane free; the tie as soft as the joint-angle noise makes the FK axis): (residual sum of squares in
+    px^2, line variable, circles, the tie's chi-square), or None if it fails. The circles start from stage 1's, or
+    with ``fresh`` from each track's rays about the FK axis (a short arc's stage-1 circle can be far too small)."""
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(POSE_KEY, pose)
     try:
         keys = builder.add_measurement(graph, values, k, measurement, prepared=prepared, skip_tracks=s.outliers,
-                                       initial_line=s.rotation, initial_circles=dict(s.circles),
-                                       refine_circles=False, track_sigmas=dict.fromkeys(prepared.usable, 1.0))
+                                       initial_line=None if fresh else s.rotation,
+                                       initial_circles=None if fresh else dict(s.circles),
+                                       refine_circles=fresh, track_sigmas=dict.fromkeys(prepared.usable, 1.0),
+                                       tie_covariance=joint_tie_covariance(builder.camera, setup.axes[k], s.line,
+                                                                           pose, setup.noise(k)))
     except RotIdError:
         return None
     graph.add(gtsam.NonlinearEqualityPose3(POSE_KEY, pose))
@@ -1287,7 +1319,8 @@ def _tied_fit(builder: RotIdGraph, measurement, k: int, prepared, s: _Stage1, po
     sse = sum(v[0] for v in _track_stats(graph, keys, result).values())
     if not np.isfinite(sse):
         return None
-    return sse, result.atRot3(keys.line), dict(zip(keys.tracks, _circles(keys, result), strict=True))
+    tie = 2.0 * graph.at(keys.tie_factor).error(result) if keys.tie_factor >= 0 else 0.0
+    return sse, result.atRot3(keys.line), dict(zip(keys.tracks, _circles(keys, result), strict=True)), tie
 
 
 def _sse(s: _Stage1) -> float:
@@ -1308,13 +1341,13 @@ def _second_opinion(arm, camera, measurements, setup: _Setup, stage1: list[_Stag
     pixel noise variance as in :func:`_chi2`; inf if the tied fit fails.
     """
     s = stage1[k]
-    builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
     if s.keys.coaxial is None:  # a circle-variable stage 1 (its projected fit stalled): no second opinion
         return None, np.nan
-    tied = _tied_fit(builder, measurements[k], k, setup.prepared[k], s, pose, options)
+    builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
+    tied = _tied_fit(builder, measurements[k], k, setup.prepared[k], s, pose, options, setup)
     if tied is None:
         return None, np.inf
-    sse_tied, line, circles = tied
+    sse_tied, line, circles, tie = tied
     graph, keys, result, it, _, _ = _stage1_round(builder, measurements[k], k, pose, setup.prepared[k], s.outliers,
                                                   line, circles, options)
     stats = _track_stats(graph, keys, result)
@@ -1325,7 +1358,7 @@ def _second_opinion(arm, camera, measurements, setup: _Setup, stage1: list[_Stag
         refit = _stage1_result(builder, graph, keys, result, stats, dict(s.outliers), s.iterations + it, options)
         free = new_free
     variance = max(s.sigma2 if refit is None else refit.sigma2, float(np.median([t.sigma2 for t in stage1])))
-    return refit, max(sse_tied - free, 0.0) / variance
+    return refit, max(sse_tied - free, 0.0) / variance + tie
 
 
 def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opinion=None
@@ -1344,6 +1377,12 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opini
     limit = options.outlier_measurement_chi2
     iterations = 0
     refitted: set[int] = set()
+    setup.weak = {}
+    for k, s in enumerate(stage1):
+        span, weak = _evidence(setup, s, k)
+        if weak:
+            arc = "" if span is None else f", longest arc {span:.0f}° (at most)"
+            setup.weak[k] = f"{len(s.keys.tracks)} tracks{arc}"
     while True:
         pose, it, graph = _weighted_stage2(camera, setup, stage1, used, start, options, anchor)
         iterations += it
@@ -1429,7 +1468,7 @@ def _graph_dof(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> int:
 
 
 def _reports(stage1: list[_Stage1], setup: _Setup, sigmas: dict[int, float], used: list[int], options,
-             chi2: dict[int, float] | None = None) -> list[MeasurementReport]:
+             chi2: dict[int, float] | None = None, tied: dict | None = None) -> list[MeasurementReport]:
     median = float(np.median([sigmas[k] for k in used]))
     reports = []
     for k, s in enumerate(stage1):
@@ -1437,7 +1476,7 @@ def _reports(stage1: list[_Stage1], setup: _Setup, sigmas: dict[int, float], use
         excluded = k not in used
         sigma = sigmas.get(k, np.sqrt(s.sigma2))
         reason = ""
-        span, weak = _evidence(setup, s, k, setup.K)
+        span, weak = _evidence(setup, s, k, None if tied is None else tied.get(k))
         if excluded:
             reason = (f"left out: its image axis disagrees with the FK axis projected by the estimate (chi-square "
                       f"{chi2[k]:.3g} > {options.outlier_measurement_chi2:g}, 2 dof); ")
@@ -1505,7 +1544,8 @@ def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anch
     values = gtsam.Values()
     values.insert(POSE_KEY, pose)
     sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
-    reports = _reports(stage1, setup, sigmas, used, options, chi2)
+    tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
+    reports = _reports(stage1, setup, sigmas, used, options, chi2, tied)
     consistency = _axis_consistency(camera, setup, stage1, used, pose, {k: stage1[k].sigma2 for k in used}, options)
     return _finish(pose, None, pose_information(graph, values, POSE_KEY), Method.WEIGHTED, True, iterations,
                    graph.error(values), reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(graph, values),
@@ -1549,20 +1589,24 @@ def _restarted(arm, camera, measurements, setup, stage1, result, used, chi2, opt
         best = candidates[int(np.argmin(costs))]
     else:
         best = candidates[0]
+    iterations = sum(c.iterations for c in candidates)
     left_out = [k for k in range(len(stage1)) if k not in used]
-    if left_out:
-        back = [k for k in left_out
-                if _second_opinion(arm, camera, measurements, setup, stage1, k, best.arm_T_camera, options)[1]
-                <= options.outlier_measurement_chi2]
-        if back:
-            again = sorted(used + back)
-            chi2 = dict(chi2)
-            try:
-                best = _joint_fit(arm, camera, measurements, setup, stage1, best.arm_T_camera, best.iterations,
-                                  again, chi2, options)
-            except (CalibrationError, RotIdError, RuntimeError):
-                pass
-    best.iterations += sum(c.iterations for c in candidates if c is not best)
+    opinions = {k: _second_opinion(arm, camera, measurements, setup, stage1, k, best.arm_T_camera, options)
+                for k in left_out}
+    back = [k for k, (_, statistic) in opinions.items() if statistic <= options.outlier_measurement_chi2]
+    if back:
+        chi2 = dict(chi2)
+        for k in back:
+            refit, chi2[k] = opinions[k]
+            if refit is not None:
+                stage1[k] = refit
+        try:
+            best = _joint_fit(arm, camera, measurements, setup, stage1, best.arm_T_camera, 0, sorted(used + back),
+                              chi2, options)
+        except (CalibrationError, RotIdError, RuntimeError):
+            pass
+        iterations += best.iterations
+    best.iterations = iterations
     return best
 
 
@@ -1600,7 +1644,9 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
         if stable:
             break
     info = pose_information(graph, result, POSE_KEY)
-    reports = _reports(stage1, setup, sigmas, used, options, chi2)
+    tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
+    reports = _reports(stage1, setup, sigmas, used, options, chi2, tied)
+    variances = {k: sigmas[k] ** 2 for k in used}
     if options.spin_model == "rigid" and builder.model is not Model.POSE:
         rigid = _rigid_spin(camera, measurements, setup, keys, result, sigmas, options)
         if rigid is not None:
@@ -1609,8 +1655,7 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
             # rigid graph is too large for a dense Schur complement and has the same null directions
             return _finish(pose, covariance, info, Method.JOINT, converged, iterations + it, error, reports,
                            np.median(list(sigmas.values())),
-                           consistency=_joint_consistency(camera, setup, stage1, used, pose, keys, result, sigmas,
-                                                          options))
+                           consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options))
     try:
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
     except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
@@ -1622,7 +1667,7 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
         covariance = covariance if robust is None else robust
     return _finish(pose, covariance, info, Method.JOINT, converged, iterations, error, reports,
                    np.median(list(sigmas.values())), dof=_graph_dof(graph, result),
-                   consistency=_joint_consistency(camera, setup, stage1, used, pose, keys, result, sigmas, options))
+                   consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options))
 
 
 def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options):
@@ -1743,9 +1788,13 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
     out = {}
     c = result.axis_consistency
     weak = [m.index for m in result.measurements if m.weak]
-    if c is not None and c.p_value < RESTART_P and weak:
+    strong = [m.index for m in result.measurements if not m.weak and not m.outlier]
+    # weak measurements are trusted only where strong ones determine the pose without them and the axes agree
+    # (without redundancy, three measurements used, nothing tests them)
+    weak_used = [m.index for m in result.measurements if m.weak and not m.outlier]
+    if weak_used and (c is None or c.p_value < RESTART_P or len(strong) < MIN_MEASUREMENTS):
         out["thin_evidence"] = weak
-    if c is not None and c.scale > MAX_CONSISTENCY_SCALE:
+    if c is not None and c.dof > 0 and c.chi2 / c.dof > MAX_CONSISTENCY_SCALE:
         out["inconsistent"] = [m.index for m in result.measurements if not m.outlier]
     distance = float(np.median([np.linalg.norm(result.arm_T_camera.transformTo(a.point)) for a in setup.axes]))
     limit_mm = 1000.0 * MAX_RELATIVE_SIGMA * distance

@@ -32,7 +32,7 @@ import gtsam
 import numpy as np
 
 from .errors import InputError
-from .estimate import ambiguity_words, kinematics_words
+from .estimate import ambiguity_words, kinematics_words, untrusted_words
 from .export import check_output_file, load_result, quaternion_xyzw, ros_covariance, write_text
 from .geometry import Line3
 from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  # noqa: F401 (re-export)
@@ -273,6 +273,8 @@ class CalibrationReport:
     axis_consistency: object | None = None
     #: the joint-angle sigma (deg) the covariance includes; 0: exact kinematics (``result.joint_sigma_deg``)
     joint_sigma_deg: float = 0.0
+    #: why a determined calibration's covariance is still not trusted (``result.untrusted``'s kinds)
+    untrusted: list = field(default_factory=list)
 
     @property
     def bound95_position_mm(self) -> np.ndarray:
@@ -333,6 +335,9 @@ class CalibrationReport:
         if self.ambiguous:
             lines.append("COVARIANCE UNUSABLE: several camera poses fit the data (see observability); the 1σ below "
                          "describe only the one shown")
+        elif not self.covariance_usable and self.untrusted:
+            lines.append("COVARIANCE UNUSABLE: the data do not support it (NOT TRUSTED, see observability); the 1σ "
+                         "below are not to be relied on")
         elif not self.covariance_usable:
             lines.append("COVARIANCE UNUSABLE: the arm poses do not determine the calibration (see observability); "
                          "the 1σ of undetermined directions is meaningless")
@@ -442,6 +447,7 @@ class CalibrationReport:
             "strong_correlations": [{"a": a, "b": b, "rho": f(rho)} for a, b, rho in self.strong_correlations],
             "chi2": {k: (f(v) if isinstance(v, float) else v) for k, v in self.chi2.to_dict().items()},
             "joint_sigma_deg": f(self.joint_sigma_deg),
+            "untrusted": list(self.untrusted),
             "axis_consistency": None if self.axis_consistency is None
             else {k: (f(v) if isinstance(v, float) else v) for k, v in self.axis_consistency.to_dict().items()},
             "observability": {
@@ -458,6 +464,8 @@ class CalibrationReport:
                 {"index": m.index, "n_tracks": m.n_tracks, "n_points": m.n_points,
                  "residual_rms_px": f(m.residual_rms_px), "weight": f(m.weight), "outlier": bool(m.outlier),
                  "outlier_reason": m.outlier_reason,
+                 "arc_span_deg": None if getattr(m, "arc_span_deg", None) is None else f(m.arc_span_deg),
+                 "weak": bool(getattr(m, "weak", False)),
                  "rejected_tracks": {str(j): why for j, why in sorted(m.rejected_tracks.items())}}
                 for m in self.measurements
             ],
@@ -578,6 +586,12 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         words.insert(0, "AMBIGUOUS: " + ambiguity_words(result))
         suggestion = suggestion or ("add arm poses whose wrist axes are tilted from the others and miss their "
                                     "common point")
+    untrusted = list(getattr(result, "untrusted", None) or {})
+    if untrusted and not ambiguous:  # a wrong minimum or a wrong model: no coordinate is to be relied on
+        determined = np.zeros(6, dtype=bool)
+        for sentence in reversed(untrusted_words(result)):
+            words.insert(0, "NOT TRUSTED: " + sentence)
+        suggestion = suggestion or "spin the wrist longer (a full turn), give the hand more texture, or add arm poses"
     pos_dir, pos_sigma = _strongest(cov[:3, :3])
     rot_axis, rot_sigma = _strongest(cov[3:, 3:])
     crossing = geometry is not None and geometry.is_crossing
@@ -598,7 +612,7 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         crossing_point_mm=1000.0 * geometry.point if crossing else None,
         crossing_miss_mm=1000.0 * float(np.max(geometry.miss)) if crossing else None, ambiguous=ambiguous,
         axis_consistency=getattr(result, "axis_consistency", None),
-        joint_sigma_deg=float(getattr(result, "joint_sigma_deg", 0.0)),
+        joint_sigma_deg=float(getattr(result, "joint_sigma_deg", 0.0)), untrusted=untrusted,
     )
 
 
