@@ -10,6 +10,8 @@ from pathlib import Path
 from . import __version__
 from .errors import InputError, OutputError, RotIdError
 from .export import add_export_parser
+from .meshrender import COVERINGS
+from .pixels import DEMO_COVERING
 from .recordings import add_track_parser
 from .report import add_report_parser, error_vs_truth_lines
 
@@ -128,10 +130,14 @@ def cmd_demo(args) -> int:
     if args.noise_var is not None:
         raise InputError("--noise-var sets the pixel noise of simulated tracks: use it with --no-video (the video "
                          "demo's noise is the rendered image noise)")
-    from .pixels import DEMO_DURATION, run_demo
+    from .pixels import DEMO_DURATION, demo_render_config, run_demo
 
+    if args.renderer == "cylinder" and args.covering is not None:
+        raise InputError("--covering chooses what covers the hand in the mesh renderer; the cylinder has dots")
+    config = demo_render_config(args.renderer, args.covering, args.seed)
     run_demo(args.out, seed=args.seed, duration=args.duration or DEMO_DURATION,
-             n_measurements=args.n_measurements or 6, method=args.method, overwrite=args.overwrite)
+             n_measurements=args.n_measurements or 6, method=args.method, overwrite=args.overwrite,
+             render_config=config)
     return 0
 
 
@@ -212,6 +218,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR", help=f"also write DIR/dataset, DIR/{RESULT_FILE} (and, from video, "
                                                  "one overlay picture per measurement)")
     p.add_argument("--no-video", action="store_true", help="skip rendering and tracking: calibrate simulated tracks")
+    p.add_argument("--renderer", choices=("mesh", "cylinder"), default="mesh",
+                   help="mesh: the robot's own meshes, ray cast (default); cylinder: the dotted stepped cylinder")
+    p.add_argument("--covering", choices=COVERINGS, default=None,
+                   help=f"what covers the hand (mesh renderer; default {DEMO_COVERING})")
     p.add_argument("--overwrite", action="store_true", help="replace existing output")
     _add_method_option(p)
     _add_scene_options(p)

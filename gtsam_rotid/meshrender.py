@@ -1090,6 +1090,10 @@ class TrackErrors:
     n_compared: np.ndarray
     pooled_rms_px: float
     pooled_median_px: float
+    #: the largest point error, and the RMS over tracks of each track's mean error vector (what does not average
+    #: out along an arc)
+    pooled_max_px: float = float("nan")
+    bias_px: float = float("nan")
 
     @property
     def off_links(self) -> np.ndarray:
@@ -1107,7 +1111,7 @@ def track_errors(tracks, spin: MeshSpin, *, n_first: int = 5) -> TrackErrors:
     points = np.full((n, 3), np.nan)
     on_links = np.zeros(n, bool)
     rms, median, count = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, np.int64)
-    pooled = []
+    pooled, biases = [], []
     for j, track in enumerate(tracks):
         pixels = np.asarray(track.pixels, dtype=float)
         if track.frames is None:
@@ -1125,13 +1129,18 @@ def track_errors(tracks, spin: MeshSpin, *, n_first: int = 5) -> TrackErrors:
         use = visible[:, 0]
         if not np.any(use):
             continue
-        error = np.linalg.norm(pixels[use] - projected[use, 0], axis=1)
+        offsets = pixels[use] - projected[use, 0]
+        error = np.linalg.norm(offsets, axis=1)
         rms[j], median[j], count[j] = np.sqrt(np.mean(error**2)), np.median(error), len(error)
         pooled.append(error)
+        biases.append(offsets.mean(axis=0))
     pooled_errors = np.concatenate(pooled) if pooled else np.zeros(0)
+    some = len(pooled_errors) > 0
     return TrackErrors(points, on_links, rms, median, count,
-                       float(np.sqrt(np.mean(pooled_errors**2))) if len(pooled_errors) else float("nan"),
-                       float(np.median(pooled_errors)) if len(pooled_errors) else float("nan"))
+                       float(np.sqrt(np.mean(pooled_errors**2))) if some else float("nan"),
+                       float(np.median(pooled_errors)) if some else float("nan"),
+                       float(pooled_errors.max()) if some else float("nan"),
+                       float(np.sqrt(np.mean(np.sum(np.square(biases), axis=1)))) if biases else float("nan"))
 
 
 # --------------------------------------------------------------------------------------------- entry points

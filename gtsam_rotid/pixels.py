@@ -30,6 +30,7 @@ import numpy as np
 
 from .dataset import Dataset, Measurement, Track
 from .errors import InputError, OutputError
+from .meshrender import MeshRenderConfig, MeshSpin, load_arm_meshes, render_mesh_measurement, track_errors
 from .render import RenderConfig, RenderedSpin, render_measurement
 from .tracking import Tracker, TrackerParams, TrackingResult
 
@@ -38,8 +39,11 @@ __all__ = [
     "DemoRun",
     "TrackingAccuracy",
     "VideoScene",
+    "DEMO_COVERING",
     "dataset_from_video",
     "demo_files",
+    "demo_render_config",
+    "mesh_accuracy",
     "run_demo",
     "spin_accuracy",
     "tracking_accuracy",
@@ -48,6 +52,8 @@ __all__ = [
 #: Seconds of wrist spin per measurement in :func:`run_demo` (the reference scene has 60 s): with six
 #: measurements the demo renders and tracks 3600 frames and takes well under two minutes on two cores.
 DEMO_DURATION = 20.0
+#: What covers the hand in the demo's mesh rendering (:data:`gtsam_rotid.meshrender.COVERINGS`).
+DEMO_COVERING = "dots"
 #: A tracked point farther than this (px) from every true dot centre of its frame is unmatched.
 MATCH_GATE_PX = 3.0
 DATASET_DIR = "dataset"
@@ -82,12 +88,21 @@ class TrackingAccuracy:
     gate_px: float = MATCH_GATE_PX
     #: (frame, dot) pairs the truth calls visible (the denominator of ``coverage``)
     n_visible: int = 0
+    #: ``"dots"``: matched to the nearest true dot centre (:func:`tracking_accuracy`); ``"surface"``: each track
+    #: against the projection of the surface point it started on (:func:`mesh_accuracy`; ``n_mixed`` then counts
+    #: tracks that do not lie on the spinning hand, and ``n_matched`` the points compared where that point is seen)
+    truth: str = "dots"
 
     @property
     def matched_fraction(self) -> float:
         return self.n_matched / self.n_points if self.n_points else float("nan")
 
     def summary(self) -> str:
+        if self.truth == "surface":
+            return (f"{self.n_tracks} tracks, {self.n_points} points: RMS {self.rms_px:.3f} px (median "
+                    f"{self.median_px:.3f}, max {self.max_px:.2f}) against the projection of each track's surface "
+                    f"point, over the {100 * self.matched_fraction:.2f} % where it is visible; per-track bias "
+                    f"{self.bias_px:.3f} px RMS; {self.n_mixed} tracks not on the spinning hand")
         return (f"{self.n_tracks} tracks, {self.n_points} points: RMS {self.rms_px:.3f} px (median "
                 f"{self.median_px:.3f}, max {self.max_px:.2f}) over the {100 * self.matched_fraction:.2f} % "
                 f"within {self.gate_px:g} px of a true dot centre; per-track bias {self.bias_px:.3f} px RMS; "
@@ -116,7 +131,7 @@ class TrackingAccuracy:
             bias_px=float(np.sqrt(mean([p.bias_px ** 2 for p in parts], [p.n_tracks for p in parts]))),
             n_mixed=sum(p.n_mixed for p in parts), n_on_visible=sum(p.n_on_visible for p in parts),
             coverage=mean([p.coverage for p in parts], [p.n_visible for p in parts]), gate_px=parts[0].gate_px,
-            n_visible=sum(p.n_visible for p in parts))
+            n_visible=sum(p.n_visible for p in parts), truth=parts[0].truth)
 
 
 def tracking_accuracy(tracks, truth_pixels, *, frame_indices=None, visible=None,
@@ -194,6 +209,16 @@ def spin_accuracy(tracks, spin: RenderedSpin, *, gate_px: float = MATCH_GATE_PX)
     return tracking_accuracy(tracks, drawn, frame_indices=spin.frame_indices, visible=spin.visible, gate_px=gate_px)
 
 
+def mesh_accuracy(tracks, spin: MeshSpin) -> TrackingAccuracy:
+    """Tracked points against a mesh rendering's ground truth (:func:`gtsam_rotid.meshrender.track_errors`: each
+    track's surface point located from its first points, projected in the track's frames where it is visible)."""
+    tracks = list(tracks)
+    e = track_errors(tracks, spin)
+    compared = int(np.sum(e.n_compared))
+    return TrackingAccuracy(len(tracks), sum(len(t) for t in tracks), compared, e.pooled_rms_px, e.pooled_median_px,
+                            e.pooled_max_px, e.bias_px, len(e.off_links), compared, truth="surface")
+
+
 # ---------------------------------------------------------------------------------------------- video -> dataset
 @dataclass
 class VideoScene:
@@ -263,20 +288,28 @@ class _Timed:
                 self._bar.update(1)
 
 
-def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | None = None,
+def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | MeshRenderConfig | None = None,
                        tracker_params: TrackerParams | None = None, *, frames=None,
                        progress: bool = True) -> VideoScene:
     """Render every measurement of a simulated scene (``dataset, truth = simulate...``), track its frames and
     return the tracked dataset (same arm, camera and joint angles; the tracks come from the tracker, with the
     spin's frame numbers) with the tracking results and their accuracy against the rendered truth.
 
+    ``render_config``: a :class:`~gtsam_rotid.render.RenderConfig` (default: the dotted stepped cylinder) or a
+    :class:`~gtsam_rotid.meshrender.MeshRenderConfig` (the robot's own meshes with a covered hand).
+
     Frames are rendered one at a time and fed to the tracker (nothing is held). ``frames``: the frame selection
     of :func:`~gtsam_rotid.render.render_measurement` (default all). ``progress`` draws tqdm bars on stderr.
-    A measurement in which the tracker keeps fewer than 2 tracks raises :class:`InputError` naming it.
+    A measurement in which the tracker keeps no track raises :class:`InputError` naming it.
     """
     from tqdm import tqdm
 
     render_config = RenderConfig() if render_config is None else render_config
+    if not isinstance(render_config, RenderConfig | MeshRenderConfig):
+        raise InputError(f"render_config must be a RenderConfig or a MeshRenderConfig, got "
+                         f"{type(render_config).__name__}")
+    mesh = isinstance(render_config, MeshRenderConfig)
+    meshes = load_arm_meshes(dataset.arm) if mesh else None
     tracker_params = TrackerParams() if tracker_params is None else tracker_params
     measurements, results, accuracies, spins = [], [], [], []
     render_seconds = track_seconds = 0.0
@@ -284,7 +317,8 @@ def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | No
     with tqdm(total=n, desc="measurements", unit="spin", disable=not progress, file=sys.stderr) as outer:
         for k in range(n):
             start = time.perf_counter()
-            spin = render_measurement(dataset, truth, k, render_config, frames=frames)
+            spin = (render_mesh_measurement(dataset, truth, k, render_config, frames=frames, meshes=meshes) if mesh
+                    else render_measurement(dataset, truth, k, render_config, frames=frames))
             render_seconds += time.perf_counter() - start
             start = time.perf_counter()
             with tqdm(total=spin.n_frames, desc=f"render + track {k}", unit="frame", leave=False,
@@ -299,16 +333,18 @@ def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | No
             rejected = [dataclasses.replace(r, track=Track(r.track.pixels, spin.frame_indices[r.track.frames]))
                         for r in result.rejected]
             result = dataclasses.replace(result, tracks=tracks, rejected=rejected)
-            if len(tracks) < 2:
-                raise InputError(f"measurement {k}: the tracker kept {len(tracks)} track(s) in {spin.n_frames} "
-                                 f"rendered frames; a measurement needs at least 2\n{result.summary()}")
+            if not tracks:  # (one track is kept: the calibration leaves such a measurement out and names it)
+                raise InputError(f"measurement {k}: the tracker kept no track in {spin.n_frames} rendered frames"
+                                 f"\n{result.summary()}")
             measurements.append(Measurement(dataset[k].joint_angles, tracks, name=dataset[k].name))
             results.append(result)
-            accuracies.append(spin_accuracy(tracks, spin))
+            accuracies.append(mesh_accuracy(tracks, spin) if mesh else spin_accuracy(tracks, spin))
             spins.append(spin)
             outer.update(1)
     metadata = {key: value for key, value in dataset.metadata.items() if key != "noise_var"}
-    metadata["video"] = {"rendered": True, "noise_sigma_grey": render_config.noise_sigma,
+    metadata["video"] = {"rendered": True, "renderer": "mesh" if mesh else "cylinder",
+                         **({"covering": render_config.covering} if mesh else {}),
+                         "noise_sigma_grey": render_config.noise_sigma,
                          "render_seed": render_config.seed, "tracker": "gtsam_rotid.tracking.Tracker",
                          "tracker_params": dataclasses.asdict(tracker_params)}
     tracked = Dataset(dataset.arm, dataset.camera, measurements, metadata=metadata)
@@ -351,8 +387,20 @@ def _check_demo_output(out: Path, n_measurements: int, overwrite: bool) -> None:
             raise OutputError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
 
 
+def demo_render_config(renderer: str = "mesh", covering: str | None = None,
+                       seed: int = 0) -> RenderConfig | MeshRenderConfig:
+    """The demo's rendering: ``"mesh"`` (the robot's own meshes, the hand covered by ``covering``, default
+    :data:`DEMO_COVERING`) or ``"cylinder"`` (the dotted stepped cylinder of :mod:`gtsam_rotid.render`)."""
+    if renderer == "cylinder":
+        return RenderConfig()
+    if renderer != "mesh":
+        raise InputError(f"renderer must be 'mesh' or 'cylinder', got {renderer!r}")
+    return MeshRenderConfig(covering=DEMO_COVERING if covering is None else covering, seed=seed)
+
+
 def run_demo(out_dir: str | os.PathLike | None = None, *, seed: int = 0, duration: float = DEMO_DURATION,
-             n_measurements: int = 6, method: str = "joint", render_config: RenderConfig | None = None,
+             n_measurements: int = 6, method: str = "joint",
+             render_config: RenderConfig | MeshRenderConfig | None = None,
              tracker_params: TrackerParams | None = None, overwrite: bool = False, progress: bool = True,
              print: Callable[..., None] = builtins.print) -> DemoRun:
     """The whole pixel pipeline on the reference scene (seed ``seed``, ``n_measurements`` spins of ``duration``
@@ -374,8 +422,11 @@ def run_demo(out_dir: str | os.PathLike | None = None, *, seed: int = 0, duratio
     out = None if out_dir is None else Path(out_dir)
     if out is not None:
         _check_demo_output(out, n_measurements, overwrite)
+    render_config = demo_render_config(seed=seed) if render_config is None else render_config
+    drawn = (f"the robot's own meshes, the hand covered by {render_config.covering}"
+             if isinstance(render_config, MeshRenderConfig) else "a dotted cylinder for the hand")
     print(f"gtsam-rotid demo from pixels: the reference scene (Kinova Jaco2, Xtion-like camera), seed {seed}, "
-          f"{n_measurements} wrist spins of {duration:g} s rendered, tracked and calibrated")
+          f"{n_measurements} wrist spins of {duration:g} s rendered, tracked and calibrated ({drawn})")
     start = time.perf_counter()
     simulated, truth = simulate.reference_scene(seed=seed, duration=duration, n_measurements=n_measurements)
     seconds["simulate"] = time.perf_counter() - start
