@@ -488,12 +488,9 @@ class CornerFollower:
             return
         linear = model.linear_parts(a.moments[use])
         centres = model.centres(linear) * self._scale + self._origin
-        omega = float(np.median(self._omega_votes)) if self._omega_votes and self.model is not None else 0.0
-        model.omega = omega
-        self.model = model
-        a.centre[:] = np.nan
-        a.centre[use] = centres
-        if not self._omega_votes:
+        if self._omega_votes and self.model is not None:
+            model.omega = float(np.median(self._omega_votes))
+        else:
             # first model: the rate from the tracks' velocities about their centres
             cen = model.normalise(centres)
             now = model.normalise(a.pos[use])
@@ -501,6 +498,19 @@ class CornerFollower:
             dphi = model.phase(now, cen) - model.phase(before, cen)
             dphi = (dphi + np.pi) % (2 * np.pi) - np.pi
             model.omega = float(np.median(dphi))
+        # a model from a few short arcs can be far off, and then its predictions lose every new corner (so it is
+        # never refitted, and the tracks die at their first step): it is used only while it predicts the
+        # tracks' own one-frame steps
+        step = model.turn(a.pos[use], centres, model.omega) - a.pos[use]
+        speed = float(np.median(np.hypot(*a.vel[use].T)))
+        step_error = float(np.median(np.hypot(*(step - a.vel[use]).T)))
+        a.centre[:] = np.nan
+        if step_error > p.model_max_step_error * max(speed, 1e-3):
+            self.model = None
+            self._omega_votes = []
+            return
+        self.model = model
+        a.centre[use] = centres
 
     def _seed(self, grey, frame: int, exclude) -> None:
         p, a = self.p, self._a

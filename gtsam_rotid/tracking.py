@@ -163,14 +163,19 @@ class TrackerParams:
     #: A track ends where its patch has turned or stretched so that the warp's linear part is further than this
     #: from the identity (largest entry).
     max_template_warp: float = 0.5
-    #: Damping of the warp's linear part (relative), and whether the spin's rotation predicts it.
+    #: Damping of the warp's linear part (relative), and whether the spin's rotation predicts it (off by default:
+    #: the shared conic's turn W⁻¹ R W is the patch's turn only on surfaces facing along the axis, and a shape
+    #: fitted to a few short arcs made it far off; the last frame's warp is the start).
     warp_damping: float = 0.5
-    predict_turn: bool = True
+    predict_turn: bool = False
     max_anchor_disagreement: float = 1.5
     #: The spin's shared rotation (one ellipse shape, one rate): refitted every ``model_every`` frames from
     #: tracks of at least ``model_min_points`` points; it predicts each corner (LK's start) and gates it.
     model_every: int = 10
     model_min_points: int = 15
+    #: ... and is used only while it predicts the tracks' own one-frame steps within this fraction of their
+    #: speed (medians over the tracks).
+    model_max_step_error: float = 0.3
     #: A point further from its track's ellipse than ``ellipse_sigmas`` robust sigmas (and than
     #: ``min_ellipse_gate`` px while tracking, ``min_ellipse_gate_offline`` px after) is dropped; a track with more
     #: than ``max_off_ellipse_fraction`` of its points so far off is rejected (an occluding edge, a highlight).
@@ -200,7 +205,7 @@ class TrackerParams:
                     "park_extent", "max_corners", "seed_every", "corner_min_distance", "corner_block_size",
                     "motion_memory", "anchor_every", "max_anchor_disagreement", "corner_window", "ic_iterations",
                     "min_zncc", "max_final_step", "max_template_warp", "warp_damping",
-                    "model_every", "model_min_points",
+                    "model_every", "model_min_points", "model_max_step_error",
                     "ellipse_sigmas", "rate_tolerance", "link_max_gap", "link_phase_tolerance",
                     "max_phase_residual")
         non_negative = ("min_circularity", "min_convexity", "min_inertia_ratio", "min_threshold", "min_contrast",
