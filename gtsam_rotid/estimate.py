@@ -163,7 +163,8 @@ class MeasurementReport:
     axis_chi2: float | None = None
     #: the longest arc among its kept tracks (deg, about each track's ellipse); None when unknown
     arc_span_deg: float | None = None
-    #: too little evidence for a Gaussian image axis: fewer than WEAK_TRACKS kept tracks or no arc of WEAK_ARC_DEG
+    #: too little evidence for a Gaussian image axis: fewer than WEAK_TRACKS kept tracks, or fewer than
+    #: WEAK_MANY_TRACKS and no arc of WEAK_ARC_DEG
     weak: bool = False
 
 
@@ -512,10 +513,15 @@ STAGE1_MAX_ITERATIONS = 60
 STAGE1_ROUNDS = 4
 #: LM iterations allowed from the twin start.
 TWIN_ITERATIONS = 20
-#: A measurement with fewer kept tracks than this, or no arc of WEAK_ARC_DEG, is weak: its image axis need not be
-#: Gaussian (see :func:`_second_opinion`), so an inconsistency it takes part in is not scaled away.
+#: A measurement with fewer kept tracks than WEAK_TRACKS, or fewer than WEAK_MANY_TRACKS and no arc of WEAK_ARC_DEG,
+#: is weak: its image axis need not be Gaussian (see :func:`_second_opinion`), so an inconsistency it takes part in
+#: is not scaled away. Many short arcs are not weak: their errors average (the rendered reference scene's end-on pose
+#: has 60 tracks of at most 50 degrees, and its covariance holds).
 WEAK_TRACKS = 4
+WEAK_MANY_TRACKS = 20
 WEAK_ARC_DEG = 90.0
+#: Weak measurements are left out when at least this many strong ones remain (the pose with redundancy to test it).
+MIN_STRONG = 4
 #: An arc's span is taken between these quantiles of its points' angles (and the upper one's complement).
 ARC_TRIM = 0.05
 #: An axis-consistency scale (chi2/dof) above this is not a modest understatement of the noise but a wrong model.
@@ -595,6 +601,8 @@ class _Setup:
     K: np.ndarray | None = None  # the camera matrix
     #: k -> the evidence of measurements whose stage-1 fit is weak (for the words of a refusal)
     weak: dict[int, str] = field(default_factory=dict)
+    #: the weak measurements left out because enough strong ones determine the pose without them
+    dropped: set[int] = field(default_factory=set)
 
     def noise(self, k: int) -> np.ndarray | None:
         return self.axis_noise[k] if self.axis_noise else None
@@ -1257,7 +1265,8 @@ def _evidence(setup: _Setup, s: _Stage1, k: int, tied=None) -> tuple[float | Non
         if np.isfinite(span):
             spans.append(span)
     longest = max(spans) if spans else None
-    return longest, len(s.keys.tracks) < WEAK_TRACKS or longest is None or longest < WEAK_ARC_DEG
+    n = len(s.keys.tracks)
+    return longest, n < WEAK_TRACKS or (n < WEAK_MANY_TRACKS and (longest is None or longest < WEAK_ARC_DEG))
 
 
 def _tied_circles(arm, camera, measurements, setup: _Setup, stage1, pose: gtsam.Pose3, options, ks) -> dict:
@@ -1372,8 +1381,6 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opini
     own (``stage1`` is updated in place) and the likelihood-ratio statistic decides instead of the linearised one.
     """
     n = len(stage1)
-    used = list(range(n))
-    max_excluded = max(0, (n - MIN_MEASUREMENTS) // 2)
     limit = options.outlier_measurement_chi2
     iterations = 0
     refitted: set[int] = set()
@@ -1383,6 +1390,11 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opini
         if weak:
             arc = "" if span is None else f", longest arc {span:.0f}° (at most)"
             setup.weak[k] = f"{len(s.keys.tracks)} tracks{arc}"
+    # weak measurements (their image axes need not be Gaussian) are left out when enough strong ones remain
+    strong = [k for k in range(n) if k not in setup.weak]
+    setup.dropped = set(setup.weak) if setup.weak and len(strong) >= MIN_STRONG else set()
+    used = [k for k in range(n) if k not in setup.dropped]
+    max_excluded = max(0, (len(used) - MIN_MEASUREMENTS) // 2) + len(setup.dropped)
     while True:
         pose, it, graph = _weighted_stage2(camera, setup, stage1, used, start, options, anchor)
         iterations += it
@@ -1477,7 +1489,11 @@ def _reports(stage1: list[_Stage1], setup: _Setup, sigmas: dict[int, float], use
         sigma = sigmas.get(k, np.sqrt(s.sigma2))
         reason = ""
         span, weak = _evidence(setup, s, k, None if tied is None else tied.get(k))
-        if excluded:
+        weak = weak or k in setup.dropped
+        if excluded and k in setup.dropped:
+            reason = (f"left out: too little evidence for a reliable image axis ({setup.weak[k]}); the "
+                      f"{len(used)} stronger measurements determine the pose without it")
+        elif excluded:
             reason = (f"left out: its image axis disagrees with the FK axis projected by the estimate (chi-square "
                       f"{chi2[k]:.3g} > {options.outlier_measurement_chi2:g}, 2 dof); ")
             reason += ("its own evidence is thin (few tracks or short arcs): spin longer or add texture, and check "
@@ -1590,7 +1606,7 @@ def _restarted(arm, camera, measurements, setup, stage1, result, used, chi2, opt
     else:
         best = candidates[0]
     iterations = sum(c.iterations for c in candidates)
-    left_out = [k for k in range(len(stage1)) if k not in used]
+    left_out = [k for k in range(len(stage1)) if k not in used and k not in setup.dropped]
     opinions = {k: _second_opinion(arm, camera, measurements, setup, stage1, k, best.arm_T_camera, options)
                 for k in left_out}
     back = [k for k, (_, statistic) in opinions.items() if statistic <= options.outlier_measurement_chi2]
