@@ -161,7 +161,8 @@ class MeasurementReport:
     image_axis: list[float] | None = None
     #: chi-square (2 dof) of its image axis against the FK axis projected by the estimate (weighted and joint)
     axis_chi2: float | None = None
-    #: the longest arc among its kept tracks (deg, about each track's ellipse); None when unknown
+    #: the longest arc among its kept tracks (deg, about its fitted circle: :func:`circle_arc_span_deg`; about the
+    #: track's own ellipse for a measurement left out before stage 1); None when unknown
     arc_span_deg: float | None = None
     #: too little evidence for a Gaussian image axis: fewer than WEAK_TRACKS kept tracks, or fewer than
     #: WEAK_MANY_TRACKS and no arc of WEAK_ARC_DEG
@@ -400,7 +401,7 @@ class CalibrationResult:
 
 #: Why a determined calibration's covariance is not trusted (keys of ``CalibrationResult.untrusted``).
 UNTRUSTED_KINDS = {
-    "thin_evidence": "weak measurements whose image axes disagree with the estimate",
+    "thin_evidence": "the estimate rests on weak measurements (few tracks or short arcs) that nothing vouches for",
     "inconsistent": "the measurements disagree far beyond their noise",
     "too_uncertain": "the uncertainty is too large to be a calibration",
 }
@@ -520,7 +521,8 @@ TWIN_ITERATIONS = 20
 WEAK_TRACKS = 4
 WEAK_MANY_TRACKS = 20
 WEAK_ARC_DEG = 90.0
-#: Weak measurements are left out when at least this many strong ones remain (the pose with redundancy to test it).
+#: When the axes disagree, weak measurements are left out if at least this many strong ones remain (the pose with
+#: redundancy to test it).
 MIN_STRONG = 4
 #: An arc's span is taken between these quantiles of its points' angles (and the upper one's complement).
 ARC_TRIM = 0.05
@@ -1370,7 +1372,7 @@ def _second_opinion(arm, camera, measurements, setup: _Setup, stage1: list[_Stag
     return refit, max(sse_tied - free, 0.0) / variance + tie
 
 
-def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opinion=None
+def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opinion=None, drop_weak: bool = False
                      ) -> tuple[gtsam.Pose3, int, gtsam.NonlinearFactorGraph, list[int], dict[int, float]]:
     """Weighted stage 2 that leaves out measurements whose image axis disagrees with the FK axis.
 
@@ -1390,9 +1392,10 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opini
         if weak:
             arc = "" if span is None else f", longest arc {span:.0f}° (at most)"
             setup.weak[k] = f"{len(s.keys.tracks)} tracks{arc}"
-    # weak measurements (their image axes need not be Gaussian) are left out when enough strong ones remain
+    # with ``drop_weak``, weak measurements (their image axes need not be Gaussian) are left out when enough strong
+    # ones remain
     strong = [k for k in range(n) if k not in setup.weak]
-    setup.dropped = set(setup.weak) if setup.weak and len(strong) >= MIN_STRONG else set()
+    setup.dropped = set(setup.weak) if drop_weak and setup.weak and len(strong) >= MIN_STRONG else set()
     used = [k for k in range(n) if k not in setup.dropped]
     max_excluded = max(0, (len(used) - MIN_MEASUREMENTS) // 2) + len(setup.dropped)
     while True:
@@ -1580,6 +1583,16 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
     result = _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used, chi2, options)
     if result.axis_consistency is None or result.axis_consistency.p_value >= RESTART_P:
         return result
+    weak_used = [k for k in used if k in setup.weak]
+    if weak_used and len([k for k in used if k not in setup.weak]) >= MIN_STRONG:
+        # the axes disagree and weak measurements take part: fit the strong ones alone (the weak are named)
+        pose, it, _, used, chi2 = _robust_weighted(camera, setup, stage1, pose, options, anchor,
+                                                   _opinion(arm, camera, measurements, setup, stage1, options),
+                                                   drop_weak=True)
+        result = _joint_fit(arm, camera, measurements, setup, stage1, pose, result.iterations + it, used, chi2,
+                            options)
+        if result.axis_consistency is None or result.axis_consistency.p_value >= RESTART_P:
+            return result
     return _restarted(arm, camera, measurements, setup, stage1, result, used, chi2, options, anchor)
 
 
