@@ -586,18 +586,23 @@ class CornerFollower:
         """(tracks, {track id: seed patch}, track ids), tracks ordered by id."""
         if not self._log:
             return [], {}, []
-        frames = np.concatenate([np.full(len(ids), f, np.int64) for f, ids, _ in self._log])
-        ids = np.concatenate([ids for _, ids, _ in self._log])
-        pixels = np.concatenate([pts for _, _, pts in self._log])
-        order = np.lexsort((frames, ids))
-        frames, ids, pixels = frames[order], ids[order], pixels[order]
-        cuts = np.flatnonzero(np.diff(ids)) + 1
-        tracks = [Track(px, fr) for fr, px in zip(np.split(frames, cuts), np.split(pixels, cuts), strict=True)]
-        track_ids = [int(i) for i in ids[np.concatenate([[0], cuts])]]
+        tracks, track_ids = tracks_from_log(self._log)
         patches = {}
         for pid, patch in zip(self._patch_ids, self._patches, strict=True):
             patches.update(zip(pid.tolist(), patch, strict=True))
         return tracks, patches, track_ids
+
+
+def tracks_from_log(log) -> tuple[list[Track], list[int]]:
+    """Tracks (ordered by id) and their ids from a per-frame log of ``(frame, ids (n,), pixels (n, 2))``."""
+    frames = np.concatenate([np.full(len(ids), f, np.int64) for f, ids, _ in log])
+    ids = np.concatenate([ids for _, ids, _ in log])
+    pixels = np.concatenate([pts for _, _, pts in log])
+    order = np.lexsort((frames, ids))
+    frames, ids, pixels = frames[order], ids[order], pixels[order]
+    cuts = np.flatnonzero(np.diff(ids)) + 1
+    tracks = [Track(px, fr) for fr, px in zip(np.split(frames, cuts), np.split(pixels, cuts), strict=True)]
+    return tracks, [int(i) for i in ids[np.concatenate([[0], cuts])]]
 
 
 def _stamp(image: np.ndarray, points: np.ndarray) -> None:

@@ -61,7 +61,7 @@ from .arm import Arm
 from .camera import Camera
 from .errors import ArmError, InputError
 from .geometry import perpendicular_basis, rotation_about_axis
-from .render import _checked_scene, _frame_selection
+from .render import _checked_scene, scene_spin
 
 __all__ = [
     "COVERINGS",
@@ -1155,19 +1155,10 @@ def render_mesh_measurement(dataset, truth, k: int, config: MeshRenderConfig | N
     config = MeshRenderConfig() if config is None else config
     if not isinstance(config, MeshRenderConfig):
         raise InputError(f"config must be a MeshRenderConfig, got {type(config).__name__}")
-    _checked_scene(dataset, truth)
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < len(dataset):
-        raise InputError(f"measurement index {k!r} is outside the dataset's measurements 0..{len(dataset) - 1}")
-    k = int(k)
-    mt = truth.measurements[k]
-    spin = np.asarray(mt.spin_angles, dtype=float)
-    if spin.ndim != 1 or spin.size == 0 or not np.all(np.isfinite(spin)):
-        raise InputError(f"measurement {k}: the truth's spin_angles must be a non-empty finite 1-D array")
-    selection = _frame_selection(frames, spin.size, k)
-    fps = dataset.metadata.get("fps", getattr(truth, "config", {}).get("fps"))
+    k, mt, spin, selection, fps = scene_spin(dataset, truth, k, frames)
     meshes = load_arm_meshes(dataset.arm, package_dirs) if meshes is None else meshes
     return MeshSpin(k, dataset.arm, dataset.camera, truth.arm_T_camera, mt.joint_angles, spin, selection, config,
-                    None if fps is None else float(fps), meshes)
+                    fps, meshes)
 
 
 def render_mesh_scene(dataset, truth, config: MeshRenderConfig | None = None, *, frames=None,

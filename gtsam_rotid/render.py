@@ -628,16 +628,9 @@ def _frame_selection(frames, n_frames: int, k: int) -> np.ndarray:
     return selection.astype(np.int64)
 
 
-def render_measurement(dataset, truth, k: int, config: RenderConfig | None = None, *,
-                       frames=None) -> RenderedSpin:
-    """The synthetic video of measurement ``k`` of a simulated scene (``dataset, truth = simulate...``).
-
-    ``frames``: None (all of the spin's frames), a slice, or an array of frame numbers. The ground truth is
-    computed at once; frames are rendered lazily by :meth:`RenderedSpin.frames`.
-    """
-    config = RenderConfig() if config is None else config
-    if not isinstance(config, RenderConfig):
-        raise InputError(f"config must be a RenderConfig, got {type(config).__name__}")
+def scene_spin(dataset, truth, k, frames=None) -> tuple[int, object, np.ndarray, np.ndarray, float | None]:
+    """Measurement ``k`` of a simulated scene, checked for a renderer: (k, its truth, its spin angles, the frame
+    selection of ``frames`` (see :func:`render_measurement`), the video's fps or None)."""
     _checked_scene(dataset, truth)
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < len(dataset):
         raise InputError(f"measurement index {k!r} is outside the dataset's measurements 0..{len(dataset) - 1}")
@@ -648,9 +641,22 @@ def render_measurement(dataset, truth, k: int, config: RenderConfig | None = Non
         raise InputError(f"measurement {k}: the truth's spin_angles must be a non-empty finite 1-D array")
     selection = _frame_selection(frames, spin.size, k)
     fps = dataset.metadata.get("fps", getattr(truth, "config", {}).get("fps"))
+    return k, mt, spin, selection, None if fps is None else float(fps)
+
+
+def render_measurement(dataset, truth, k: int, config: RenderConfig | None = None, *,
+                       frames=None) -> RenderedSpin:
+    """The synthetic video of measurement ``k`` of a simulated scene (``dataset, truth = simulate...``).
+
+    ``frames``: None (all of the spin's frames), a slice, or an array of frame numbers. The ground truth is
+    computed at once; frames are rendered lazily by :meth:`RenderedSpin.frames`.
+    """
+    config = RenderConfig() if config is None else config
+    if not isinstance(config, RenderConfig):
+        raise InputError(f"config must be a RenderConfig, got {type(config).__name__}")
+    k, mt, spin, selection, fps = scene_spin(dataset, truth, k, frames)
     return RenderedSpin(k, dataset.camera, truth.arm_T_camera.inverse(), mt.axis_point, mt.axis_direction,
-                        mt.e1, mt.e2, spin[selection], selection, dot_covering(config), config,
-                        None if fps is None else float(fps))
+                        mt.e1, mt.e2, spin[selection], selection, dot_covering(config), config, fps)
 
 
 def render_scene(dataset, truth, config: RenderConfig | None = None, *, frames=None) -> list[RenderedSpin]:

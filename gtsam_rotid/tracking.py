@@ -33,7 +33,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .corners import CornerFollower, link_fragments, spin_filter
+from .corners import CornerFollower, link_fragments, spin_filter, tracks_from_log
 from .dataset import Track
 from .errors import InputError
 
@@ -804,13 +804,7 @@ class Tracker:
         """Every track followed so far, unfiltered, ordered by start frame."""
         if not self._log:
             return []
-        frames = np.concatenate([np.full(len(ids), f, np.int64) for f, ids, _ in self._log])
-        ids = np.concatenate([ids for _, ids, _ in self._log])
-        pixels = np.concatenate([pts for _, _, pts in self._log])
-        order = np.lexsort((frames, ids))
-        frames, ids, pixels = frames[order], ids[order], pixels[order]
-        cuts = np.flatnonzero(np.diff(ids)) + 1
-        return [Track(px, fr) for fr, px in zip(np.split(frames, cuts), np.split(pixels, cuts), strict=True)]
+        return tracks_from_log(self._log)[0]
 
     def finish(self) -> TrackingResult:
         """Filter the tracks (see :func:`filter_tracks`; corner tracks are also tested against the spin's shared
