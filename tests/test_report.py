@@ -327,3 +327,27 @@ def test_joint_chi2_judges_the_solve_not_a_p_value(reference):
         assert chi2_check(shifted).consistent is verdict, factor
     words = chi2_check(shifted).sentence()
     assert "INCONSISTENT: the residuals are larger" in words
+
+
+def test_untrusted_result_is_reported_as_such_and_survives_json(reference):
+    """A determined result whose covariance the estimator does not trust (``result.untrusted``) is not reported
+    with usable 1-sigma: the words name the weak measurement, its evidence and what to do."""
+    from gtsam_rotid.estimate import CalibrationResult
+
+    dataset, _, result = reference
+    assert result.covariance_usable and not result.untrusted
+    untrusted = copy.deepcopy(result)
+    untrusted.measurements[2].weak = True
+    untrusted.measurements[2].arc_span_deg = 41.0
+    untrusted.untrusted = {"thin_evidence": [2]}
+    assert not untrusted.covariance_usable
+    assert "COVARIANCE UNUSABLE" in untrusted.summary() and "measurement 2 (" in untrusted.summary()
+    report = make_report(untrusted, dataset)
+    assert not report.covariance_usable and not report.determined.any()
+    text = report.to_text()
+    assert "NOT TRUSTED" in text and "longest arc 41°" in text and "not the joint angles" in text
+    assert "the arm poses do not determine" not in text  # it is not a degenerate set of poses
+    data = json.loads(report.to_json())
+    assert data["untrusted"] == ["thin_evidence"] and data["measurements"][2]["weak"] is True
+    back = CalibrationResult.from_dict(json.loads(json.dumps(untrusted.to_dict())))
+    assert back.untrusted == {"thin_evidence": [2]} and not back.covariance_usable and back.measurements[2].weak
