@@ -61,7 +61,7 @@ from .arm import Arm
 from .camera import Camera
 from .errors import ArmError, InputError
 from .geometry import perpendicular_basis, rotation_about_axis
-from .render import _checked_scene, scene_spin
+from .render import _checked_scene, check_integers, scene_spin
 
 __all__ = [
     "COVERINGS",
@@ -171,12 +171,7 @@ class MeshRenderConfig:
         if not np.all(np.isfinite(light)) or np.linalg.norm(light) < 1e-9:
             raise InputError(f"MeshRenderConfig.light_direction must be a finite non-zero 3-vector, got "
                              f"{self.light_direction!r}")
-        for name, low, high in (("supersample", 1, 8), ("blur_samples", 1, 64), ("seed", 0, None)):
-            value = getattr(self, name)
-            if (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low
-                    or (high is not None and value > high)):
-                bound = f"an integer >= {low}" if high is None else f"an integer in [{low}, {high}]"
-                raise InputError(f"MeshRenderConfig.{name} must be {bound}, got {value!r}")
+        check_integers(self, (("supersample", 1, 8), ("blur_samples", 1, 64), ("seed", 0, None)))
 
     def with_(self, **changes) -> MeshRenderConfig:
         return replace(self, **changes)
@@ -185,6 +180,18 @@ class MeshRenderConfig:
     def blur_angles(self) -> int:
         """Spin angles rendered per frame: 1 without motion blur."""
         return 1 if self.exposure == 0 else int(self.blur_samples)
+
+
+def _place_disc(rng, placed: list, radii, width: float, height: float, gap: float, tries: int) -> bool:
+    """Append to ``placed`` one disc ``(cx, cy, radius)`` (radius uniform in ``radii``) inside the texture that keeps
+    ``gap`` from every disc already placed, drawing at most ``tries`` candidates; False if none fits."""
+    for _ in range(tries):
+        radius = float(rng.uniform(*radii))
+        cx, cy = float(rng.uniform(radius, width - radius)), float(rng.uniform(radius, height - radius))
+        if all(np.hypot(cx - x, cy - y) > radius + r + gap for x, y, r in placed):
+            placed.append((cx, cy, radius))
+            return True
+    return False
 
 
 def _check_color(name: str, value) -> None:
@@ -384,14 +391,9 @@ def _hand_texture(covering: str, hand_color: tuple, texel_mm: float, seed: int) 
                    (240, 240, 240), (20, 20, 20))
         placed: list[tuple[float, float, float]] = []
         for n in range(10):
-            for _ in range(200):
-                size = float(rng.uniform(5.0, 12.0)) * per_mm
-                cx, cy = float(rng.uniform(size, width - size)), float(rng.uniform(size, height - size))
-                if all(np.hypot(cx - x, cy - y) > size + s + 3 * per_mm for x, y, s in placed):
-                    placed.append((cx, cy, size))
-                    break
-            else:
+            if not _place_disc(rng, placed, (5.0 * per_mm, 12.0 * per_mm), width, height, 3 * per_mm, 200):
                 continue
+            cx, cy, size = placed[-1]
             color = tuple(float(c) for c in palette[n % len(palette)])
             shape = n % 3
             centre = np.array([cx, cy])
@@ -411,12 +413,7 @@ def _hand_texture(covering: str, hand_color: tuple, texel_mm: float, seed: int) 
         grey = float(np.mean(hand_color))
         placed = []
         for _ in range(60):
-            for _ in range(300):
-                radius = float(rng.uniform(4.0, 9.0)) * per_mm
-                cx, cy = float(rng.uniform(radius, width - radius)), float(rng.uniform(radius, height - radius))
-                if all(np.hypot(cx - x, cy - y) > radius + r + 3 * per_mm for x, y, r in placed):
-                    placed.append((cx, cy, radius))
-                    break
+            _place_disc(rng, placed, (4.0 * per_mm, 9.0 * per_mm), width, height, 3 * per_mm, 300)
         for cx, cy, radius in placed:
             contrast = float(rng.uniform(50.0, 100.0)) * (1.0 if rng.uniform() < 0.5 else -1.0)
             level = float(np.clip(grey + contrast, 0, 255))

@@ -169,15 +169,21 @@ class RenderConfig:
             raise InputError(f"RenderConfig.background_scale_px must be >= 2 px, got {self.background_scale_px!r}")
         if not -1.0 < self.visibility_cos < 1.0:
             raise InputError(f"RenderConfig.visibility_cos must be in (-1, 1), got {self.visibility_cos!r}")
-        for name, low, high in (("dot_vertices", 8, 1024), ("supersample", 1, 32), ("seed", 0, None)):
-            value = getattr(self, name)
-            if (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low
-                    or (high is not None and value > high)):
-                bound = f"an integer >= {low}" if high is None else f"an integer in [{low}, {high}]"
-                raise InputError(f"RenderConfig.{name} must be {bound}, got {value!r}")
+        check_integers(self, (("dot_vertices", 8, 1024), ("supersample", 1, 32), ("seed", 0, None)))
 
     def with_(self, **changes) -> RenderConfig:
         return replace(self, **changes)
+
+
+def check_integers(config, bounds) -> None:
+    """Each ``(field, low, high)`` of a renderer config an integer in ``[low, high]`` (``high`` None: no upper bound),
+    else an :class:`InputError` naming the config class and the field."""
+    for name, low, high in bounds:
+        value = getattr(config, name)
+        if (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low
+                or (high is not None and value > high)):
+            bound = f"an integer >= {low}" if high is None else f"an integer in [{low}, {high}]"
+            raise InputError(f"{type(config).__name__}.{name} must be {bound}, got {value!r}")
 
 
 def _check_range(name: str, pair, *, low: float, high: float = np.inf, strict_low: bool = False) -> None:
