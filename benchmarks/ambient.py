@@ -1,15 +1,27 @@
 """Ambient features (issue 13): the robot's own meshes, a covered hand, no calibration target, from pixels.
 
-For each scene (a robot, a covering, a seed): the scene's arm poses and camera come from the simulator
-(``simulate.simulate``, six arm poses), every spin is rendered by :mod:`gtsam_rotid.meshrender` (the robot's
-visual meshes, the hand covered by ``--covering``: photo, text, fabric, stickers, dots or plain; a photographed
-background; shading, 2x2 anti-aliasing and sensor noise), tracked with the given tracker settings (``--features``;
-default ``TrackerParams()``), and calibrated (``joint``). Printed per scene:
+For each scene (a robot, a covering, a variant, a seed): the scene's arm poses and camera come from the simulator
+(``simulate.simulate``, six arm poses kept of up to ``CANDIDATES`` drawn), every spin is rendered by
+:mod:`gtsam_rotid.meshrender` (the robot's visual meshes, the hand covered by ``--coverings``: photo, text, fabric,
+stickers, dots or plain; a photographed background; shading, 2x2 anti-aliasing and sensor noise), tracked with the
+given tracker settings (``--features``; default ``TrackerParams()``), and calibrated (``joint``).
 
-- tracks kept per arm pose, and the tracker's frames per second on one core (rendering excluded);
+Variants (``--variants``, default ``nominal``): ``nominal`` (``--duration`` s spins, the hand fully covered, no
+motion blur), ``short`` (5 s spins), ``half`` (only half of the hand's circumference covered:
+``MeshRenderConfig(covered_fraction=0.5)``, the rest plain plastic) and ``blur`` (motion blur over the whole frame
+interval: ``exposure=1``, 4 spin angles averaged per frame; at the simulator's 0.5 rad/s and 30 fps a point 4 cm
+off the axis moves 0.7 mm in a frame, about 0.5-1 px at these distances, so this is mild).
+
+Printed per scene:
+
+- the pixels the spinning links cover in the first frame (median over the kept poses), tracks kept per arm pose,
+  and the tracker's frames per second on one core (rendering excluded);
 - the tracked points against the renderer's ground truth (each track's surface point located from its first points
   and projected in the track's frames; ``meshrender.track_errors``): pooled RMS and median (px), and how many kept
   tracks do not lie on the spinning links at all;
+- the arc the kept tracks span (deg of true spin between a track's first and last frame; median and maximum over
+  the scene's tracks), and the longest arc per pose the calibration measured about its fitted circles
+  (``MeasurementReport.arc_span_deg``; median and maximum over the poses);
 - the calibration error (worst axis, mm and deg) against the reported 1 sigma, the Mahalanobis chi-square of the
   true error under the reported covariance (6 dof), and whether the result calls its covariance usable (with the
   reasons when not).
@@ -17,18 +29,28 @@ default ``TrackerParams()``), and calibrated (``joint``). Printed per scene:
 Then the NEES over the scenes whose covariance is called usable, with its 95 % interval, and the number of usable
 scenes outside their 99.9 % region (the "confident wrong numbers"; the target is none).
 
+``--save DIR`` writes, per scene, ``DIR/<robot>_<covering>_<variant>_seed<seed>/``: ``dataset/`` (the tracked
+dataset the calibration saw, :meth:`Dataset.save`) and ``scene.json`` (the true ``arm_T_camera`` as a 4x4 matrix
+and the tracker's numbers). ``--load DIR`` re-runs only the calibration on every saved scene and prints the same
+table (tracker columns as saved), in seconds: for re-evaluating an estimator change without rendering.
+
 Run: ``python benchmarks/ambient.py [--robots kinova,ur5,panda] [--coverings photo,text,dots] [--seeds 0,1]
-[--duration 20] [--features blobs|corners|auto] [--jobs 2]``; ``--quick`` (one 3 s scene) checks that it runs.
+[--variants nominal,short,half,blur] [--duration 20] [--features blobs|corners|auto] [--jobs 2] [--save DIR]``,
+or ``python benchmarks/ambient.py --load DIR``; ``--quick`` (one 3 s scene) checks that it runs.
 """
 
 from __future__ import annotations
 
 import argparse
 import itertools
+import json
+import os
 import sys
 import time
+from pathlib import Path
 
 import cv2
+import gtsam
 import numpy as np
 
 from gtsam_rotid import meshrender as mr
@@ -42,29 +64,53 @@ from gtsam_rotid.tracking import Tracker, TrackerParams
 from gtsam_rotid.uncertainty import chi2_mean_interval
 
 CHI2_999_6DOF = 22.458
-#: arm poses per scene, drawn from this many candidates of the simulator
-POSES, CANDIDATES = 6, 14
-#: robot -> scene placement (the cameras of scenarios/other_arms.py, at 640x480 here)
+#: arm poses per scene, drawn from up to this many candidates of the simulator (the sampler knows no meshes;
+#: the first candidates are the same whatever the number drawn, so more candidates only add spares)
+POSES, CANDIDATES = 6, 20
+#: robot -> scene placement (the cameras of scenarios/other_arms.py, at 640x480 here). The UR5 of
+#: example-robot-data has no gripper: only its wrist-3 link (a disc 75 mm across and 35 mm long) spins, and from
+#: the other arms' 60 deg camera 0.8-1.6 m away it covered 700-2200 pixels and gave no tracks. Its camera stands
+#: closer (0.72 m from the target instead of 1.04 m), with a 45 deg lens, and its wrist is kept 0.3-0.6 m from the
+#: camera (the simulator's default is 0.5-1.6 m): the flange then covers about 8 000-16 000 pixels.
 PLACEMENTS = {
     "kinova": {},
-    "ur5": dict(camera=Camera.from_fov(640, 480, 60.0), camera_eye=(0.9, 0.7, 0.9), camera_target=(0.3, 0.1, 0.3)),
+    "ur5": dict(camera=Camera.from_fov(640, 480, 45.0), camera_eye=(0.7, 0.5, 0.75), camera_target=(0.3, 0.1, 0.3),
+                depth_range=(0.3, 0.6)),
     "panda": dict(camera=Camera.from_fov(640, 480, 60.0), camera_eye=(1.1, -0.4, 0.8),
                   camera_target=(0.4, 0.0, 0.4)),
 }
+#: variant -> (spin length in s, or None for --duration; MeshRenderConfig changes)
+VARIANTS = {
+    "nominal": (None, {}),
+    "short": (5.0, {}),
+    "half": (None, {"covered_fraction": 0.5}),
+    "blur": (None, {"exposure": 1.0, "blur_samples": 4}),
+}
+SCENE_FILE, DATASET_DIR = "scene.json", "dataset"
 
 
-def run_scene(robot: str, covering: str, seed: int, duration: float, params: TrackerParams) -> dict:
-    """Render, track and calibrate one scene; a dict of the measured numbers (or why it could not run)."""
+def scene_name(robot: str, covering: str, variant: str, seed: int) -> str:
+    return f"{robot}_{covering}_{variant}_seed{seed}"
+
+
+def run_scene(robot: str, covering: str, seed: int, variant: str, duration: float, params: TrackerParams,
+              save: str | None = None) -> dict:
+    """Render, track and calibrate one scene; a dict of the measured numbers (or why it could not run). With
+    ``save``, the tracked dataset and the scene's numbers are written under that directory first."""
     cv2.setNumThreads(1)
-    out = {"robot": robot, "covering": covering, "seed": seed}
+    length, changes = VARIANTS[variant]
+    duration = duration if length is None else length
+    out = {"robot": robot, "covering": covering, "variant": variant, "seed": seed, "duration": duration}
+    dataset = truth = None
     try:
         # the simulator's pose sampler knows no meshes: draw spare poses and keep the first POSES the mesh
         # renderer accepts (the hand in the image and not hidden behind the arm for most of the spin)
         dataset, truth = simulate.simulate(SceneConfig(robot=robot, duration=duration, n_measurements=CANDIDATES,
                                                        **PLACEMENTS[robot]), seed)
         meshes = mr.load_arm_meshes(dataset.arm)
-        config = mr.MeshRenderConfig(covering=covering, seed=seed)
+        config = mr.MeshRenderConfig(covering=covering, seed=seed, **changes)
         measurements, kept, errors, track_time, frames, off, skipped = [], [], [], 0.0, 0, 0, []
+        hand_px, arcs = [], []
         for k in range(len(dataset)):
             if len(kept) == POSES:
                 break
@@ -73,6 +119,7 @@ def run_scene(robot: str, covering: str, seed: int, duration: float, params: Tra
             except InputError as why:
                 skipped.append(f"{k}: {why}")
                 continue
+            hand_px.append(int(spin.moving_mask(int(spin.frame_indices[0])).sum()))
             images = list(spin.frames())
             start = time.perf_counter()
             result = Tracker(params).run(images)
@@ -80,6 +127,10 @@ def run_scene(robot: str, covering: str, seed: int, duration: float, params: Tra
             frames += len(images)
             tracks = result.tracks
             kept.append(len(tracks))
+            angles = truth.measurements[k].spin_angles
+            for t in tracks:  # the true spin between a track's first and last frame
+                f = np.asarray(t.frames)
+                arcs.append(min(float(np.degrees(abs(angles[f.max()] - angles[f.min()]))), 360.0))
             if tracks:
                 e = mr.track_errors(tracks, spin)
                 off += len(e.off_links)
@@ -89,23 +140,75 @@ def run_scene(robot: str, covering: str, seed: int, duration: float, params: Tra
             measurements.append(Measurement(dataset[k].joint_angles, tracks) if tracks else None)
     except RotIdError as error:
         out["failed"] = f"{type(error).__name__}: {error}"
+        if save is not None:
+            _save_scene(save, out, None, truth)
         return out
-    out.update(kept=kept, fps=frames / max(track_time, 1e-9), off_links=off, skipped=skipped)
+    out.update(kept=kept, fps=frames / max(track_time, 1e-9), off_links=off, skipped=skipped,
+               hand_px=float(np.median(hand_px)) if hand_px else float("nan"), hand_px_per_pose=hand_px,
+               arc_median_deg=float(np.median(arcs)) if arcs else float("nan"),
+               arc_max_deg=float(np.max(arcs)) if arcs else float("nan"))
     n_compared = sum(n for _, n, _ in errors)
     out["track_rms_px"] = float(np.sqrt(sum(s for s, _, _ in errors) / n_compared)) if n_compared else float("nan")
     out["track_median_px"] = float(np.nanmedian([m for _, _, m in errors])) if errors else float("nan")
     usable_measurements = [m for m in measurements if m is not None]
+    tracked = None
     try:
-        result = calibrate(Dataset(dataset.arm, dataset.camera, usable_measurements, metadata=dataset.metadata))
+        tracked = Dataset(dataset.arm, dataset.camera, usable_measurements,
+                          metadata={**dataset.metadata, "scene": scene_name(robot, covering, variant, seed)})
+    except RotIdError as error:
+        out["refused"] = f"{type(error).__name__}: {error}"
+    if save is not None:
+        _save_scene(save, out, tracked, truth)
+    if tracked is None:
+        return out
+    return calibrate_scene(out, tracked, truth.arm_T_camera)
+
+
+def _save_scene(directory: str, row: dict, tracked: Dataset | None, truth) -> None:
+    root = Path(directory) / scene_name(row["robot"], row["covering"], row["variant"], row["seed"])
+    root.mkdir(parents=True, exist_ok=True)
+    if tracked is not None:
+        tracked.save(root / DATASET_DIR, overwrite=True)
+    document = {"tracking": row, "arm_T_camera": None if truth is None else truth.arm_T_camera.matrix().tolist()}
+    staging = root / (SCENE_FILE + ".tmp")
+    staging.write_text(json.dumps(document, indent=1, allow_nan=True) + "\n", encoding="utf-8")
+    os.replace(staging, root / SCENE_FILE)
+
+
+def load_scene(root: str) -> dict:
+    """Re-run the calibration of one scene written by ``--save``: the row as :func:`run_scene` gives it."""
+    root = Path(root)
+    document = json.loads((root / SCENE_FILE).read_text(encoding="utf-8"))
+    row = {k: v for k, v in document["tracking"].items() if k not in ("refused", "err_mm")}
+    if "failed" in row or not (root / DATASET_DIR).is_dir():
+        if "failed" not in row:
+            row["refused"] = document["tracking"].get("refused", "no tracked dataset saved")
+        return row
+    try:
+        tracked = Dataset.load(root / DATASET_DIR)
+    except RotIdError as error:
+        row["refused"] = f"cannot load the saved dataset: {type(error).__name__}: {error}"
+        return row
+    return calibrate_scene(row, tracked, gtsam.Pose3(np.array(document["arm_T_camera"], dtype=float)))
+
+
+def calibrate_scene(out: dict, tracked: Dataset, arm_T_camera) -> dict:
+    """Calibrate a tracked dataset and add to ``out`` its error against the true ``arm_T_camera``."""
+    out = dict(out)
+    try:
+        result = calibrate(tracked)
     except RotIdError as error:
         out["refused"] = f"{type(error).__name__}: {error}"
         return out
-    e = result.error_to(truth.arm_T_camera)
-    R = truth.arm_T_camera.rotation().matrix()
+    e = result.error_to(arm_T_camera)
+    R = arm_T_camera.rotation().matrix()
+    spans = [m.arc_span_deg for m in result.measurements if getattr(m, "arc_span_deg", None) is not None]
     out.update(err_mm=float(np.max(np.abs(R @ e[3:]))) * 1000.0, err_deg=float(np.degrees(np.max(np.abs(e[:3])))),
                sigma_mm=float(np.max(result.sigma_mm_arm)), sigma_deg=float(np.max(result.sigma_deg)),
                usable=bool(result.covariance_usable), untrusted=list(result.untrusted),
-               words=untrusted_words(result) if result.untrusted else [])
+               words=untrusted_words(result) if result.untrusted else [],
+               pose_arc_median_deg=float(np.median(spans)) if spans else float("nan"),
+               pose_arc_max_deg=float(np.max(spans)) if spans else float("nan"))
     try:
         out["chi2"] = float(e @ np.linalg.solve(result.covariance, e))
     except np.linalg.LinAlgError:
@@ -113,47 +216,34 @@ def run_scene(robot: str, covering: str, seed: int, duration: float, params: Tra
     return out
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--robots", default="kinova,ur5,panda")
-    parser.add_argument("--coverings", default="photo,text,dots")
-    parser.add_argument("--seeds", default="0")
-    parser.add_argument("--duration", type=float, default=20.0, help="spin length per arm pose (s)")
-    parser.add_argument("--features", default=None, help="TrackerParams.features (default: the tracker's default)")
-    parser.add_argument("--jobs", type=int, default=1)
-    parser.add_argument("--quick", action="store_true", help="one 3 s scene: checks that it runs")
-    args = parser.parse_args(argv)
-    if args.quick:
-        args.robots, args.coverings, args.seeds, args.duration = "kinova", "photo", "0", 3.0
-    params = TrackerParams() if args.features is None else TrackerParams(features=args.features)
-    scenes = list(itertools.product(args.robots.split(","), args.coverings.split(","),
-                                    [int(s) for s in args.seeds.split(",")]))
-    print(f"{len(scenes)} scenes, {args.duration:g} s spins, tracker features={params.features!r}", flush=True)
-    started = time.perf_counter()
-    if args.jobs > 1:
-        from joblib import Parallel, delayed
-        rows = Parallel(n_jobs=args.jobs)(delayed(run_scene)(r, c, s, args.duration, params) for r, c, s in scenes)
-    else:
-        rows = [run_scene(r, c, s, args.duration, params) for r, c, s in scenes]
-    print("| robot | covering | seed | tracks kept per pose | tracker fps | tracks off the hand | tracked RMS px "
-          "(median track) | error mm (1σ) | error ° (1σ) | χ² of the error | covariance |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+def _number(row: dict, key: str, fmt: str) -> str:
+    value = row.get(key)
+    return "" if value is None else format(value, fmt)
+
+
+def print_table(rows: list[dict]) -> None:
+    print("| robot | covering | variant | seed | hand px | tracks kept per pose | tracker fps | tracks off the hand | "
+          "tracked RMS px (median track) | track arc ° median / max | calibration's longest arc per pose ° median "
+          "/ max | error mm (1σ) | error ° (1σ) | χ² of the error | covariance |")
+    print("|" + " --- |" * 15)
     usable_chi2 = []
     for row in rows:
-        head = f"| {row['robot']} | {row['covering']} | {row['seed']} |"
+        head = f"| {row['robot']} | {row['covering']} | {row['variant']} | {row['seed']} |"
         if "failed" in row:
-            print(f"{head} not rendered: {row['failed'][:120]} |")
+            print(f"{head} not rendered: {row['failed'][:120]} |" + " |" * 10)
             continue
         kept = ", ".join(str(k) for k in row["kept"]) + (f" ({len(row['skipped'])} poses skipped: not renderable)"
                                                           if row["skipped"] else "")
-        track = (f" {kept} | {row['fps']:.0f} | {row['off_links']} | {row['track_rms_px']:.3f} "
-                 f"({row['track_median_px']:.3f}) |")
+        track = (f" {_number(row, 'hand_px', '.0f')} | {kept} | {_number(row, 'fps', '.0f')} | {row['off_links']} | "
+                 f"{row['track_rms_px']:.3f} ({row['track_median_px']:.3f}) | "
+                 f"{_number(row, 'arc_median_deg', '.0f')} / {_number(row, 'arc_max_deg', '.0f')} |")
         if "refused" in row:
-            print(f"{head}{track} refused: {row['refused'][:160]} | | | |")
+            print(f"{head}{track} refused: {row['refused'][:160]} | | | | |")
             continue
         verdict = "usable" if row["usable"] else "NOT usable (" + (", ".join(row["untrusted"]) or "undetermined") + ")"
-        print(f"{head}{track} {row['err_mm']:.2f} ({row['sigma_mm']:.2f}) | {row['err_deg']:.3f} "
-              f"({row['sigma_deg']:.3f}) | {row['chi2']:.3g} | {verdict} |")
+        print(f"{head}{track} {row['pose_arc_median_deg']:.0f} / {row['pose_arc_max_deg']:.0f} | "
+              f"{row['err_mm']:.2f} ({row['sigma_mm']:.2f}) | {row['err_deg']:.3f} ({row['sigma_deg']:.3f}) | "
+              f"{row['chi2']:.3g} | {verdict} |")
         if row["usable"]:
             usable_chi2.append(row["chi2"])
     if usable_chi2:
@@ -164,6 +254,54 @@ def main(argv=None) -> int:
               f"{high:.2f}]: {'inside' if low <= nees <= high else 'OUTSIDE'}); {outside} outside their 99.9 % region")
     else:
         print("\nno scene's covariance is called usable")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--robots", default="kinova,ur5,panda")
+    parser.add_argument("--coverings", default="photo,text,dots")
+    parser.add_argument("--seeds", default="0")
+    parser.add_argument("--variants", default="nominal", help=f"comma-separated, of {', '.join(VARIANTS)}")
+    parser.add_argument("--duration", type=float, default=20.0, help="spin length per arm pose (s)")
+    parser.add_argument("--features", default=None, help="TrackerParams.features (default: the tracker's default)")
+    parser.add_argument("--jobs", type=int, default=1)
+    parser.add_argument("--save", default=None, metavar="DIR", help="write each scene's tracked dataset under DIR")
+    parser.add_argument("--load", default=None, metavar="DIR",
+                        help="re-run only the calibration on the scenes saved under DIR (no rendering, no tracking)")
+    parser.add_argument("--quick", action="store_true", help="one 3 s scene: checks that it runs")
+    args = parser.parse_args(argv)
+    started = time.perf_counter()
+    if args.load is not None:
+        roots = sorted(p.parent for p in Path(args.load).glob(f"*/{SCENE_FILE}"))
+        if not roots:
+            parser.error(f"no saved scene ({SCENE_FILE}) under {args.load}")
+        print(f"{len(roots)} saved scenes from {args.load}: calibration only", flush=True)
+        if args.jobs > 1:
+            from joblib import Parallel, delayed
+            rows = Parallel(n_jobs=args.jobs)(delayed(load_scene)(str(r)) for r in roots)
+        else:
+            rows = [load_scene(str(r)) for r in roots]
+        print_table(rows)
+        print(f"{time.perf_counter() - started:.0f} s")
+        return 0
+    if args.quick:
+        args.robots, args.coverings, args.seeds, args.duration = "kinova", "photo", "0", 3.0
+    variants = args.variants.split(",")
+    unknown = [v for v in variants if v not in VARIANTS]
+    if unknown:
+        parser.error(f"unknown variant(s) {unknown}; choose of {list(VARIANTS)}")
+    params = TrackerParams() if args.features is None else TrackerParams(features=args.features)
+    scenes = list(itertools.product(args.robots.split(","), args.coverings.split(","), variants,
+                                    [int(s) for s in args.seeds.split(",")]))
+    print(f"{len(scenes)} scenes, {args.duration:g} s spins (short: {VARIANTS['short'][0]:g} s), tracker "
+          f"features={params.features!r}", flush=True)
+    if args.jobs > 1:
+        from joblib import Parallel, delayed
+        rows = Parallel(n_jobs=args.jobs)(delayed(run_scene)(r, c, s, v, args.duration, params, args.save)
+                                          for r, c, v, s in scenes)
+    else:
+        rows = [run_scene(r, c, s, v, args.duration, params, args.save) for r, c, v, s in scenes]
+    print_table(rows)
     print(f"{time.perf_counter() - started:.0f} s")
     return 0
 
