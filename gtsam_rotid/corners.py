@@ -208,16 +208,29 @@ def _identity(points: np.ndarray) -> np.ndarray:
 
 class _Templates:
     """Per-point appearance templates for affine inverse-compositional Lucas–Kanade (Baker & Matthews), with the
-    patch's brightness and contrast normalised (Gaussian-weighted), vectorised over the points."""
+    patch's brightness and contrast normalised (Gaussian-weighted), vectorised over the points. With ``plane``, a
+    brightness gradient across the patch is removed too (a linear shading term beside gain and offset: the shading
+    changes across a patch as its surface turns under a directional light); the steepest-descent images are then
+    projected off that brightness plane (Hager & Belhumeur)."""
 
-    def __init__(self, half: int, damping: float = 0.5):
+    def __init__(self, half: int, damping: float = 0.5, plane: bool = False):
         self.half = half
         self.damping = damping
+        self.plane = plane
         u, v = _offsets(half)
         sigma = 0.6 * half
         w = np.exp(-(u**2 + v**2) / (2 * sigma**2)).astype(np.float32)
         self.w = w / w.sum()
         self.u, self.v = u, v
+        basis = np.stack([np.ones_like(u), u, v])                        # brightness plane a + b u + c v
+        gram = (basis * self.w) @ basis.T
+        self._proj = (np.linalg.solve(gram, basis * self.w).T @ basis).astype(np.float32)   # x -> its plane: x @ P
+
+    def _flatten(self, x: np.ndarray) -> np.ndarray:
+        """``x`` (n, P) minus its weighted mean, or with ``plane`` its weighted least-squares brightness plane."""
+        if not self.plane:
+            return x - (x @ self.w)[:, None]
+        return x - x @ self._proj
 
     def make(self, image: np.ndarray, points: np.ndarray):
         """(T (n, P), SDw (n, 6, P), Hinv (n, 6, 6), Htinv (n, 2, 2), strength (n,)) of patches at ``points``."""
@@ -227,14 +240,15 @@ class _Templates:
         t = big[:, 1:-1, 1:-1].reshape(n, -1)
         gx = (0.5 * (big[:, 1:-1, 2:] - big[:, 1:-1, :-2])).reshape(n, -1)
         gy = (0.5 * (big[:, 2:, 1:-1] - big[:, :-2, 1:-1])).reshape(n, -1)
-        mean = t @ self.w
-        t = t - mean[:, None]
+        t = self._flatten(t)
         std = np.sqrt((t * t) @ self.w) + 1e-3
         t /= std[:, None]
         gx /= std[:, None]
         gy /= std[:, None]
         u, v = self.u, self.v
         sd = np.stack([gx * u, gx * v, gy * u, gy * v, gx, gy], axis=1)          # (n, 6, P)
+        if self.plane:
+            sd = sd - sd @ self._proj
         sdw = sd * self.w
         h = sdw @ np.transpose(sd, (0, 2, 1)) + 1e-6 * np.eye(6, dtype=np.float32)
         ht = h[:, 4:, 4:].copy()
@@ -254,7 +268,7 @@ class _Templates:
         zncc = np.zeros(n)
         for it in range(iterations + 1):
             sample = _sample(image, warp, self.half)
-            sample -= (sample @ self.w)[:, None]
+            sample = self._flatten(sample)
             sample /= (np.sqrt((sample * sample) @ self.w) + 1e-3)[:, None]
             r = sample - t
             zncc = 1.0 - 0.5 * ((r * r) @ self.w)
@@ -329,7 +343,8 @@ class CornerFollower:
 
     def __init__(self, params):
         self.p = params
-        self._tpl = _Templates(int(params.corner_window) // 2, float(params.warp_damping))
+        self._tpl = _Templates(int(params.corner_window) // 2, float(params.warp_damping),
+                               bool(params.shading_gradient))
         self._a = _Corners()
         self._next_id = 0
         self._frame = -1
