@@ -1,10 +1,12 @@
 """Estimators against ground truth they never see: noise-free, noisy, distorted, degenerate and broken scenes."""
 
+import gtsam
 import numpy as np
 import pytest
 
-from gtsam_rotid import Camera, Dataset, InputError, Measurement, Track, simulate
+from gtsam_rotid import Camera, Dataset, InputError, Measurement, Track, estimate, simulate
 from gtsam_rotid.estimate import CalibrationError, CalibrationResult, calibrate, initial_pose
+from gtsam_rotid.graph import Model, track_huber
 from gtsam_rotid.simulate import SceneConfig
 
 METHODS = ["joint", "weighted", "paper"]
@@ -91,7 +93,10 @@ def test_noisy_error_within_reported_uncertainty(noisy_scene, method):
     assert np.all(result.sigma_mm_arm < 5.0) and np.all(result.sigma_deg < 0.2)
 
 
-def test_joint_is_at_least_as_precise_as_weighted(noisy_scene):
+def test_joint_is_at_least_as_precise_as_weighted(noisy_scene, monkeypatch):
+    # the two graphs' information under one noise model: stage 1's jackknife (which replaces a line's linearised
+    # covariance where the fit is far from quadratic) reaches the two through different projections, so it is off
+    monkeypatch.setattr(estimate, "_jackknife", lambda builder, measurement, k, pose, prepared, s, options: s)
     dataset, _ = noisy_scene
     joint, weighted = calibrate(dataset, method="joint"), calibrate(dataset, method="weighted")
     assert np.all(np.diag(joint.covariance) <= 1.05 * np.diag(weighted.covariance))
@@ -480,3 +485,35 @@ def test_thin_evidence_is_flagged_or_holds_its_covariance(seed):
                         or "spin longer or add texture" in m.outlier_reason), m.outlier_reason
         again = CalibrationResult.from_dict(result.to_dict())
         assert again.untrusted == result.untrusted and not again.covariance_usable
+
+
+def test_jackknife_holds_the_line_covariance_where_the_linearisation_does_not():
+    """Stage 1's line covariance against the spread of the line over 30 noise draws of one measurement (its
+    tracks re-noised, 1.5 px^2): the linearised covariance understates the line's weakest direction there (4.6x),
+    the jackknifed one holds on every direction."""
+    clean, truth = simulate.reference_scene(seed=11, noise_var=0.0, duration=12.0)
+    k, options = 3, estimate.CalibrationOptions()
+    _, setup, _ = estimate._initial(clean.arm, clean.camera, list(clean), options, list(range(len(clean))))
+    builders = [estimate._builder(clean.arm, clean.camera, options, model=Model.PROJECTED, robust=track_huber),
+                estimate._builder(clean.arm, clean.camera, options, robust=track_huber)]
+    start = estimate._start_line(clean.camera, setup.axes[k], setup.lines[k], truth.arm_T_camera)
+    rng = np.random.default_rng(1)
+    fits = []
+    for _ in range(30):
+        noisy = Measurement(clean[k].joint_angles, [
+            Track(np.asarray(t.pixels) + rng.normal(0.0, np.sqrt(1.5), np.shape(t.pixels)), frames=t.frames)
+            for t in clean[k].tracks])
+        prepared = builders[0].prepare(noisy, k)
+        s = estimate._stage1_measurement(builders, noisy, k, truth.arm_T_camera, prepared, options, start)
+        fits.append((s, estimate._jackknife(builders[0], noisy, k, truth.arm_T_camera, prepared, s, options)))
+    offsets = np.array([gtsam.Rot3.Logmap(fits[0][0].rotation.between(s.rotation)) for s, _ in fits])
+    offsets -= offsets.mean(axis=0)
+
+    def whitened_variances(covariance):
+        w, V = np.linalg.eigh(covariance)
+        return (offsets @ (V / np.sqrt(w))).var(axis=0, ddof=1)
+
+    linear = whitened_variances(np.mean([s.rotation_cov * s.sigma2 for s, _ in fits], axis=0))
+    jackknifed = whitened_variances(np.mean([j.rotation_cov * j.sigma2 for _, j in fits], axis=0))
+    assert linear.max() > 2.5, linear  # the case this is about: the linearisation fails here
+    assert np.all(jackknifed < 2.0) and np.all(jackknifed > 0.3), jackknifed
