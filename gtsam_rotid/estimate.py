@@ -128,15 +128,16 @@ class CalibrationOptions:
     min_sigma_px: float = 1e-3
     #: weighted, joint: when the measurements' image axes disagree with the FK axes projected by the estimate
     #: beyond this upper-tail probability, the covariance is scaled by their chi-square per dof (the Birge
-    #: ratio; see :class:`AxisConsistency`). 0 disables the scaling (the test is still reported).
-    axis_consistency_p: float = 0.01
+    #: ratio; see :class:`AxisConsistency`). 0 disables the scaling (the test is still reported). None (default):
+    #: 0.01, or SHORT_ARC_CONSISTENCY_P where some measurement has no arc of WEAK_ARC_DEG (see ``_calibrate``).
+    axis_consistency_p: float | None = None
     #: weighted, joint: standard deviation (deg) of each joint-angle reading, independent per joint and per arm
     #: pose (encoder noise, backlash). It moves the FK wrist axis; the projected-axis ties and the stage-2 weights
     #: include that uncertainty (propagated through the kinematics). 0: the kinematics are taken as exact.
     joint_sigma_deg: float = 0.0
 
     def __post_init__(self):
-        if not 0.0 <= self.axis_consistency_p < 1.0:
+        if self.axis_consistency_p is not None and not 0.0 <= self.axis_consistency_p < 1.0:
             raise InputError(f"CalibrationOptions.axis_consistency_p must be in [0, 1), got {self.axis_consistency_p}")
         if not (np.isfinite(self.joint_sigma_deg) and self.joint_sigma_deg >= 0.0):
             raise InputError(f"CalibrationOptions.joint_sigma_deg must be a finite value >= 0 (deg), got "
@@ -538,6 +539,15 @@ RESTART_LEAVE_OUT = 3
 RESTART_SAME_M = 1e-3
 #: stage 1's jackknife (:func:`_jackknife`): groups of tracks, the fewest it needs, and the point of its scatter
 #: under the model beyond which it replaces the linearised line covariance
+#: stage 1 is fitted again from the pose its lines give while that pose moves more than these (deg, m), in at
+#: most this many fits (:func:`_refined_stage1`)
+REFINE_DEG = 0.5
+REFINE_M = 0.005
+REFINE_PASSES = 6
+#: the default ``CalibrationOptions.axis_consistency_p`` with and without short arcs (see ``_calibrate``)
+SHORT_ARC_CONSISTENCY_P = 0.2
+LONG_ARC_CONSISTENCY_P = 0.01
+HOLD_SIGMA_RAD = 1e-4
 JACKKNIFE_GROUPS = 12
 JACKKNIFE_MIN_GROUPS = 4
 JACKKNIFE_Z = 3.40  # the normal's 99.97 % point: 99.9 % Bonferroni over the 3 directions
@@ -610,6 +620,9 @@ class _Setup:
     weak: dict[int, str] = field(default_factory=dict)
     #: the weak measurements left out because enough strong ones determine the pose without them
     dropped: set[int] = field(default_factory=set)
+    #: k -> the longest arc (deg, or None) of measurements with enough tracks but none of WEAK_ARC_DEG: a tracker's
+    #: drift along short arcs can put their image axes off (for the words that name a likely cause)
+    short: dict[int, float | None] = field(default_factory=dict)
 
     def noise(self, k: int) -> np.ndarray | None:
         return self.axis_noise[k] if self.axis_noise else None
@@ -993,16 +1006,26 @@ def _axis_watch(builder: RotIdGraph, k: int, prepared):
     return image_axis_at_corners
 
 
-def _stage1_round(builder, measurement, k, pose, prepared, skip, line_start, circles_start, options):
+def _stage1_round(builder, measurement, k, pose, prepared, skip, line_start, circles_start, options,
+                  settle: bool = False):
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False,
                                    prepared=prepared, skip_tracks=skip, refine_circles=False,
                                    initial_line=line_start, initial_circles=circles_start)
+    warm = 0
+    if settle and circles_start is None and keys.coaxial is not None:
+        # circles started from each track's rays about the start line: let them settle with the line held first
+        held = gtsam.NonlinearFactorGraph()
+        held.push_back(graph)
+        held.add(gtsam.PriorFactorRot3(keys.line, values.atRot3(keys.line),
+                                       gtsam.noiseModel.Isotropic.Sigma(3, HOLD_SIGMA_RAD)))
+        values, warm, _, _ = _lm(held, values, min(options.max_iterations, STAGE1_MAX_ITERATIONS),
+                                 relative_tolerance=options.stage1_tolerance)
     start_error = graph.error(values)
     result, it, error, _ = _lm(graph, values, min(options.max_iterations, STAGE1_MAX_ITERATIONS),
                                relative_tolerance=options.stage1_tolerance, watch=_axis_watch(builder, k, prepared),
                                watch_tolerance=WATCH_LINE_PX)
-    return graph, keys, result, it, start_error, error
+    return graph, keys, result, it + warm, start_error, error
 
 
 def _stage1_result(builder, graph, keys, result, stats, skip, iterations, options) -> _Stage1:
@@ -1070,7 +1093,7 @@ def _jackknife(builder: RotIdGraph, measurement, k: int, pose: gtsam.Pose3, prep
 
 
 def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepared, options,
-                        start_line: gtsam.Rot3 | None = None) -> _Stage1:
+                        start_line: gtsam.Rot3 | None = None, settle: bool = False) -> _Stage1:
     """Coaxial circles of one measurement, rejecting outlier tracks round by round.
 
     ``builders``: the projected model first (fast); if LM cannot lower its error at all (wrong arcs far from
@@ -1084,7 +1107,7 @@ def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepar
     rounds = 0
     while True:
         graph, keys, result, it, start_error, error = _stage1_round(builder, measurement, k, pose, prepared, skip,
-                                                                    line_start, circles_start, options)
+                                                                    line_start, circles_start, options, settle)
         iterations += it
         # (a later round starts at the previous round's solution: a small decrease there is convergence)
         if fallbacks and rounds == 0 and error >= (1.0 - STALL_DECREASE) * start_error and start_error > 0.0:
@@ -1185,29 +1208,63 @@ def _readmit_tracks(builders, measurements, pose, setup: _Setup, stage1: list[_S
     return out
 
 
-def _stage1(arm, camera, measurements, pose, setup: _Setup, options) -> list[_Stage1]:
+def _stage1(arm, camera, measurements, pose, setup: _Setup, options, jackknife: bool = True,
+            image_axes: bool = True) -> list[_Stage1]:
     # Huber per whole track (at its chi-square 99.9 % point): a wrong arc that the tests let through has a bounded
     # pull; a good track is untouched
     builders = [_builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber),
                 _builder(arm, camera, options, robust=track_huber)]
     stage1 = [_stage1_measurement(builders, m, k, pose, setup.prepared[k], options,
-                                  _start_line(camera, setup.axes[k], setup.lines[k], pose))
+                                  _start_line(camera, setup.axes[k], setup.lines[k] if image_axes else None, pose),
+                                  settle=not image_axes)
               for k, m in enumerate(measurements)]
     stage1 = _readmit_tracks(builders, measurements, pose, setup, stage1, options)
+    if not jackknife:
+        return stage1
     return [_jackknife(builders[0], measurements[k], k, pose, setup.prepared[k], s, options)
             for k, s in enumerate(stage1)]
+
+
+def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup, options,
+                    anchor, passes: int = REFINE_PASSES) -> tuple[gtsam.Pose3, list[_Stage1]]:
+    """Stage 1 from ``start``, and again from the pose its lines give (weighted stage 2, Huber on whole
+    measurements) while that pose moves more than REFINE_DEG or REFINE_M (at most REFINE_PASSES fits); returns
+    the pose stage 1 last started from and its fit (jackknifed).
+
+    Each measurement's fit starts from the FK axis seen from the start. With long arcs it finds the same circles
+    from anywhere near; with short ones (corner tracks of 25 degrees) it stays in a minimum near the start, and
+    the initialisation from ellipse centres can be 20 degrees off: on one rendered scene three of six lines fitted
+    from there were 100-13 000 chi-square off the truth, and 0-4 when fitted from the truth.
+    """
+    pose = start
+    builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
+    everything = list(range(len(measurements)))
+    stage1 = _stage1(arm, camera, measurements, pose, setup, options, jackknife=False)
+    for _ in range(passes - 1):
+        moved, _, _ = _weighted_stage2(camera, setup, stage1, everything, pose, options, anchor)
+        if _turned(moved, pose) < np.radians(REFINE_DEG) and np.linalg.norm(
+                moved.translation() - pose.translation()) < REFINE_M:
+            break
+        pose = moved
+        stage1 = _stage1(arm, camera, measurements, pose, setup, options, jackknife=False, image_axes=False)
+    if passes == 1:
+        return pose, stage1
+    return pose, [_jackknife(builder, measurements[k], k, pose, setup.prepared[k], s, options)
+                  for k, s in enumerate(stage1)]
 
 
 def _start_line(camera: Camera, axis, image_axis: np.ndarray, pose: gtsam.Pose3) -> gtsam.Rot3:
     """Stage 1's start: the FK axis seen from ``pose``, turned onto the image axis through the ellipse centres.
 
     The image decides the projection plane and the pose only the tilt within it, so a poor pose (wrong joint
-    angles) does not start the circles far from their tracks.
+    angles) does not start the circles far from their tracks. Without ``image_axis`` (None), the FK axis as the
+    pose sees it (a pose fitted to stage 1's lines: the axis through the centres of short arcs' ellipses can be
+    far off).
     """
     camera_T_arm = pose.inverse()
     line, _ = rot3_from_line(camera_T_arm.transformFrom(axis.point),
                              camera_T_arm.rotation().matrix() @ axis.direction)
-    return align_line(line, plane_normal(camera.K, image_axis))
+    return line if image_axis is None else align_line(line, plane_normal(camera.K, image_axis))
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -1351,24 +1408,41 @@ def _named(setup: _Setup, ks) -> list[int]:
     return [setup.index[k] for k in ks] if setup.index else list(ks)
 
 
-def _poor_minimum(chi2: np.ndarray, limit: float, what: str, setup: _Setup | None = None) -> CalibrationError:
+def _poor_minimum(chi2: np.ndarray, limit: float, what: str, setup: _Setup | None = None,
+                  bad=()) -> CalibrationError:
     names = _named(setup, range(len(chi2))) if setup is not None else list(range(len(chi2)))
     listing = ", ".join(f"{name}: {value:.3g}" for name, value in zip(names, chi2, strict=True))
     return CalibrationError(
         f"the estimate ended in a poor minimum or the data are inconsistent: {what} (chi-square of each "
         f"measurement's image axis against the projected FK axis, 2 dof, limit {limit:g}: {listing}); check "
         "the joint angles, the intrinsics and the wrist joint (if the kinematics are known to be inaccurate, "
-        "raise CalibrationOptions.outlier_measurement_chi2)" + _weak_words(setup))
+        "raise CalibrationOptions.outlier_measurement_chi2)" + _weak_words(setup, bad))
 
 
-def _weak_words(setup: _Setup | None) -> str:
-    """For a refusal: the measurements whose evidence is thin (from ``setup.weak``), which come first."""
-    if setup is None or not setup.weak:
+def _weak_words(setup: _Setup | None, bad=()) -> str:
+    """For a refusal: the measurements whose evidence is thin (from ``setup.weak``), which come first, and those of
+    ``bad`` whose arcs are all short (``setup.short``)."""
+    if setup is None:
         return ""
-    named = "; ".join(f"measurement {_named(setup, [k])[0]}: {why}" for k, why in setup.weak.items())
-    return (f". But first: these measurements have too little evidence for a reliable image axis ({named}); spin the "
-            "wrist longer (a full turn or more) or give the hand more texture: the tracking, more likely than the "
-            "joint angles, is at fault")
+    out = ""
+    if setup.weak:
+        named = "; ".join(f"measurement {_named(setup, [k])[0]}: {why}" for k, why in setup.weak.items())
+        out += (f". But first: these measurements have too little evidence for a reliable image axis ({named}); spin "
+                "the wrist longer (a full turn or more) or give the hand more texture: the tracking, more likely than "
+                "the joint angles, is at fault")
+    short = [k for k in bad if k in setup.short]
+    if short:
+        out += ". " + _short_words(setup, short)
+    return out
+
+
+def _short_words(setup: _Setup, ks) -> str:
+    """Words for measurements of many tracks whose arcs are all short: tracking is as likely a cause as joints."""
+    arcs = ", ".join(f"{_named(setup, [k])[0]}: {setup.short[k]:.0f}°" if setup.short[k] is not None
+                     else f"{_named(setup, [k])[0]}" for k in ks)
+    return (f"The arcs of measurement(s) {arcs} (longest) are short: a tracker's drift along short arcs can put an "
+            "image axis off as far as a wrong joint angle does, so suspect the tracking as much as the joints (spin "
+            "longer, a full turn or more, or track features that can be followed further)")
 
 
 def _tied_fit(builder: RotIdGraph, measurement, k: int, prepared, s: _Stage1, pose: gtsam.Pose3, options,
@@ -1451,9 +1525,11 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opini
     limit = options.outlier_measurement_chi2
     iterations = 0
     refitted: set[int] = set()
-    setup.weak = {}
+    setup.weak, setup.short = {}, {}
     for k, s in enumerate(stage1):
         span, weak = _evidence(setup, s, k)
+        if not weak and (span is None or span < WEAK_ARC_DEG):
+            setup.short[k] = span
         if weak:
             arc = "" if span is None else f", longest arc {span:.0f}° (at most)"
             setup.weak[k] = f"{len(s.keys.tracks)} tracks{arc}"
@@ -1486,7 +1562,8 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opini
         if n - len(used) >= max_excluded:
             gone = _named(setup, sorted(set(range(n)) - set(used)))
             left_out = f", after leaving out {gone}" if len(used) < n else ""
-            raise _poor_minimum(chi2, limit, f"measurement(s) {_named(setup, bad)} disagree{left_out}", setup)
+            raise _poor_minimum(chi2, limit, f"measurement(s) {_named(setup, bad)} disagree{left_out}", setup,
+                                bad)
         # One at a time, by leave-one-out: a wrong measurement drags the pose, so the largest chi-square may
         # belong to a good one; leave out the one whose absence best reconciles the others.
         best = None
@@ -1532,6 +1609,10 @@ def _finish(pose, covariance, info, method, converged, iterations, error, report
     """Result with the observability of ``info * info_scale`` (the scale makes it a real information); the
     covariance (of the pose, or the observability's when it is undetermined) is multiplied by
     ``consistency.scale``."""
+    if not np.all(np.isfinite(info)):
+        raise CalibrationError("the estimate ended in a poor minimum: the pose's information there is not finite "
+                               "(the FK axes' test points project at or behind the camera); check the joint angles, "
+                               "the intrinsics and the wrist joint")
     observability = analyse_observability(info * info_scale, pose)
     if covariance is None or not observability.is_observable:
         covariance = observability.covariance(info)
@@ -1564,8 +1645,13 @@ def _reports(stage1: list[_Stage1], setup: _Setup, sigmas: dict[int, float], use
         elif excluded:
             reason = (f"left out: its image axis disagrees with the FK axis projected by the estimate (chi-square "
                       f"{chi2[k]:.3g} > {options.outlier_measurement_chi2:g}, 2 dof); ")
-            reason += ("its own evidence is thin (few tracks or short arcs): spin longer or add texture, and check "
-                       "its joint angles only if that does not help" if weak else "check its joint angles")
+            if weak:
+                reason += ("its own evidence is thin (few tracks or short arcs): spin longer or add texture, and check "
+                           "its joint angles only if that does not help")
+            elif k in setup.short:
+                reason += "its tracks or its joint angles are off. " + _short_words(setup, [k])
+            else:
+                reason += "check its joint angles"
         axis = setup.axes[k]
         reports.append(MeasurementReport(
             k, len(s.keys.tracks), s.n_points, float(sigma),
@@ -1901,7 +1987,18 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
 
 def _calibrate(arm, camera, measurements, method, options, index) -> tuple[CalibrationResult, _Setup]:
     starts, setup, anchors = _initial(arm, camera, measurements, options, index)
-    runs = [(start, _stage1(arm, camera, measurements, start, setup, options)) for start in starts]
+    # stage 1 is refitted from its own estimate only where some measurement has no long arc (the axis through its
+    # ellipses' centres, which starts it, is then unreliable); elsewhere one fit from the start
+    short = any(max((_turning_deg(t.ideal) for t in p.usable.values()), default=0.0) < WEAK_ARC_DEG
+                for p in setup.prepared)
+    # Short arcs (a tracker's drift shared by a measurement's tracks, which neither the per-track scores nor the
+    # jackknife see) also lower the level at which the axes' scatter scales the covariance: the test has 2 n - 6
+    # dof, little power with six poses (18 rendered corner-tracked scenes: at 0.01 three of nine usable results
+    # were outside their 99.9 % region, 11 mm off with a 1 sigma of 4-8 mm; at 0.2 none).
+    if options.axis_consistency_p is None:
+        options = replace(options, axis_consistency_p=SHORT_ARC_CONSISTENCY_P if short else LONG_ARC_CONSISTENCY_P)
+    runs = [_refined_stage1(arm, camera, measurements, start, setup, options, anchor, REFINE_PASSES if short else 1)
+            for start, anchor in zip(starts, anchors, strict=True)]
     alternatives = []
     if len(runs) > 1:  # the image axes cannot choose between the starts: the joint fit of the circles does
         joints, failures = [], []
@@ -1927,6 +2024,18 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
     result.alternatives = alternatives
     result.joint_sigma_deg = 0.0 if method is Method.PAPER else options.joint_sigma_deg
     return result, setup
+
+
+def _turning_deg(pixels: np.ndarray, chunks: int = 8) -> float:
+    """How far a track's direction of motion turns along it (deg): the signed turns between its ``chunks``
+    successive chords, summed. About the arc it spans (a full turn: 315 degrees), and unlike the arc about its own
+    fitted ellipse it does not wrap around a short arc's too small ellipse."""
+    if len(pixels) < 2 * chunks:
+        return 0.0
+    chords = np.diff(pixels[np.linspace(0, len(pixels) - 1, chunks + 1).astype(int)], axis=0)
+    angles = np.arctan2(chords[:, 1], chords[:, 0])
+    turns = (np.diff(angles) + np.pi) % (2.0 * np.pi) - np.pi
+    return float(np.degrees(abs(np.sum(turns))))
 
 
 def _turned(a: gtsam.Pose3, b: gtsam.Pose3) -> float:
