@@ -1228,8 +1228,9 @@ def _stage1(arm, camera, measurements, pose, setup: _Setup, options, jackknife: 
 def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup, options,
                     anchor, passes: int = REFINE_PASSES) -> tuple[gtsam.Pose3, list[_Stage1]]:
     """Stage 1 from ``start``, and again from the pose its lines give (weighted stage 2, Huber on whole
-    measurements) while that pose moves more than REFINE_DEG or REFINE_M (at most REFINE_PASSES fits); returns
-    the pose stage 1 last started from and its fit (jackknifed).
+    measurements) while that pose moves more than REFINE_DEG or REFINE_M (at most ``passes`` fits); returns the
+    pose stage 1 last started from and its fit, jackknifed (:func:`_jackknife`) unless ``passes`` is 1 (the
+    caller's choice where every measurement has a long arc).
 
     Each measurement's fit starts from the FK axis seen from the start. With long arcs it finds the same circles
     from anywhere near; with short ones (corner tracks of 25 degrees) it stays in a minimum near the start, and
