@@ -1208,8 +1208,7 @@ def _readmit_tracks(builders, measurements, pose, setup: _Setup, stage1: list[_S
     return out
 
 
-def _stage1(arm, camera, measurements, pose, setup: _Setup, options, jackknife: bool = True,
-            image_axes: bool = True) -> list[_Stage1]:
+def _stage1(arm, camera, measurements, pose, setup: _Setup, options, image_axes: bool = True) -> list[_Stage1]:
     # Huber per whole track (at its chi-square 99.9 % point): a wrong arc that the tests let through has a bounded
     # pull; a good track is untouched
     builders = [_builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber),
@@ -1218,11 +1217,7 @@ def _stage1(arm, camera, measurements, pose, setup: _Setup, options, jackknife: 
                                   _start_line(camera, setup.axes[k], setup.lines[k] if image_axes else None, pose),
                                   settle=not image_axes)
               for k, m in enumerate(measurements)]
-    stage1 = _readmit_tracks(builders, measurements, pose, setup, stage1, options)
-    if not jackknife:
-        return stage1
-    return [_jackknife(builders[0], measurements[k], k, pose, setup.prepared[k], s, options)
-            for k, s in enumerate(stage1)]
+    return _readmit_tracks(builders, measurements, pose, setup, stage1, options)
 
 
 def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup, options,
@@ -1240,14 +1235,14 @@ def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup
     pose = start
     builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
     everything = list(range(len(measurements)))
-    stage1 = _stage1(arm, camera, measurements, pose, setup, options, jackknife=False)
+    stage1 = _stage1(arm, camera, measurements, pose, setup, options)
     for _ in range(passes - 1):
         moved, _, _ = _weighted_stage2(camera, setup, stage1, everything, pose, options, anchor)
         if _turned(moved, pose) < np.radians(REFINE_DEG) and np.linalg.norm(
                 moved.translation() - pose.translation()) < REFINE_M:
             break
         pose = moved
-        stage1 = _stage1(arm, camera, measurements, pose, setup, options, jackknife=False, image_axes=False)
+        stage1 = _stage1(arm, camera, measurements, pose, setup, options, image_axes=False)
     if passes == 1:
         return pose, stage1
     return pose, [_jackknife(builder, measurements[k], k, pose, setup.prepared[k], s, options)
