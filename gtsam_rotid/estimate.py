@@ -198,10 +198,14 @@ class AxisConsistency:
     cluster-robust over tracks); ``dof`` is ``2 n - 6``. Errors the per-track noise model does not describe
     (a sub-pixel bias the tracker shares across a measurement's tracks, joint-angle or kinematic errors, wrong
     intrinsics) move whole axes and show here, while every pixel residual looks white. When the test fails
-    (``p_value`` < ``CalibrationOptions.axis_consistency_p``) the covariance is multiplied by ``scale`` =
-    ``chi2 / dof`` (the Birge ratio, as the Particle Data Group scales inconsistent measurements): the axes'
-    covariance is taken to be understated by a common factor, which their scatter measures. With few
-    measurements that factor is itself uncertain (``2 n - 6`` dof), so add measurements when it is large.
+    (``p_value`` < ``CalibrationOptions.axis_consistency_p``) the axes' covariance is taken to be understated by a
+    common factor k, which their scatter measures, and the covariance is multiplied by ``scale`` =
+    ``chi2 / (dof - 2)``: the mean of k given the scatter (chi2 ~ k chi2(dof), Jeffreys prior 1/k: an inverse-gamma
+    posterior). It is the Birge ratio ``chi2 / dof`` (as the Particle Data Group scales inconsistent measurements)
+    times ``dof / (dof - 2)``: with k estimated from ``dof`` degrees of freedom the error is Student-t, not Gaussian,
+    and this is the Gaussian with its second moment (with six measurements, 6 dof, the Birge ratio alone leaves the
+    error's chi-square 1.5x its dof on average). With 2 dof (four measurements) k's mean is unbounded: the scale is
+    then the Birge ratio and the result is not trusted (``CalibrationResult.untrusted``: ``unmeasured_scatter``).
     """
 
     chi2: float
@@ -405,6 +409,7 @@ UNTRUSTED_KINDS = {
     "thin_evidence": "the estimate rests on weak measurements (few tracks or short arcs) that nothing vouches for",
     "inconsistent": "the measurements disagree far beyond their noise",
     "too_uncertain": "the uncertainty is too large to be a calibration",
+    "unmeasured_scatter": "the measurements disagree beyond their noise and are too few to measure by how much",
 }
 
 
@@ -440,10 +445,17 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
             out.append(f"the measurements' axes disagree with one pose by χ²/dof = {c.chi2 / c.dof:.3g}, more than "
                        f"{MAX_CONSISTENCY_SCALE:g}x their pixel noise: the model does not describe the data (wrong "
                        "intrinsics, joint angles or kinematics, a moved camera, or tracks that are not on the hand)")
+        elif kind == "unmeasured_scatter":
+            c = result.axis_consistency
+            out.append(f"the measurements' axes disagree with one pose beyond their pixel noise (χ² = {c.chi2:.3g} "
+                       f"for {c.dof} dof, P = {c.p_value:.2g}), and only {c.dof // 2 + 3} measurements are used: "
+                       "too few to measure by how much the noise is understated, so no covariance can be given; add "
+                       "arm poses (six or more used), or spin longer where measurements were left out")
         elif kind == "too_uncertain":
-            out.append(f"the 1σ position ({np.max(result.sigma_mm_arm):.3g} mm) exceeds "
-                       f"{100 * MAX_RELATIVE_SIGMA:g} % of the camera's distance to the wrist: the data do not "
-                       "determine the calibration in practice; add arm poses, longer spins or more texture")
+            out.append(f"the 1σ ({np.max(result.sigma_mm_arm):.3g} mm, {np.max(result.sigma_deg):.3g}°) exceeds "
+                       f"{100 * MAX_RELATIVE_SIGMA:g} % of the camera's distance to the wrist or {MAX_SIGMA_DEG:g}°: "
+                       "the data do not determine the calibration in practice, and an error that large changes the "
+                       "geometry the covariance was computed in; add arm poses, longer spins or more texture")
     return out
 
 
@@ -529,8 +541,11 @@ MIN_STRONG = 4
 ARC_TRIM = 0.05
 #: An axis-consistency scale (chi2/dof) above this is not a modest understatement of the noise but a wrong model.
 MAX_CONSISTENCY_SCALE = 100.0
-#: A 1-sigma camera position larger than this fraction of its distance to the wrist is no calibration.
-MAX_RELATIVE_SIGMA = 0.25
+#: A 1-sigma camera position larger than this fraction of its distance to the wrist, or a 1-sigma rotation larger
+#: than MAX_SIGMA_DEG, is no calibration: an error of that size changes the geometry the covariance was linearised
+#: in (a rendered Panda scene: 1 sigma of 104 mm and 6 deg at 1.16 m, 102 mm off with a chi-square of 994 in 6 dof).
+MAX_RELATIVE_SIGMA = 0.05
+MAX_SIGMA_DEG = 2.0
 #: The joint fit is restarted (:func:`_restarted`) when its axis-consistency test has a P value below this.
 RESTART_P = 1e-3
 #: Restarts leave out, in turn, this many of the measurements that disagree most with the estimate.
@@ -620,12 +635,20 @@ class _Setup:
     weak: dict[int, str] = field(default_factory=dict)
     #: the weak measurements left out because enough strong ones determine the pose without them
     dropped: set[int] = field(default_factory=set)
-    #: k -> the longest arc (deg, or None) of measurements with enough tracks but none of WEAK_ARC_DEG: a tracker's
-    #: drift along short arcs can put their image axes off (for the words that name a likely cause)
-    short: dict[int, float | None] = field(default_factory=dict)
+    #: k -> the longest arc (deg, ``turning``) of measurements with enough tracks but none of WEAK_ARC_DEG: a
+    #: tracker's drift along short arcs can put their image axes off (for the words that name a likely cause)
+    short: dict[int, float] = field(default_factory=dict)
+    #: per measurement, the longest turn of a usable track's direction of motion (deg, :func:`_turning_deg`)
+    turning: list[float] = field(default_factory=list)
 
     def noise(self, k: int) -> np.ndarray | None:
         return self.axis_noise[k] if self.axis_noise else None
+
+    @property
+    def short_arcs(self) -> bool:
+        """Some measurement has no track that turns by WEAK_ARC_DEG: stage 1 is then refitted from its own
+        estimate and jackknifed, and the axes' scatter scales the covariance at a lower level (``_calibrate``)."""
+        return any(t < WEAK_ARC_DEG for t in self.turning)
 
 
 def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: CalibrationOptions) -> _Setup:
@@ -647,7 +670,8 @@ def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: C
     if options.joint_sigma_deg > 0.0:
         sigma = np.radians(options.joint_sigma_deg)
         noise = [sigma * test_point_jacobian(arm, m.joint_angles) for m in measurements]
-    return _Setup(axes, prepared, lines, noise, list(range(len(measurements))), camera.K)
+    turning = [max((_turning_deg(t.ideal) for t in p.usable.values()), default=0.0) for p in prepared]
+    return _Setup(axes, prepared, lines, noise, list(range(len(measurements))), camera.K, turning=turning)
 
 
 def test_point_jacobian(arm: Arm, joint_angles, step: float = 1e-6) -> np.ndarray:
@@ -1311,7 +1335,9 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
         return None
     chi2 = float(np.sum(_chi2(camera, setup, stage1, pose, {k: sigma2[k] for k in used})[used]))
     p = chi2_sf(chi2, dof)
-    scale = chi2 / dof if p < options.axis_consistency_p else 1.0
+    scale = 1.0
+    if p < options.axis_consistency_p:  # see AxisConsistency: k's mean given the scatter, where it has one
+        scale = chi2 / (dof - 2) if dof > 2 else chi2 / dof
     return AxisConsistency(chi2, dof, p, scale)
 
 
@@ -1434,8 +1460,7 @@ def _weak_words(setup: _Setup | None, bad=()) -> str:
 
 def _short_words(setup: _Setup, ks) -> str:
     """Words for measurements of many tracks whose arcs are all short: tracking is as likely a cause as joints."""
-    arcs = ", ".join(f"{_named(setup, [k])[0]}: {setup.short[k]:.0f}°" if setup.short[k] is not None
-                     else f"{_named(setup, [k])[0]}" for k in ks)
+    arcs = ", ".join(f"{_named(setup, [k])[0]}: {setup.short[k]:.0f}°" for k in ks)
     return (f"The arcs of measurement(s) {arcs} (longest) are short: a tracker's drift along short arcs can put an "
             "image axis off as far as a wrong joint angle does, so suspect the tracking as much as the joints (spin "
             "longer, a full turn or more, or track features that can be followed further)")
@@ -1500,8 +1525,9 @@ def _second_opinion(arm, camera, measurements, setup: _Setup, stage1: list[_Stag
     free = _sse(s)
     new_free = float(sum(v[0] for v in stats.values()))
     if np.isfinite(new_free) and new_free < free * (1.0 - 1e-9):
-        refit = _jackknife(builder, measurements[k], k, pose, setup.prepared[k], _stage1_result(
-            builder, graph, keys, result, stats, dict(s.outliers), s.iterations + it, options), options)
+        refit = _stage1_result(builder, graph, keys, result, stats, dict(s.outliers), s.iterations + it, options)
+        if setup.short_arcs:  # as stage 1's own fits (``_refined_stage1``)
+            refit = _jackknife(builder, measurements[k], k, pose, setup.prepared[k], refit, options)
         free = new_free
     variance = max(s.sigma2 if refit is None else refit.sigma2, float(np.median([t.sigma2 for t in stage1])))
     return refit, max(sse_tied - free, 0.0) / variance + tie
@@ -1524,8 +1550,8 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opini
     setup.weak, setup.short = {}, {}
     for k, s in enumerate(stage1):
         span, weak = _evidence(setup, s, k)
-        if not weak and (span is None or span < WEAK_ARC_DEG):
-            setup.short[k] = span
+        if not weak and setup.turning[k] < WEAK_ARC_DEG:
+            setup.short[k] = setup.turning[k]
         if weak:
             arc = "" if span is None else f", longest arc {span:.0f}° (at most)"
             setup.weak[k] = f"{len(s.keys.tracks)} tracks{arc}"
@@ -1974,9 +2000,12 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
         out["thin_evidence"] = weak
     if c is not None and c.dof > 0 and c.chi2 / c.dof > MAX_CONSISTENCY_SCALE:
         out["inconsistent"] = [m.index for m in result.measurements if not m.outlier]
+    elif c is not None and not c.consistent and c.dof <= 2:
+        out["unmeasured_scatter"] = [m.index for m in result.measurements if not m.outlier]
     distance = float(np.median([np.linalg.norm(result.arm_T_camera.transformTo(a.point)) for a in setup.axes]))
     limit_mm = 1000.0 * MAX_RELATIVE_SIGMA * distance
-    if not np.all(np.isfinite(result.covariance)) or np.max(result.sigma_mm_arm) > limit_mm:
+    if (not np.all(np.isfinite(result.covariance)) or np.max(result.sigma_mm_arm) > limit_mm
+            or np.max(result.sigma_deg) > MAX_SIGMA_DEG):
         out["too_uncertain"] = []
     return out
 
@@ -1985,8 +2014,7 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
     starts, setup, anchors = _initial(arm, camera, measurements, options, index)
     # stage 1 is refitted from its own estimate only where some measurement has no long arc (the axis through its
     # ellipses' centres, which starts it, is then unreliable); elsewhere one fit from the start
-    short = any(max((_turning_deg(t.ideal) for t in p.usable.values()), default=0.0) < WEAK_ARC_DEG
-                for p in setup.prepared)
+    short = setup.short_arcs
     # Short arcs (a tracker's drift shared by a measurement's tracks, which neither the per-track scores nor the
     # jackknife see) also lower the level at which the axes' scatter scales the covariance: the test has 2 n - 6
     # dof, little power with six poses (18 rendered corner-tracked scenes: at 0.01 three of nine usable results

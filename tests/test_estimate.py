@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from gtsam_rotid import Camera, Dataset, InputError, Measurement, Track, estimate, simulate
-from gtsam_rotid.estimate import CalibrationError, CalibrationResult, calibrate, initial_pose
+from gtsam_rotid.estimate import CalibrationError, CalibrationResult, calibrate, initial_pose, untrusted_words
 from gtsam_rotid.graph import Model, track_huber
 from gtsam_rotid.simulate import SceneConfig
 
@@ -343,7 +343,8 @@ def test_axes_consistent_with_white_noise_leave_the_covariance(noisy_scene, meth
 
 def test_axes_that_disagree_beyond_their_noise_scale_the_covariance(noisy_scene, tmp_path):
     """A 4 px image offset shared by all tracks of each measurement moves whole image axes; every track's residuals
-    stay white, so only the axes' disagreement with one pose shows it, and the covariance grows by chi2 / dof.
+    stay white, so only the axes' disagreement with one pose shows it, and the covariance grows by chi2 / (dof - 2)
+    (the Birge ratio chi2 / dof times dof / (dof - 2), for the scale's own uncertainty).
 
     This tests the mechanism, not coverage: an offset per measurement looks much like a change of the pose, which
     absorbs most of it, so even the scaled covariance stays far too small here (README, Known limits)."""
@@ -355,7 +356,7 @@ def test_axes_that_disagree_beyond_their_noise_scale_the_covariance(noisy_scene,
     unscaled = calibrate(shifted, method="joint", options=CalibrationOptions(axis_consistency_p=0.0))
     test = result.axis_consistency
     assert test.p_value < 0.01 and not test.consistent
-    assert test.scale == pytest.approx(test.chi2 / test.dof) and test.scale > 1.0
+    assert test.scale == pytest.approx(test.chi2 / (test.dof - 2)) and test.scale > test.chi2 / test.dof > 1.0
     assert unscaled.axis_consistency.scale == 1.0 and unscaled.axis_consistency.chi2 == pytest.approx(test.chi2)
     assert result.arm_T_camera.equals(unscaled.arm_T_camera, 1e-12)
     np.testing.assert_allclose(result.covariance, test.scale * unscaled.covariance, rtol=1e-12)
@@ -365,6 +366,24 @@ def test_axes_that_disagree_beyond_their_noise_scale_the_covariance(noisy_scene,
     assert result.report(shifted).to_dict()["axis_consistency"]["scale"] == pytest.approx(test.scale)
     result.save(tmp_path / "r.json")
     assert CalibrationResult.load(tmp_path / "r.json").axis_consistency == test
+
+
+def test_axes_that_disagree_with_too_few_measurements_to_scale_are_not_trusted(noisy_scene):
+    """With four measurements the axes' scatter has 2 dof: it shows that they disagree but cannot say by how much
+    (the scale's mean is unbounded), so the result is not trusted, and the words say why and what to do."""
+    dataset, _ = noisy_scene
+    four = with_measurement_offsets(Dataset(dataset.arm, dataset.camera, list(dataset)[:4]), 4.0, seed=5)
+    result = calibrate(four, method="joint")
+    test = result.axis_consistency
+    assert test.dof == 2 and test.p_value < 0.01 and not test.consistent
+    assert result.observability.is_observable and not result.covariance_usable
+    assert list(result.untrusted) == ["unmeasured_scatter"] and result.untrusted["unmeasured_scatter"] == [0, 1, 2, 3]
+    words = " ".join(untrusted_words(result))
+    assert "only 4 measurements are used" in words and "add arm poses" in words
+    assert "COVARIANCE UNUSABLE" in result.summary()
+    # the same four measurements without the offsets agree: trusted
+    clean = calibrate(Dataset(dataset.arm, dataset.camera, list(dataset)[:4]), method="joint")
+    assert clean.axis_consistency.consistent and clean.covariance_usable
 
 
 def test_axis_consistency_option_is_checked():
