@@ -138,14 +138,18 @@ def main(argv=None) -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--min-inertia-ratio", type=float, default=None,
                         help="TrackerParams.min_inertia_ratio (default: the tracker's); 0.1 drops the thinnest blobs")
+    parser.add_argument("--features", choices=("blobs", "corners", "auto"), default=None,
+                        help="TrackerParams.features (default: the tracker's)")
     parser.add_argument("--no-calibration", action="store_true", help="speed and accuracy only (parts 1 and 2)")
     parser.add_argument("--quick", action="store_true", help="10 s spins, one repeat, 100 synthetic frames")
     args = parser.parse_args(argv)
     if args.quick:
         args.duration, args.speed_duration, args.repeats, args.frames = 10.0, 5.0, 1, 100
     cv2.setNumThreads(1)
-    params = TrackerParams() if args.min_inertia_ratio is None else TrackerParams(
-        min_inertia_ratio=args.min_inertia_ratio)
+    changes = {} if args.min_inertia_ratio is None else {"min_inertia_ratio": args.min_inertia_ratio}
+    if args.features is not None:
+        changes["features"] = args.features
+    params = TrackerParams(**changes)
     clock = time.perf_counter()
 
     frames, truth = synthetic_frames(args.frames, args.dots, args.noise, args.seed)
