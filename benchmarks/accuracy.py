@@ -1,6 +1,6 @@
 """Monte Carlo accuracy of the estimators on the reference scene, against the Cramér–Rao bound (issue 3).
 
-Each trial simulates the reference scene (DESIGN.md §6: Kinova Jaco2, six 60 s spins, sigma^2 = 1.5 px^2) with the
+Each trial simulates the reference scene (docs/design.md §6: Kinova Jaco2, six 60 s spins, sigma^2 = 1.5 px^2) with the
 arm poses of ``--scene-seed`` held fixed and its own seed for the features and the pixel noise, calibrates it with
 every method, and records the error against the truth (which the estimators never see) and the reported
 covariance. The Cramér–Rao bound of the trial is the inverse of the pose information (every circle marginalised)

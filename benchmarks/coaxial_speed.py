@@ -1,6 +1,6 @@
 """Speed of the variable-projection line factor (``factors/coaxial.py``) against one circle-point factor per track.
 
-Reference scene (DESIGN.md §6: six 60 s spins, ~56k pixels). Per measurement, the stage-1 problem as
+Reference scene (docs/design.md §6: six 60 s spins, ~56k pixels). Per measurement, the stage-1 problem as
 :class:`gtsam_rotid.graph.RotIdGraph` builds it (``tie=False``): a Rot3 line variable and, either, one ``(d, r)``
 variable and one circle-point factor per track (the "per-track" graph, ~60 variables), or ONE
 :func:`~gtsam_rotid.factors.make_coaxial_line_factor` on the line only (the "VP" graph: the circles are projected

@@ -1,4 +1,4 @@
-"""Speed of the circle-point factors on the reference scene (DESIGN.md §6: six 60 s spins, ~56k pixels).
+"""Speed of the circle-point factors on the reference scene (docs/design.md §6: six 60 s spins, ~56k pixels).
 
 Builds one circle-point factor per track (as :class:`gtsam_rotid.graph.RotIdGraph` does, from the true
 ``arm_T_camera``; the projected-axis ties are left out) and times ``graph.error`` and ``graph.linearize`` of all

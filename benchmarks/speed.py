@@ -1,6 +1,6 @@
 """Wall time of ``calibrate`` per method on the reference scene, and the cost per observation of our factors.
 
-1. ``calibrate(dataset, method=...)`` on the reference scene (DESIGN.md §6: six 60 s spins, ~56k pixel
+1. ``calibrate(dataset, method=...)`` on the reference scene (docs/design.md §6: six 60 s spins, ~56k pixel
    observations), best of ``--repeats`` runs after one warm-up (imports, first-call overheads).
 2. One linearisation of the joint graph (one pose-bound circle-point CustomFactor per track, vectorised over its
    pixels) against the same maths with one CustomFactor per pixel, timed on a subset of the tracks and given per

@@ -1,6 +1,6 @@
 """Rigid-spin circle factor: every feature of a measurement turns with one wrist angle per frame.
 
-Model (``../shared/DESIGN.md`` §4, "The rigid spin"). Within one measurement, at frame ``f`` every feature's phase
+Model (``docs/design.md`` §4, "The rigid spin"). Within one measurement, at frame ``f`` every feature's phase
 is ``theta_f + phi0_j``. The observed pixel ``i`` of track ``j`` at frame ``f_i`` is predicted as
 
     ``u(phi) = pi(K X(phi))``,  ``X(phi) = R @ (1 + r sin(phi), d, r cos(phi))``,  ``phi = theta_{f_i} + phi0_j``

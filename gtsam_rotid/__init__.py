@@ -2,7 +2,7 @@
 
 The wrist spins, features on the end effector trace circles about its axis, the camera sees
 ellipses, and the arm's kinematics tie each rotation axis to the camera pose ``arm_T_camera``.
-See README.md and DESIGN.md for conventions.
+See README.md and docs/design.md for conventions.
 """
 
 from . import simulate

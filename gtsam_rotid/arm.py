@@ -5,7 +5,7 @@ name -> angle is accepted too. Pinocchio's configuration vector ``q`` is built o
 :meth:`Arm.configuration` (continuous joints are stored there as (cos, sin); other joints, such as
 Panda's prismatic fingers, are held at their neutral value).
 
-Pinocchio conventions are converted here and nowhere else (DESIGN.md §2): Pinocchio motion vectors
+Pinocchio conventions are converted here and nowhere else (docs/design.md §2): Pinocchio motion vectors
 are [linear; angular]; this module returns plain 3-vectors and ``gtsam.Pose3`` placements.
 """
 

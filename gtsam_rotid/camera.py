@@ -1,6 +1,6 @@
 """Pinhole camera with OpenCV's distortion model (k1, k2, p1, p2, k3).
 
-Conventions (DESIGN.md §2): OpenCV camera frame (x right, y down, z forward); pixel coordinates with
+Conventions (docs/design.md §2): OpenCV camera frame (x right, y down, z forward); pixel coordinates with
 the origin at the centre of the top-left pixel; tracks are raw (distorted) pixels and are undistorted
 here. All functions are vectorised over points.
 """
@@ -85,7 +85,7 @@ class Camera:
 
     @classmethod
     def xtion(cls) -> Camera:
-        """The reference scene's Asus Xtion-like camera: 640x480, fx = fy = 570 (DESIGN.md §6)."""
+        """The reference scene's Asus Xtion-like camera: 640x480, fx = fy = 570 (docs/design.md §6)."""
         return cls([[570.0, 0.0, 319.5], [0.0, 570.0, 239.5], [0.0, 0.0, 1.0]], 640, 480)
 
     @classmethod

@@ -2,8 +2,8 @@
 
 A :class:`Dataset` holds the arm, the camera and a list of :class:`Measurement` (one wrist spin at a fixed
 arm pose: its joint angles and the :class:`Track` of every feature seen during the spin). Tracks are raw
-(distorted) pixels, OpenCV convention (origin at the centre of the top-left pixel, DESIGN.md §2), with
-optional frame indices that let the estimators model the rigid spin (DESIGN.md §4).
+(distorted) pixels, OpenCV convention (origin at the centre of the top-left pixel, docs/design.md §2), with
+optional frame indices that let the estimators model the rigid spin (docs/design.md §4).
 
 On disk a dataset is a directory (format version :data:`FORMAT_VERSION`)::
 

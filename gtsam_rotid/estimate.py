@@ -1,4 +1,4 @@
-"""Estimators of ``arm_T_camera`` (DESIGN.md §4): ``paper``, ``weighted`` and ``joint`` (default).
+"""Estimators of ``arm_T_camera`` (docs/design.md §4): ``paper``, ``weighted`` and ``joint`` (default).
 
 All three start from the same guess-free initial value (:mod:`gtsam_rotid.initialise`): ellipse
 centres give each measurement's projected axis, the back-projected planes and the FK axes give pose
@@ -112,11 +112,11 @@ class CalibrationOptions:
     max_initial_rms_px: float = 25.0
     tie_sigma_px: float = 1e-3
     #: Joint method: ``"free"`` phase per observation, or ``"rigid"`` spin (one wrist angle per frame and one
-    #: phase per track, DESIGN.md §4; for tracks with frame indices, line model only). Rigid is slower.
+    #: phase per track, docs/design.md §4; for tracks with frame indices, line model only). Rigid is slower.
     spin_model: str = "free"
     #: LM stops when the relative decrease of the error falls below these (stage 1; everything else).
     stage1_tolerance: float = 1e-8
-    #: Joint graph: ``"projected"`` (DESIGN.md §4's line variables with a projected-axis tie, the circles
+    #: Joint graph: ``"projected"`` (docs/design.md §4's line variables with a projected-axis tie, the circles
     #: projected out inside one factor per measurement), ``"line"`` (the same with a circle variable per track:
     #: the same solution, ~5x slower) or ``"pose"`` (circles bound to the pose through the FK axis; biased tilt
     #: with free phases), see :class:`gtsam_rotid.graph.Model`.
@@ -808,7 +808,7 @@ def twin_pose(arm_T_camera: gtsam.Pose3, point) -> gtsam.Pose3:
 
 def initial_pose(arm: Arm, camera: Camera, measurements: list[Measurement],
                  options: CalibrationOptions | None = None) -> gtsam.Pose3:
-    """Guess-free initial ``arm_T_camera`` from ellipse-centre lines and FK axes (DESIGN.md §5)."""
+    """Guess-free initial ``arm_T_camera`` from ellipse-centre lines and FK axes (docs/design.md §5)."""
     options = CalibrationOptions() if options is None else options
     return _initial(arm, camera, measurements, options)[0][0]
 
@@ -1875,7 +1875,7 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
 
 
 def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options):
-    """The joint graph with the rigid spin (DESIGN.md §4), started from the free-phase joint solution ``free``.
+    """The joint graph with the rigid spin (docs/design.md §4), started from the free-phase joint solution ``free``.
 
     Every track with frame indices gets a (d, r, phi0) variable and 2-D reprojection factors (one per
     two-chunk segment, Huber per segment) at phase ``theta_f + phi0``, the spin angles ``theta_f`` being

@@ -1,6 +1,6 @@
 """Pure geometry helpers on numpy arrays (no GTSAM factors, no I/O).
 
-Frame names follow DESIGN.md §2: ``a_T_b`` maps coordinates in frame b to frame a.
+Frame names follow docs/design.md §2: ``a_T_b`` maps coordinates in frame b to frame a.
 """
 
 from __future__ import annotations

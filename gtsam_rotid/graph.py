@@ -189,7 +189,7 @@ def align_line(line: gtsam.Rot3, plane_normal: np.ndarray) -> gtsam.Rot3:
 class Model(StrEnum):
     """How a measurement is tied to ``arm_T_camera``."""
 
-    #: DESIGN.md §4's joint graph, the default: a Rot3 line variable per measurement with circle-point
+    #: docs/design.md §4's joint graph, the default: a Rot3 line variable per measurement with circle-point
     #: factors, tied to the pose by a stiff projected-axis factor (2 of the line's 3 observable DOF).
     LINE = "line"
     #: Circle-point factors on (pose, circle): the axis is the FK axis mapped by the pose (exact kinematics;

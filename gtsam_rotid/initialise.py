@@ -1,4 +1,4 @@
-"""Initial values that need no guess (DESIGN.md §5).
+"""Initial values that need no guess (docs/design.md §5).
 
 1. Per track: a direct least-squares ellipse (``cv2.fitEllipseDirect``) on the undistorted pixels.
 2. Per measurement: the projected axis ``l_k`` as the total-least-squares line through the ellipse

@@ -39,7 +39,7 @@ image centroid a few hundredths of a pixel from the image of its centre); ``faci
 the outward normal and the ray to the camera; ``visible``, facing > ``visibility_cos``, the centre and 8
 rim points unhidden by any other section, and the whole dot inside the image.
 
-Pixels follow the camera's convention: the origin at the centre of the top-left pixel (DESIGN.md §2).
+Pixels follow the camera's convention: the origin at the centre of the top-left pixel (docs/design.md §2).
 
 Entry points: :func:`render_measurement`, :func:`render_scene`, :func:`write_video`, :func:`save_truth`.
 """

@@ -7,7 +7,7 @@ its outward normal faces the camera (the far side of the wrist hides it) and it 
 so tracks end and new ones start every revolution. Pixels get Gaussian noise of variance
 ``noise_var`` px²; optional outlier tracks are arcs of wrong circles.
 
-Entry points: :func:`simulate`, :func:`reference_scene` (the paper's Kinova Jaco2 system, DESIGN.md
+Entry points: :func:`simulate`, :func:`reference_scene` (the paper's Kinova Jaco2 system, docs/design.md
 §6) and :func:`single_crossing_scene` (every wrist axis through one point).
 """
 
@@ -348,7 +348,7 @@ def _jsonable(value):
 
 
 def reference_scene(seed: int | None = 0, **changes) -> tuple[Dataset, GroundTruth]:
-    """The paper's physical system (DESIGN.md §6): Kinova Jaco2, Xtion-like camera ~1 m over the
+    """The paper's physical system (docs/design.md §6): Kinova Jaco2, Xtion-like camera ~1 m over the
     shoulder, six 60 s wrist spins at 30 fps and 0.5 rad/s, 12 features 3-6 cm from the axis,
     noise variance 1.5 px². Keyword arguments override :class:`SceneConfig` fields."""
     return simulate(SceneConfig(**changes), seed=seed)

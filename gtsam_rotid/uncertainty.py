@@ -1,4 +1,4 @@
-"""Information, observability and covariance of ``arm_T_camera`` (DESIGN.md §5).
+"""Information, observability and covariance of ``arm_T_camera`` (docs/design.md §5).
 
 The information matrix of the pose is the Schur complement of the whole linearised graph onto the
 Pose3 block (every other variable marginalised). Its eigen-decomposition, in the Pose3 tangent

@@ -1,4 +1,4 @@
-"""The paper's physical system, simulated (DESIGN.md §6): Kinova Jaco2, Xtion-like 640x480 camera about 1 m over
+"""The paper's physical system, simulated (docs/design.md §6): Kinova Jaco2, Xtion-like 640x480 camera about 1 m over
 the shoulder, six 60 s wrist spins at 30 fps, 12 features 3-6 cm from the axis, pixel noise 1.5 px².
 
 Calibrates with the three estimators (``paper``, ``weighted``, ``joint``), compares each with the truth and with
