@@ -26,9 +26,24 @@ from .tracking import Tracker, TrackerParams, track
 
 __version__ = "0.1.0"
 
+#: The calibration's names, importable from here (``gtsam_rotid.calibrate``) but loaded on first use: the estimator
+#: pulls in every factor and graph module, which ``import gtsam_rotid`` (and the CLI's start) need not pay for.
+_CALIBRATION = ("CalibrationError", "CalibrationOptions", "CalibrationResult", "Method", "calibrate")
+
+
+def __getattr__(name: str):
+    if name in _CALIBRATION:
+        from . import estimate
+
+        return getattr(estimate, name)
+    raise AttributeError(f"module 'gtsam_rotid' has no attribute {name!r}")
+
 __all__ = [
     "Arm",
     "ArmError",
+    "CalibrationError",
+    "CalibrationOptions",
+    "CalibrationResult",
     "Camera",
     "CameraError",
     "Dataset",
@@ -37,6 +52,7 @@ __all__ = [
     "InputError",
     "Line3",
     "Measurement",
+    "Method",
     "OutputError",
     "RecordingError",
     "RotIdError",
@@ -45,6 +61,7 @@ __all__ = [
     "Tracker",
     "TrackerParams",
     "ValidationError",
+    "calibrate",
     "simulate",
     "track",
 ]
