@@ -1,0 +1,84 @@
+"""The layer rule of docs/design.md §8, checked over the import graph (imports inside functions included).
+
+Modules depend one way, from the bottom up; argparse lives in the command line only. The places where the code
+still breaks the rule are listed below (issue 14 removes them): a new violation fails, and so does a listed one
+that is gone (take it off the list, so that it cannot come back unnoticed).
+"""
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+#: module -> layer (docs/design.md §8); every module of the package must be here
+LAYERS = {
+    "errors": 1, "geometry": 1, "jsonio": 1, "factors": 1,
+    "camera": 2, "arm": 2, "dataset": 2,
+    "tracking": 3, "corners": 3, "patterns": 3, "render": 3, "meshrender": 3, "simulate": 3, "recordings": 3,
+    "graph": 4, "initialise": 4, "uncertainty": 4,
+    "estimate": 5,
+    "report": 6, "plots": 6, "export": 6, "pixels": 6,
+    "cli": 7, "__main__": 7, "__init__": 8,
+}
+#: (importer, imported) pairs that break the rule today
+KNOWN_UPWARD = {("estimate", "report")}
+KNOWN_ARGPARSE = {"export", "recordings", "report"}
+
+
+def _imports(path: Path, relative: bool = True) -> tuple[set[str], bool]:
+    """The package modules ``path`` imports (at any depth of its code), and whether it imports argparse;
+    ``relative``: its relative imports name gtsam_rotid's modules (not those of ``factors/``)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    found, argparse = set(), False
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                parts = alias.name.split(".")
+                argparse |= parts[0] == "argparse"
+                if parts[0] == "gtsam_rotid" and len(parts) > 1:
+                    found.add(parts[1])
+                elif parts[0] == "factors":
+                    found.add("factors")
+        elif isinstance(node, ast.ImportFrom):
+            module = node.module or ""
+            if node.level == 1 and relative:
+                found.update([module.split(".")[0]] if module else [a.name for a in node.names])
+            elif module.startswith("gtsam_rotid."):
+                found.add(module.split(".")[1])
+            elif module == "gtsam_rotid":
+                found.update(a.name for a in node.names if a.name in LAYERS)
+            elif module.split(".")[0] == "factors":
+                found.add("factors")
+            argparse |= module == "argparse"
+    return found, argparse
+
+
+def _graph() -> dict[str, tuple[set[str], bool]]:
+    graph = {p.stem: _imports(p) for p in sorted((ROOT / "gtsam_rotid").glob("*.py"))}
+    factors = [_imports(p, relative=False) for p in sorted((ROOT / "factors").glob("*.py"))]
+    graph["factors"] = (set().union(*(f[0] for f in factors)) - {"factors"}, any(f[1] for f in factors))
+    return graph
+
+
+def test_every_module_has_a_layer():
+    assert set(_graph()) <= set(LAYERS), sorted(set(_graph()) - set(LAYERS))
+
+
+def test_no_module_imports_one_above_it():
+    graph = _graph()
+    upward = {(m, d) for m, (deps, _) in graph.items() for d in deps
+              if d in LAYERS and d != m and LAYERS[d] > LAYERS[m]}
+    assert upward - KNOWN_UPWARD == set(), f"imports against the layer rule: {sorted(upward - KNOWN_UPWARD)}"
+    assert KNOWN_UPWARD - upward == set(), f"fixed, take off KNOWN_UPWARD: {sorted(KNOWN_UPWARD - upward)}"
+
+
+def test_the_core_imports_no_package_module_above_it():
+    graph = _graph()
+    assert graph["factors"][0] == set(), graph["factors"][0]  # numpy and gtsam only
+    assert graph["geometry"][0] <= {"errors"}, graph["geometry"][0]
+
+
+def test_argparse_only_in_the_command_line():
+    graph = _graph()
+    using = {m for m, (_, argparse) in graph.items() if argparse} - {"cli"}
+    assert using - KNOWN_ARGPARSE == set(), f"argparse outside the CLI: {sorted(using - KNOWN_ARGPARSE)}"
+    assert KNOWN_ARGPARSE - using == set(), f"fixed, take off KNOWN_ARGPARSE: {sorted(KNOWN_ARGPARSE - using)}"
