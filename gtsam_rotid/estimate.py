@@ -546,6 +546,9 @@ MAX_CONSISTENCY_SCALE = 100.0
 #: in (a rendered Panda scene: 1 sigma of 104 mm and 6 deg at 1.16 m, 102 mm off with a chi-square of 994 in 6 dof).
 MAX_RELATIVE_SIGMA = 0.05
 MAX_SIGMA_DEG = 2.0
+#: The cluster-robust covariance's leverage correction (CR2, :func:`_track_correlation`) takes no track's leverage
+#: above this (at most a sqrt(10) larger score).
+MAX_TRACK_LEVERAGE = 0.9
 #: The joint fit is restarted (:func:`_restarted`) when its axis-consistency test has a P value below this.
 RESTART_P = 1e-3
 #: Restarts leave out, in turn, this many of the measurements that disagree most with the estimate.
@@ -991,7 +994,8 @@ def _track_correlation(factor, values, sigma2: float = 1.0) -> np.ndarray:
       pose holds the line away from it, and the summed score is that pull, not noise);
     - each is corrected for its track's leverage ``A_j = H^-1/2 H_j H^-1/2`` (CR2: ``(I - A_j)^-1/2`` on the
       whitened score), so that under white noise of variance ``sigma2`` (in the factor's units) the whitened
-      meat ``M = H^-1/2 B H^-1/2`` has expectation ``sigma2 I`` exactly.
+      meat ``M = H^-1/2 B H^-1/2`` has expectation ``sigma2 I`` exactly (leverages capped at
+      ``MAX_TRACK_LEVERAGE``).
 
     An eigenvalue of ``M / sigma2`` counts as correlation only beyond ``1 + 3 sd`` (``sd^2 = 2 sum_j h_j^2``,
     ``h_j`` the tracks' leverages along it: its scatter under white noise; a few long arcs carry most of a
@@ -1009,7 +1013,10 @@ def _track_correlation(factor, values, sigma2: float = 1.0) -> np.ndarray:
     Z = S @ W.T
     A = np.einsum("ab,jbc,dc->jad", W, per_track, W)
     a, Q = np.linalg.eigh(0.5 * (A + np.swapaxes(A, 1, 2)))
-    unshrink = 1.0 / np.sqrt(1.0 - np.clip(a, 0.0, 1.0 - 1e-9))
+    # a track whose leverage nears 1 holds a direction alone: its score there is rounding noise, which CR2 would
+    # amplify without bound (and a per-track information that is not positive semi-definite gives leverages above
+    # 1: a Jaco2 dot scene with corner tracks, leverage 1.6, clipped to 1 - 1e-9, made a 0.3 mm 1 sigma 500 mm)
+    unshrink = 1.0 / np.sqrt(1.0 - np.clip(a, 0.0, MAX_TRACK_LEVERAGE))
     Z = np.einsum("jab,jb,jcb,jc->ja", Q, unshrink, Q, Z)
     m, U = np.linalg.eigh(Z.T @ Z)
     h = np.einsum("ai,jab,bi->ji", U, A, U)  # leverage of each track along each eigenvector

@@ -313,6 +313,36 @@ def test_errors_shared_along_a_track_widen_the_covariance(method, monkeypatch):
     assert e @ np.linalg.solve(biased.covariance, e) < 22.46  # inside the 99.9 % region
 
 
+class _TracksOf:
+    """A stand-in for a coaxial factor: given per-track informations (J, 3, 3) and scores (J, 3)."""
+
+    def __init__(self, information, scores):
+        self.information, self.scores = np.asarray(information, float), np.asarray(scores, float)
+
+    def track_information(self, values):
+        return self.information
+
+    def track_scores(self, values):
+        return self.scores
+
+
+def test_a_track_that_holds_a_direction_alone_does_not_blow_up_the_cluster_robust_covariance():
+    """CR2 divides a track's score by sqrt(1 - leverage); a track whose leverage reaches 1 (or passes it, when the
+    other tracks' information is not positive semi-definite) must not turn rounding noise into an unbounded
+    covariance: the correction is capped (estimate.MAX_TRACK_LEVERAGE), at most sqrt(10) on a score."""
+    rng = np.random.default_rng(0)
+    information = np.array([np.diag([1.0, 1.0, 1.0]) for _ in range(8)])
+    information[0, 2, 2] = 12.0     # track 0 holds the third direction: leverage 12 / 10 > 1
+    information[1, 2, 2] = -8.0     # (a per-track information that is not positive semi-definite)
+    scores = rng.standard_normal((8, 3))
+    D = estimate._track_correlation(_TracksOf(information, scores), None)
+    H = information.sum(axis=0)
+    whiten = np.diag(1.0 / np.sqrt(np.diag(H)))
+    raw = whiten @ (scores.T @ scores) @ whiten                    # the meat without any leverage correction
+    grown = np.linalg.eigvalsh(whiten @ D @ whiten).max()
+    assert np.isfinite(grown) and grown <= 10.0 * np.linalg.eigvalsh(raw).max() + 1e-9, grown
+
+
 def with_measurement_offsets(dataset, sigma_px: float, seed: int) -> Dataset:
     """The dataset with one constant random image offset (sigma_px per coordinate) shared by every pixel of each
     measurement: an error common to all of a measurement's tracks, which per-track scores cannot see."""
