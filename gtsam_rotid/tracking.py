@@ -126,8 +126,9 @@ class TrackerParams:
     # --- which features: "blobs" (dots: SimpleBlobDetector, sub-pixel re-centring), "corners" (ambient texture:
     # Shi-Tomasi corners where the image moves, see gtsam_rotid.corners) or "auto" (both: blobs where blobs are
     # found, corners elsewhere; no corner starts on or near a followed blob, and a corner track that follows a
-    # blob track is dropped as a duplicate)
-    features: str = "blobs"
+    # blob track is dropped as a duplicate). "auto", the default, tracks dots as "blobs" does (the same tracks on
+    # the rendered dots) and textures as "corners" does.
+    features: str = "auto"
     #: At most this many corner tracks at once; new corners every ``seed_every`` frames.
     max_corners: int = 300
     seed_every: int = 5
