@@ -225,7 +225,7 @@ class AxisConsistency:
             return f"{head}: consistent with the pixel noise"
         return (f"{head}: the axes disagree beyond their pixel noise (errors shared across tracks: a tracker "
                 f"bias, joint angles, kinematics or intrinsics); the covariance is scaled by {self.scale:.3g} "
-                f"(χ²/dof)")
+                + ("(χ²/(dof − 2): the scale's mean given the scatter)" if self.dof > 2 else "(χ²/dof)"))
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -834,9 +834,16 @@ def _initial(arm, camera, measurements, options, index=None) -> tuple[list[gtsam
     pose, error, _, best = minima[0]
     rms = np.sqrt(2.0 * error / (2 * len(setup.axes)))
     if rms > options.max_initial_rms_px:
+        thin = [f"measurement {setup.index[k]}: {len(p.usable)} tracks, longest arc {setup.turning[k]:.0f}°"
+                for k, p in enumerate(setup.prepared) if len(p.usable) < WEAK_MANY_TRACKS
+                and setup.turning[k] < WEAK_ARC_DEG]
+        first = ("; the tracking is the likelier cause: these measurements have few tracks and short arcs ("
+                 + "; ".join(thin) + "), so their image axes (through the ellipses' centres) can be far off: "
+                 "spin the wrist longer (a full turn or more) or give the hand more texture, then check joint "
+                 "angles and camera intrinsics") if thin else "; check joint angles, camera intrinsics and tracks"
         raise CalibrationError(
             f"initialisation ended in a poor minimum: the FK axes miss the image axes by {rms:.1f} px RMS "
-            f"(limit {options.max_initial_rms_px} px); check joint angles, camera intrinsics and tracks")
+            f"(limit {options.max_initial_rms_px} px)" + first)
     # Other minima that explain the image axes about as well are kept for the circles to decide: with three
     # measurements the image axes give exactly six equations, which have several exact solutions.
     starts, anchors = [pose], [candidates[best]]
