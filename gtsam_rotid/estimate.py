@@ -127,9 +127,10 @@ class CalibrationOptions:
     #: Floor of the estimated pixel noise (px), so noise-free data keeps finite weights.
     min_sigma_px: float = 1e-3
     #: weighted, joint: when the measurements' image axes disagree with the FK axes projected by the estimate
-    #: beyond this upper-tail probability, the covariance is scaled by their chi-square per dof (the Birge
-    #: ratio; see :class:`AxisConsistency`). 0 disables the scaling (the test is still reported). None (default):
-    #: 0.01, or SHORT_ARC_CONSISTENCY_P where some measurement has no arc of WEAK_ARC_DEG (see ``_calibrate``).
+    #: beyond this upper-tail probability, the covariance is scaled by their chi-square over (dof - 2) (the mean
+    #: of the understatement given the scatter; see :class:`AxisConsistency`). 0 disables the scaling (the test is
+    #: still reported). None (default): 0.01, or SHORT_ARC_CONSISTENCY_P where some measurement has no arc of
+    #: WEAK_ARC_DEG (see ``_calibrate``).
     axis_consistency_p: float | None = None
     #: weighted, joint: standard deviation (deg) of each joint-angle reading, independent per joint and per arm
     #: pose (encoder noise, backlash). It moves the FK wrist axis; the projected-axis ties and the stage-2 weights
@@ -555,17 +556,18 @@ RESTART_P = 1e-3
 RESTART_LEAVE_OUT = 3
 #: A restart's start within this (m) and SAME_ANGLE_DEG of the estimate is the same start.
 RESTART_SAME_M = 1e-3
-#: stage 1's jackknife (:func:`_jackknife`): groups of tracks, the fewest it needs, and the point of its scatter
-#: under the model beyond which it replaces the linearised line covariance
 #: stage 1 is fitted again from the pose its lines give while that pose moves more than these (deg, m), in at
-#: most this many fits (:func:`_refined_stage1`)
+#: most this many fits (:func:`_refined_stage1`), where some measurement has only short arcs
 REFINE_DEG = 0.5
 REFINE_M = 0.005
 REFINE_PASSES = 6
+#: the prior (rad) that holds a refit's start line while its circles settle (:func:`_stage1_round`, ``settle``)
+HOLD_SIGMA_RAD = 1e-4
 #: the default ``CalibrationOptions.axis_consistency_p`` with and without short arcs (see ``_calibrate``)
 SHORT_ARC_CONSISTENCY_P = 0.2
 LONG_ARC_CONSISTENCY_P = 0.01
-HOLD_SIGMA_RAD = 1e-4
+#: stage 1's jackknife (:func:`_jackknife`): groups of tracks, the fewest it needs, and the point of its scatter
+#: under the model beyond which it replaces the linearised line covariance
 JACKKNIFE_GROUPS = 12
 JACKKNIFE_MIN_GROUPS = 4
 JACKKNIFE_Z = 3.40  # the normal's 99.97 % point: 99.9 % Bonferroni over the 3 directions
@@ -1259,11 +1261,11 @@ def _stage1(arm, camera, measurements, pose, setup: _Setup, options, image_axes:
 
 
 def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup, options,
-                    anchor, passes: int = REFINE_PASSES) -> tuple[gtsam.Pose3, list[_Stage1]]:
-    """Stage 1 from ``start``, and again from the pose its lines give (weighted stage 2, Huber on whole
-    measurements) while that pose moves more than REFINE_DEG or REFINE_M (at most ``passes`` fits); returns the
-    pose stage 1 last started from and its fit, jackknifed (:func:`_jackknife`) unless ``passes`` is 1 (the
-    caller's choice where every measurement has a long arc).
+                    anchor) -> tuple[gtsam.Pose3, list[_Stage1]]:
+    """Stage 1 from ``start``; where some measurement has only short arcs (``setup.short_arcs``), again from the
+    pose its lines give (weighted stage 2, Huber on whole measurements) while that pose moves more than REFINE_DEG
+    or REFINE_M (at most REFINE_PASSES fits), and the last fit jackknifed (:func:`_jackknife`). Returns the pose
+    stage 1 last started from and its fit. Where every measurement has a long arc: one fit from the start.
 
     Each measurement's fit starts from the FK axis seen from the start. With long arcs it finds the same circles
     from anywhere near; with short ones (corner tracks of 25 degrees) it stays in a minimum near the start, and
@@ -1274,15 +1276,15 @@ def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup
     builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
     everything = list(range(len(measurements)))
     stage1 = _stage1(arm, camera, measurements, pose, setup, options)
-    for _ in range(passes - 1):
+    if not setup.short_arcs:
+        return pose, stage1
+    for _ in range(REFINE_PASSES - 1):
         moved, _, _ = _weighted_stage2(camera, setup, stage1, everything, pose, options, anchor)
         if _turned(moved, pose) < np.radians(REFINE_DEG) and np.linalg.norm(
                 moved.translation() - pose.translation()) < REFINE_M:
             break
         pose = moved
         stage1 = _stage1(arm, camera, measurements, pose, setup, options, image_axes=False)
-    if passes == 1:
-        return pose, stage1
     return pose, [_jackknife(builder, measurements[k], k, pose, setup.prepared[k], s, options)
                   for k, s in enumerate(stage1)]
 
@@ -2026,16 +2028,16 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
 
 def _calibrate(arm, camera, measurements, method, options, index) -> tuple[CalibrationResult, _Setup]:
     starts, setup, anchors = _initial(arm, camera, measurements, options, index)
-    # stage 1 is refitted from its own estimate only where some measurement has no long arc (the axis through its
-    # ellipses' centres, which starts it, is then unreliable); elsewhere one fit from the start
-    short = setup.short_arcs
     # Short arcs (a tracker's drift shared by a measurement's tracks, which neither the per-track scores nor the
-    # jackknife see) also lower the level at which the axes' scatter scales the covariance: the test has 2 n - 6
+    # jackknife see) lower the level at which the axes' scatter scales the covariance: the test has 2 n - 6
     # dof, little power with six poses (18 rendered corner-tracked scenes: at 0.01 three of nine usable results
-    # were outside their 99.9 % region, 11 mm off with a 1 sigma of 4-8 mm; at 0.2 none).
+    # were outside their 99.9 % region, 11 mm off with a 1 sigma of 4-8 mm; at 0.2 none). They also make stage 1
+    # refit itself from its own estimate (``_refined_stage1``: the axis through short arcs' ellipse centres, which
+    # starts it, is unreliable).
     if options.axis_consistency_p is None:
-        options = replace(options, axis_consistency_p=SHORT_ARC_CONSISTENCY_P if short else LONG_ARC_CONSISTENCY_P)
-    runs = [_refined_stage1(arm, camera, measurements, start, setup, options, anchor, REFINE_PASSES if short else 1)
+        options = replace(options, axis_consistency_p=SHORT_ARC_CONSISTENCY_P if setup.short_arcs
+                          else LONG_ARC_CONSISTENCY_P)
+    runs = [_refined_stage1(arm, camera, measurements, start, setup, options, anchor)
             for start, anchor in zip(starts, anchors, strict=True)]
     alternatives = []
     if len(runs) > 1:  # the image axes cannot choose between the starts: the joint fit of the circles does
