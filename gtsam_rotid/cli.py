@@ -8,8 +8,9 @@ import time
 from pathlib import Path
 
 from . import __version__
-from .errors import InputError, OutputError, RotIdError
+from .errors import InputError, OutputError, OutputExistsError, RotIdError
 from .export import add_export_parser
+from .files import OVERWRITE_HINT, check_output
 from .meshrender import COVERINGS
 from .pixels import DEMO_COVERING
 from .recordings import add_track_parser
@@ -39,24 +40,20 @@ def _scene_changes(args) -> dict:
     return changes
 
 
-def _check_output_file(path: Path, overwrite: bool, parent_must_exist: bool = True) -> None:
-    """Fail before the (slow) calibration if its result could not be written."""
-    if path.is_dir():
-        raise OutputError(f"{path} is a directory; give a file name for the result")
-    if path.exists() and not overwrite:
-        raise OutputError(f"{path} exists; pass --overwrite to replace it")
-    if parent_must_exist and not path.parent.is_dir():
-        raise OutputError(f"cannot write {path}: the directory {path.parent} does not exist")
+def _check_not_input(output: Path, dataset_dir: Path) -> None:
+    """Refuse a result path that is one of the dataset's own files (``calibrate`` reads them)."""
+    from .dataset import DATASET_FILE as OWN
+    from .dataset import SCHEMA_FILE, TRACKS_FILE, URDF_FILE
+
+    if output.resolve().parent == dataset_dir.resolve() and output.name in (OWN, TRACKS_FILE, URDF_FILE, SCHEMA_FILE,
+                                                                           TRUTH_FILE):
+        raise OutputError(f"{output} is a file of the dataset {dataset_dir} that calibrate reads; write the result "
+                          f"elsewhere (e.g. {dataset_dir.parent / RESULT_FILE})")
 
 
 def _save_result(result, path: Path, overwrite: bool) -> None:
-    """``result.save`` with its refusal and OS errors turned into one-line messages (the old file stays intact)."""
-    try:
-        result.save(path, overwrite=overwrite)
-    except FileExistsError:
-        raise OutputError(f"{path} exists; pass --overwrite to replace it") from None
-    except OSError as exc:
-        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+    """``result.save`` (staged: the old file stays intact on failure; errors name the path)."""
+    result.save(path, overwrite=overwrite)
     print(f"wrote {path}")
 
 
@@ -107,7 +104,8 @@ def cmd_calibrate(args) -> int:
     path = Path(args.dataset)
     output = Path(args.output) if args.output else None
     if output is not None:
-        _check_output_file(output, args.overwrite)
+        check_output(output, args.overwrite)
+        _check_not_input(output, path)
     dataset = Dataset.load(path)
     truth = _load_truth(path)
     print(dataset.summary())
@@ -149,8 +147,8 @@ def _demo_simulated(args) -> int:
         if out.exists() and not out.is_dir():
             raise OutputError(f"{out} exists and is not a directory")
         if (out / "dataset").exists() and not args.overwrite:
-            raise OutputError(f"{out / 'dataset'} exists; pass --overwrite to replace it")
-        _check_output_file(out / RESULT_FILE, args.overwrite, parent_must_exist=False)
+            raise OutputExistsError(f"{out / 'dataset'} exists; {OVERWRITE_HINT}")
+        check_output(out / RESULT_FILE, args.overwrite, make_parent=True)
     print("gtsam-rotid demo: the paper's reference scene (Kinova Jaco2, Xtion-like camera)")
     print("simulating...", flush=True)
     dataset, truth = _simulate_scene("reference", args.seed, **_scene_changes(args))
@@ -242,7 +240,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except RotIdError as exc:
-        print(f"gtsam-rotid {args.command}: error: {exc}", file=sys.stderr)
+        # the library's words for its keyword, the command line's for its flag
+        message = str(exc).replace(OVERWRITE_HINT, "pass --overwrite to replace it").replace(
+            "overwrite=True", "--overwrite")
+        print(f"gtsam-rotid {args.command}: error: {message}", file=sys.stderr)
         return 1
 
 

@@ -38,7 +38,15 @@ import numpy as np
 
 from .arm import Arm
 from .camera import Camera
-from .errors import ArmError, CameraError, DatasetExistsError, DatasetNotFoundError, ValidationError
+from .errors import (
+    ArmError,
+    CameraError,
+    DatasetExistsError,
+    DatasetNotFoundError,
+    OutputError,
+    RotIdError,
+    ValidationError,
+)
 
 #: ``"format"`` marker of ``dataset.json``.
 FORMAT = "gtsam_rotid.dataset"
@@ -582,6 +590,15 @@ class Dataset:
         document, arrays, urdf_text = self._serialised()
         text = json.dumps(document, indent=2, allow_nan=False) + "\n"
         replace = _check_save_target(target, overwrite)
+        try:
+            return self._save_staged(target, replace, overwrite, text, arrays, urdf_text)
+        except RotIdError:
+            raise
+        except OSError as exc:   # a full disk, no permission: the old dataset (if any) is still in place
+            raise OutputError(f"cannot write the dataset {target}: {exc.strerror or exc}") from None
+
+    @staticmethod
+    def _save_staged(target: Path, replace: bool, overwrite: bool, text: str, arrays, urdf_text) -> Path:
         target.parent.mkdir(parents=True, exist_ok=True)
         while True:
             staging = _sibling_name(target, "tmp")

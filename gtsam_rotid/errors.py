@@ -42,10 +42,6 @@ class ValidationError(InputError):
         self.track = track
 
 
-class DatasetExistsError(RotIdError, FileExistsError):
-    """Refusing to overwrite an existing dataset (pass ``overwrite=True`` to replace it)."""
-
-
 class SimulationError(RotIdError, RuntimeError):
     """The simulator could not build the requested scene (e.g. no arm pose satisfies the constraints)."""
 
@@ -54,16 +50,22 @@ class DatasetNotFoundError(RotIdError, FileNotFoundError):
     """No dataset at the given path (the directory or one of its files is missing)."""
 
 
-class OutputError(RotIdError):
-    """An output file to write exists (and overwriting was not asked for) or cannot be written."""
+class OutputError(RotIdError, OSError):
+    """An output file cannot be written (a directory in the way, a missing folder, a full disk); the message
+    names the path."""
 
 
 class RecordingError(InputError):
     """A video, image folder, frame range or joint-angle file that cannot be used (the message names it)."""
 
 
-class OutputExistsError(RotIdError, FileExistsError):
-    """Refusing to overwrite an existing video, image folder or truth file (pass ``overwrite=True``)."""
+class OutputExistsError(OutputError, FileExistsError):
+    """Refusing to overwrite an existing file or folder (pass ``overwrite=True``, ``--overwrite``): the one
+    "exists" error of every writer."""
+
+
+class DatasetExistsError(OutputExistsError):
+    """Refusing to overwrite an existing dataset (pass ``overwrite=True`` to replace it)."""
 
 
 class VideoWriteError(RotIdError, OSError):

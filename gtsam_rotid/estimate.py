@@ -43,6 +43,7 @@ from .factors import (
     spin_priors,
 )
 from .factors.rigid import DEFAULT_CHUNK_SIZE
+from .files import write_json
 from .graph import (
     CIRCLE_STRIDE,
     MIN_TRACK_EXTENT_PX,
@@ -60,7 +61,6 @@ from .graph import (
     track_huber,
 )
 from .initialise import initial_image_axis, line_through_points, plane_normal, pose_candidates
-from .jsonio import write_json_atomic
 from .uncertainty import (
     Observability,
     analyse_observability,
@@ -397,7 +397,7 @@ class CalibrationResult:
         return make_report(self, dataset, **kwargs)
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
-        write_json_atomic(path, self.to_dict(), overwrite=overwrite, indent=1)
+        write_json(path, self.to_dict(), overwrite, indent=1)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> CalibrationResult:

@@ -41,7 +41,8 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from .errors import InputError, OutputError
+from .errors import InputError
+from .files import check_output, write_text
 
 FORMAT_MARKER = "gtsam_rotid.transform"
 FORMAT_VERSION = 1
@@ -360,33 +361,6 @@ def load_result(path: str | os.PathLike):
                          f"{exc})") from None
 
 
-def check_output_file(path: str | os.PathLike, overwrite: bool) -> Path:
-    """Refuse (before any work) an output path that exists without ``overwrite``, is a directory, or whose
-    directory does not exist."""
-    path = Path(path)
-    if path.is_dir():
-        raise OutputError(f"{path} is a directory; give a file name")
-    if path.exists() and not overwrite:
-        raise OutputError(f"{path} exists; pass --overwrite to replace it")
-    if not path.parent.is_dir():
-        raise OutputError(f"cannot write {path}: the directory {path.parent} does not exist")
-    return path
-
-
-def write_text(path: str | os.PathLike, text: str, overwrite: bool = False) -> Path:
-    """Write ``text`` through a temporary file and a rename (an existing file stays intact on failure)."""
-    path = check_output_file(path, overwrite)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        with open(tmp, "w", encoding="utf-8") as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
-    return path
-
-
 # ---------------------------------------------------------------------------------------------------
 # command line: ``gtsam-rotid export RESULT.json --to FORMAT [-o FILE]``
 
@@ -419,7 +393,7 @@ def add_export_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def cmd_export(args) -> int:
-    output = None if args.output is None else check_output_file(args.output, args.overwrite)
+    output = None if args.output is None else check_output(args.output, args.overwrite)
     result = load_result(args.result)
     fmt = _format(args.to)
     text = export_result(result, fmt, parent_frame=args.parent, child_frame=args.child,

@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from .dataset import Dataset, Measurement, Track
-from .errors import InputError, OutputError
+from .errors import InputError, OutputError, OutputExistsError
+from .files import OVERWRITE_HINT, check_outputs, write_text
 from .meshrender import MeshRenderConfig, MeshSpin, load_arm_meshes, render_mesh_measurement, track_errors
 from .render import RenderConfig, RenderedSpin, render_measurement
 from .tracking import Tracker, TrackerParams, TrackingResult
@@ -379,12 +380,9 @@ def _check_demo_output(out: Path, n_measurements: int, overwrite: bool) -> None:
         raise OutputError(f"{out} exists and is not a directory")
     files = demo_files(out, n_measurements)
     if files["dataset"].exists() and not overwrite:
-        raise OutputError(f"{files['dataset']} exists; pass overwrite=True (--overwrite) to replace it")
-    for path in [files["result"], files["tracking"], *files["overlays"]]:
-        if path.is_dir():
-            raise OutputError(f"{path} is a directory")
-        if path.exists() and not overwrite:
-            raise OutputError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+        raise OutputExistsError(f"{files['dataset']} exists; {OVERWRITE_HINT}")
+    if out.is_dir():
+        check_outputs([files["result"], files["tracking"], *files["overlays"]], overwrite)
 
 
 def demo_render_config(renderer: str = "mesh", covering: str | None = None,
@@ -463,15 +461,11 @@ def _write_demo(out: Path, scene: VideoScene, truth, result, overwrite: bool) ->
 
     files = demo_files(out, len(scene.dataset))
     out.mkdir(parents=True, exist_ok=True)
-    try:
-        scene.dataset.save(files["dataset"], overwrite=overwrite)
-        truth.save(files["dataset"] / TRUTH_FILE, overwrite=True)
-        result.save(files["result"], overwrite=overwrite)
-        parts = [scene.summary()] + [f"measurement {k}: {r.summary()}" for k, r in enumerate(scene.tracking)]
-        text = "\n\n".join(parts)
-        files["tracking"].write_text(text + "\n")
-    except OSError as exc:
-        raise OutputError(f"cannot write into {out}: {exc.strerror or exc}") from None
+    scene.dataset.save(files["dataset"], overwrite=overwrite)
+    truth.save(files["dataset"] / TRUTH_FILE, overwrite=True)
+    result.save(files["result"], overwrite=overwrite)
+    parts = [scene.summary()] + [f"measurement {k}: {r.summary()}" for k, r in enumerate(scene.tracking)]
+    write_text(files["tracking"], "\n\n".join(parts) + "\n", overwrite)
     frames = {}
     for k, spin in enumerate(scene.spins):
         position = scene.busiest_frame(k)

@@ -34,9 +34,10 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Ellipse
 
 from .dataset import Track
-from .errors import InputError
-from .export import OutputError, ros_covariance
+from .errors import InputError, OutputError
+from .export import ros_covariance
 from .factors import circle_point_residuals, circle_points, line_points
+from .files import check_outputs, staged
 from .graph import RotIdGraph, lm_params
 from .report import CHI2_95_3DOF, Z95, axis_geometry, wrist_axes
 
@@ -469,20 +470,15 @@ def save_plots(result, dataset, directory: str | os.PathLike, *, overwrite: bool
     directory = Path(directory)
     if not directory.is_dir():
         raise OutputError(f"{directory} is not a directory")
-    paths = plot_files(result, dataset, directory)
-    existing = [p for p in paths if p.exists()]
-    if existing and not overwrite:
-        raise OutputError(f"{existing[0]} exists; pass --overwrite to replace it")
+    paths = check_outputs(plot_files(result, dataset, directory), overwrite)
     figures = [plot_pose_3d(result, dataset)]
     if dataset is not None:
         fits = [fit_tracks(result, dataset, k) for k in range(len(dataset))]
         figures += [plot_tracks(result, dataset, k, fit=fit) for k, fit in enumerate(fits)]
         figures.append(plot_residual_histograms(result, dataset, fits=fits))
     for fig, path in zip(figures, paths, strict=True):
-        try:
-            fig.savefig(path, dpi=DPI)
-        except OSError as exc:
-            raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+        with staged(path, overwrite) as staging:
+            fig.savefig(staging, dpi=DPI)
     return paths
 
 
@@ -594,15 +590,10 @@ def save_overlays(result, dataset, frames, directory: str | os.PathLike, *, over
     if not directory.is_dir():
         raise OutputError(f"{directory} is not a directory")
     order = sorted(frames)
-    paths = overlay_files(directory, order)
-    existing = [p for p in paths if p.exists()]
-    if existing and not overwrite:
-        raise OutputError(f"{existing[0]} exists; pass --overwrite to replace it")
+    paths = check_outputs(overlay_files(directory, order), overwrite)
     for k, path in zip(order, paths, strict=True):
         frame_number, image = frames[k]
         fig = plot_overlay(image, result, dataset, k, frame_number=frame_number)
-        try:
-            fig.savefig(path, dpi=DPI)
-        except OSError as exc:
-            raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+        with staged(path, overwrite) as staging:
+            fig.savefig(staging, dpi=DPI)
     return paths

@@ -35,17 +35,15 @@ from typing import Any
 
 import cv2
 import numpy as np
+import yaml
 from tqdm import tqdm
 
 from .arm import Arm
 from .camera import Camera
 from .dataset import Dataset, Measurement, Track
 from .errors import ArmError, CameraError, DatasetExistsError, InputError, RecordingError
+from .files import IMAGE_SUFFIXES, VIDEO_SUFFIXES, image_files, natural_key
 
-#: File name endings read as images in an image folder (case-insensitive).
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pbm", ".webp", ".jp2")
-#: File name endings taken as videos by ``--videos-dir`` (any file OpenCV can open works with ``--video``).
-VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".ogv", ".mjpeg")
 #: Column names (case-insensitive) that make a joint CSV a time series.
 TIME_COLUMNS = ("time", "stamp", "stamps", "timestamp", "t", "%time")
 #: Default largest motion (peak to peak, degrees) of a non-wrist joint during a spin.
@@ -61,274 +59,55 @@ _SIZE_KEYS = ("image_size", "imageSize")
 _SUPPORTED_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "")
 
 
-# ---------------------------------------------------------------------------------------------- minimal YAML
-# PyYAML is not a dependency; camera files are small, flat documents. This reads the YAML subset they use:
-# nested block mappings, block sequences (also at the key's own indentation), flow lists / mappings (over
-# several lines), plain and quoted scalars, comments, tags (ignored) and the first document of a stream.
-_INT = re.compile(r"^[-+]?(0|[1-9][0-9_]*)$")
-_FLOAT = re.compile(r"^[-+]?(\d[\d_]*\.?\d*|\.\d+)([eE][-+]?\d+)?$")
-_SPECIAL_FLOATS = {".inf": math.inf, "+.inf": math.inf, "-.inf": -math.inf, ".nan": math.nan}
+# ---------------------------------------------------------------------------------------------- YAML
+class _YamlLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, with YAML 1.2's floats (``1e-5``, which YAML 1.1 reads as a string; camera files
+    written by other tools use them), tags ignored (``!!opencv-matrix`` reads as its mapping) and a key given
+    twice refused (a camera file with two ``camera_matrix`` entries is ambiguous)."""
 
 
-class _YamlSyntaxError(Exception):
-    pass
+_YamlLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^(?:[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+|[-+]?\.[0-9_]+(?:[eE][-+]?[0-9]+)?)$"),
+    list("-+0123456789."))
 
 
-def _scan_quoted(text: str, start: int, line: int) -> tuple[str, int]:
-    """The string of the quoted scalar at ``text[start]`` and the index after its closing quote."""
-    quote = text[start]
-    out = []
-    i = start + 1
-    while i < len(text):
-        c = text[i]
-        if quote == "'" and c == "'":
-            if text[i + 1:i + 2] == "'":
-                out.append("'")
-                i += 2
-                continue
-            return "".join(out), i + 1
-        if quote == '"' and c == "\\" and i + 1 < len(text):
-            out.append({"n": "\n", "t": "\t", "\\": "\\", '"': '"', "/": "/"}.get(text[i + 1], text[i + 1]))
-            i += 2
-            continue
-        if quote == '"' and c == '"':
-            return "".join(out), i + 1
-        out.append(c)
-        i += 1
-    raise _YamlSyntaxError(f"line {line}: unterminated {quote}-quoted string")
+def _ignore_tag(loader: yaml.SafeLoader, suffix: str, node: yaml.Node) -> Any:
+    if isinstance(node, yaml.MappingNode):
+        return _mapping(loader, node)
+    if isinstance(node, yaml.SequenceNode):
+        return loader.construct_sequence(node, deep=True)
+    return loader.construct_object(yaml.ScalarNode(loader.resolve(yaml.ScalarNode, node.value, (True, False)),
+                                                   node.value, node.start_mark, node.end_mark))
 
 
-def _outside_quotes(text: str) -> Iterator[tuple[int, str]]:
-    """(index, character) of the characters of ``text`` outside quoted scalars."""
-    i = 0
-    while i < len(text):
-        c = text[i]
-        if c in "'\"" and (i == 0 or text[i - 1] in " \t[{,:"):
-            try:
-                _, i = _scan_quoted(text, i, 0)
-            except _YamlSyntaxError:
-                return
-            continue
-        yield i, c
-        i += 1
+def _mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:
+    out = {}
+    for key_node, value_node in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        if key in out:
+            raise yaml.constructor.ConstructorError(None, None, f"the key {key!r} is given twice",
+                                                    key_node.start_mark)
+        out[key] = loader.construct_object(value_node, deep=True)
+    return out
 
 
-def _strip_comment(text: str) -> str:
-    for i, c in _outside_quotes(text):
-        if c == "#" and (i == 0 or text[i - 1] in " \t"):
-            return text[:i]
-    return text
-
-
-def _bracket_depth(text: str) -> int:
-    depth = 0
-    for _, c in _outside_quotes(text):
-        depth += (c in "[{") - (c in "]}")
-    return depth
-
-
-def _plain_scalar(text: str) -> Any:
-    if text in ("~", "null", "Null", "NULL"):
-        return None
-    if text in ("true", "True", "TRUE"):
-        return True
-    if text in ("false", "False", "FALSE"):
-        return False
-    if _INT.match(text):
-        return int(text.replace("_", ""))
-    if _FLOAT.match(text):
-        return float(text.replace("_", ""))
-    if text.lower() in _SPECIAL_FLOATS:
-        return _SPECIAL_FLOATS[text.lower()]
-    return text
-
-
-def _drop_tag(text: str) -> str:
-    """``text`` without a leading tag such as ``!!opencv-matrix``."""
-    if text.startswith("!"):
-        parts = text.split(None, 1)
-        return parts[1] if len(parts) == 2 else ""
-    return text
-
-
-def _parse_flow(text: str, line: int) -> Any:
-    """A block value written on one (joined) line: a flow list / mapping, a quoted or plain scalar."""
-    pos = 0
-
-    def skip() -> None:
-        nonlocal pos
-        while pos < len(text) and text[pos] in " \t":
-            pos += 1
-
-    def value(in_flow: bool) -> Any:
-        nonlocal pos
-        skip()
-        if pos >= len(text):
-            raise _YamlSyntaxError(f"line {line}: a value is missing")
-        c = text[pos]
-        if c in "[{":
-            closing = "]" if c == "[" else "}"
-            pos += 1
-            items: list | dict = [] if c == "[" else {}
-            while True:
-                skip()
-                if pos < len(text) and text[pos] == closing:
-                    pos += 1
-                    return items
-                if c == "[":
-                    items.append(value(True))
-                else:
-                    key = value(True)
-                    skip()
-                    if pos >= len(text) or text[pos] != ":":
-                        raise _YamlSyntaxError(f"line {line}: expected ':' after the key {key!r}")
-                    pos += 1
-                    items[key] = value(True)
-                skip()
-                if pos < len(text) and text[pos] == ",":
-                    pos += 1
-                elif pos >= len(text) or text[pos] != closing:
-                    raise _YamlSyntaxError(f"line {line}: expected ',' or {closing!r} in {text!r}")
-        if c in "'\"":
-            string, pos = _scan_quoted(text, pos, line)
-            return string
-        start = pos
-        if in_flow:
-            while pos < len(text) and text[pos] not in ",]}" and not (text[pos] == ":" and
-                                                                       text[pos + 1:pos + 2] in (" ", "")):
-                pos += 1
-        else:
-            pos = len(text)
-        return _plain_scalar(text[start:pos].strip())
-
-    result = value(False)
-    skip()
-    if pos != len(text):
-        raise _YamlSyntaxError(f"line {line}: unexpected text {text[pos:]!r}")
-    return result
-
-
-def _is_item(text: str) -> bool:
-    return text == "-" or text.startswith("- ")
-
-
-def _key_split(text: str) -> int | None:
-    """Index of the ``:`` that ends the mapping key at the start of ``text``, or None."""
-    if text[:1] in "[{":
-        return None
-    for i, c in _outside_quotes(text):
-        if c == ":" and text[i + 1:i + 2] in (" ", ""):
-            return i
-    return None
-
-
-def _parse_block(lines: list, i: int, indent: int) -> tuple[Any, int]:
-    if _is_item(lines[i][2]):
-        return _parse_sequence(lines, i, indent)
-    return _parse_mapping(lines, i, indent)
-
-
-def _nested_value(lines: list, i: int, indent: int, same_indent_items: bool) -> tuple[Any, int]:
-    if i < len(lines) and (lines[i][1] > indent or (same_indent_items and lines[i][1] == indent
-                                                    and _is_item(lines[i][2]))):
-        return _parse_block(lines, i, lines[i][1])
-    return None, i
-
-
-def _parse_mapping(lines: list, i: int, indent: int) -> tuple[dict, int]:
-    result: dict = {}
-    while i < len(lines):
-        number, ind, text = lines[i]
-        if ind < indent:
-            break
-        if ind > indent:
-            raise _YamlSyntaxError(f"line {number}: unexpected indentation")
-        split = _key_split(text)
-        if split is None:
-            raise _YamlSyntaxError(f"line {number}: expected 'key: value', got {text!r}")
-        key_text = text[:split].strip()
-        key = _scan_quoted(key_text, 0, number)[0] if key_text[:1] in "'\"" else key_text
-        if key in result:
-            raise _YamlSyntaxError(f"line {number}: the key {key!r} appears twice")
-        rest = _drop_tag(text[split + 1:].strip())
-        i += 1
-        if rest:
-            result[key] = _parse_flow(rest, number)
-        else:
-            result[key], i = _nested_value(lines, i, indent, same_indent_items=True)
-    return result, i
-
-
-def _parse_sequence(lines: list, i: int, indent: int) -> tuple[list, int]:
-    items = []
-    while i < len(lines):
-        number, ind, text = lines[i]
-        if ind < indent or (ind == indent and not _is_item(text)):
-            break
-        if ind > indent:
-            raise _YamlSyntaxError(f"line {number}: unexpected indentation")
-        content = _drop_tag(text[1:].strip())
-        if not content:
-            i += 1
-            value, i = _nested_value(lines, i, indent, same_indent_items=False)
-        elif _key_split(content) is not None:  # "- key: value" opens a mapping
-            lines[i] = (number, ind + len(text) - len(text[1:].lstrip()), content)
-            value, i = _parse_mapping(lines, i, lines[i][1])
-        else:
-            value = _parse_flow(content, number)
-            i += 1
-        items.append(value)
-    return items, i
+_YamlLoader.add_multi_constructor("tag:yaml.org,2002:", _ignore_tag)
+_YamlLoader.add_multi_constructor("!", _ignore_tag)
+_YamlLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _mapping)
 
 
 def parse_yaml(text: str) -> Any:
-    """Parse the first document of a small YAML file (the subset camera files use; see the comment above).
-
-    Raises ``ValueError`` (with the line number) on text it cannot read.
-    """
-    lines = []
-    started = False
-    for number, raw in enumerate(text.splitlines(), 1):
-        content = _strip_comment(raw).rstrip()
-        stripped = content.strip()
-        if not stripped:
-            continue
-        if not started and stripped.startswith("%"):
-            continue
-        if stripped == "---" or stripped.startswith("--- "):
-            if started:
-                break
-            stripped = content = stripped[3:].strip()
-            if not stripped:
-                continue
-        if stripped == "...":
-            break
-        leading = content[:len(content) - len(content.lstrip())]
-        if "\t" in leading:
-            raise ValueError(f"line {number}: tabs are not allowed in YAML indentation")
-        started = True
-        lines.append((number, len(leading), stripped))
-    joined = []
-    i = 0
-    while i < len(lines):
-        number, indent, text = lines[i]
-        while _bracket_depth(text) > 0 and i + 1 < len(lines):
-            i += 1
-            text += " " + lines[i][2]
-        if _bracket_depth(text) != 0:
-            raise ValueError(f"line {number}: unbalanced brackets")
-        joined.append((number, indent, text))
-        i += 1
-    if not joined:
-        return None
+    """The first document of a YAML text (PyYAML, see :class:`_YamlLoader`). Raises ``ValueError`` naming the
+    line on text it cannot read."""
     try:
-        value, end = _parse_block(joined, 0, joined[0][1])
-        if end != len(joined):
-            raise _YamlSyntaxError(f"line {joined[end][0]}: unexpected text (bad indentation, or a list mixed "
-                                   f"with a mapping)")
-    except _YamlSyntaxError as exc:
-        raise ValueError(str(exc)) from None
-    return value
+        documents = yaml.load_all(text, Loader=_YamlLoader)
+        return next(documents, None)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+        where = f"line {mark.line + 1}: " if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ValueError(f"{where}{problem}") from None
 
 
 # ---------------------------------------------------------------------------------------------- camera files
@@ -834,16 +613,6 @@ def load_joints(path: str | os.PathLike, arm: Arm, n_measurements: int | None = 
 
 
 # ---------------------------------------------------------------------------------------------- frames
-def _natural_key(path: Path) -> list:
-    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", path.name)]
-
-
-def _image_files(folder: Path) -> list[Path]:
-    return sorted((p for p in folder.iterdir()
-                   if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES),
-                  key=_natural_key)
-
-
 def _checked_range(frame_range, path: Path) -> tuple[int, int | None]:
     if frame_range is None:
         return 0, None
@@ -934,7 +703,7 @@ def _open_source(path: str | os.PathLike) -> _Source:
     if not path.exists():
         raise RecordingError(f"no video or image folder at {path}")
     if path.is_dir():
-        files = _image_files(path)
+        files = image_files(path)
         if not files:
             raise RecordingError(f"the image folder {path} holds no images ({', '.join(IMAGE_SUFFIXES)})")
         return _Source(path, True, len(files), tuple(files))
@@ -1130,9 +899,9 @@ def _videos_in(folder: Path) -> list[Path]:
     if not folder.is_dir():
         raise RecordingError(f"--videos-dir {folder} is not a directory")
     entries = sorted((p for p in folder.iterdir() if not p.name.startswith(".") and
-                      (p.is_dir() or p.suffix.lower() in VIDEO_SUFFIXES)), key=_natural_key)
+                      (p.is_dir() or p.suffix.lower() in VIDEO_SUFFIXES)), key=natural_key)
     if not entries:
-        hint = " (it holds images: pass it with --video as one image folder)" if _image_files(folder) else ""
+        hint = " (it holds images: pass it with --video as one image folder)" if image_files(folder) else ""
         raise RecordingError(f"--videos-dir {folder} holds no videos ({', '.join(VIDEO_SUFFIXES)}) and no image "
                              f"folders{hint}")
     return entries

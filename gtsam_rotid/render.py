@@ -59,6 +59,7 @@ import numpy as np
 
 from .camera import Camera
 from .errors import InputError, OutputExistsError, VideoWriteError
+from .files import staged
 
 __all__ = [
     "DotCovering",
@@ -712,13 +713,8 @@ def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: floa
     _check_output_target(target, overwrite, folder=not suffix)
     target.parent.mkdir(parents=True, exist_ok=True)
     if suffix:
-        staging = _sibling(target, "tmp", suffix)
-        try:
+        with staged(target, overwrite) as staging:
             _write_video_file(frames, staging, float(fps), VIDEO_FOURCC[suffix])
-            _check_output_target(target, overwrite, folder=False)
-            os.replace(staging, target)
-        finally:
-            staging.unlink(missing_ok=True)
         return target
     staging = _sibling(target, "tmp")
     staging.mkdir()
@@ -819,11 +815,6 @@ def save_truth(rendered: RenderedSpin, path: str | os.PathLike, *, overwrite: bo
     arrays.update({f"dot_{f.name}": getattr(rendered.dots, f.name) for f in fields(DotCovering)})
     arrays["measurement"] = np.array(rendered.measurement)
     arrays["fps"] = np.array(np.nan if rendered.fps is None else rendered.fps)
-    staging = _sibling(target, "tmp", ".npz")
-    try:
-        with open(staging, "xb") as handle:
-            np.savez_compressed(handle, **arrays)
-        os.replace(staging, target)
-    finally:
-        staging.unlink(missing_ok=True)
+    with staged(target, overwrite) as staging, open(staging, "wb") as handle:
+        np.savez_compressed(handle, **arrays)
     return target

@@ -31,9 +31,10 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, OutputError
 from .estimate import ambiguity_words, kinematics_words, untrusted_words
-from .export import check_output_file, load_result, quaternion_xyzw, ros_covariance, write_text
+from .export import load_result, quaternion_xyzw, ros_covariance
+from .files import check_output, check_outputs, write_text
 from .geometry import Line3
 from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  # noqa: F401 (re-export)
 
@@ -681,9 +682,7 @@ def add_report_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def cmd_report(args) -> int:
-    from .export import OutputError
-
-    output = None if args.output is None else check_output_file(args.output, args.overwrite)
+    output = None if args.output is None else check_output(args.output, args.overwrite)
     plots_dir = None if args.plots is None else Path(args.plots)
     if plots_dir is not None:
         if plots_dir.exists() and not plots_dir.is_dir():
@@ -700,9 +699,8 @@ def cmd_report(args) -> int:
     if plots_dir is not None:
         from .plots import plot_files
 
-        for path in plot_files(result, dataset, plots_dir):  # refuse before writing anything
-            if path.exists() and not args.overwrite:
-                raise OutputError(f"{path} exists; pass --overwrite to replace it")
+        if plots_dir.is_dir():  # refuse before writing anything
+            check_outputs(plot_files(result, dataset, plots_dir), args.overwrite)
     text = make_report(result, dataset).render(args.format)
     # with the report on standard output, progress lines go to standard error (the output stays parseable)
     progress = sys.stdout if output is not None else sys.stderr

@@ -24,8 +24,8 @@ from .arm import Arm
 from .camera import Camera
 from .dataset import Dataset, Measurement, Track
 from .errors import ArmError, InputError, SimulationError
+from .files import write_json
 from .geometry import Line3, circle_points, look_at, perpendicular_basis, unit
-from .jsonio import write_json_atomic
 
 
 @dataclass(frozen=True)
@@ -155,7 +155,7 @@ class GroundTruth:
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
         """Write as JSON (atomically; refuses to overwrite unless asked)."""
-        write_json_atomic(path, self.to_dict(), overwrite=overwrite)
+        write_json(path, self.to_dict(), overwrite)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> GroundTruth:

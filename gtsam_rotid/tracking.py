@@ -36,9 +36,9 @@ import numpy as np
 from .corners import CornerFollower, link_fragments, spin_filter, tracks_from_log
 from .dataset import Track
 from .errors import InputError
+from .files import IMAGE_SUFFIXES, image_files
 
 #: File name endings read as images when ``frames`` is a folder.
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pbm", ".webp")
 
 _MIN_IMAGE_SIDE = 16
 _MAX_SHIFT_MARGIN = 2.0
@@ -566,7 +566,7 @@ def frame_source(frames) -> tuple[Iterator[tuple[np.ndarray, str]], int | None]:
         if not path.exists():
             raise InputError(f"{path} does not exist: expected a video file or a folder of images")
         if path.is_dir():
-            files = sorted(p for p in path.iterdir() if p.is_file() and p.name.lower().endswith(IMAGE_SUFFIXES))
+            files = image_files(path)
             if not files:
                 raise InputError(f"the folder {path} holds no image files ({', '.join(IMAGE_SUFFIXES)})")
             return _folder_frames(files), len(files)

@@ -20,6 +20,7 @@ from gtsam_rotid.errors import (
     DatasetExistsError,
     DatasetNotFoundError,
     InputError,
+    OutputError,
     RotIdError,
     ValidationError,
 )
@@ -375,11 +376,11 @@ def test_failed_write_keeps_the_old_dataset(kinova_dataset, urdf_arm, camera, tm
 
     monkeypatch.setattr(dataset_module.np, "savez_compressed", crash)
     other = Dataset(urdf_arm, camera, make_measurements(urdf_arm.joint_names))
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(OutputError, match=f"cannot write the dataset {root}: disk full"):
         other.save(root, overwrite=True)
     assert snapshot(root) == before
     assert leftovers(tmp_path) == [], "the staging directory must be removed"
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(OutputError, match="cannot write the dataset .*new: disk full"):
         other.save(tmp_path / "new")
     assert not (tmp_path / "new").exists()
     assert leftovers(tmp_path) == []

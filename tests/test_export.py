@@ -10,10 +10,9 @@ import gtsam
 import numpy as np
 import pytest
 
-from gtsam_rotid import InputError, RotIdError, simulate
+from gtsam_rotid import InputError, OutputError, RotIdError, simulate
 from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.export import (
-    OutputError,
     Transform,
     add_export_parser,
     export_result,

@@ -11,7 +11,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 #: module -> layer (docs/design.md §8); every module of the package must be here
 LAYERS = {
-    "errors": 1, "geometry": 1, "jsonio": 1, "factors": 1,
+    "errors": 1, "geometry": 1, "files": 1, "factors": 1,
     "camera": 2, "arm": 2, "dataset": 2,
     "tracking": 3, "corners": 3, "patterns": 3, "render": 3, "meshrender": 3, "simulate": 3, "recordings": 3,
     "graph": 4, "initialise": 4, "uncertainty": 4,

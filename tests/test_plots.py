@@ -8,8 +8,8 @@ import pytest
 from matplotlib.figure import Figure
 
 from gtsam_rotid import InputError, simulate
+from gtsam_rotid.errors import OutputError
 from gtsam_rotid.estimate import calibrate
-from gtsam_rotid.export import OutputError
 from gtsam_rotid.plots import (
     fit_tracks,
     plot_angular_errors,

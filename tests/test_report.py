@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from gtsam_rotid import Line3, simulate
+from gtsam_rotid.errors import OutputError
 from gtsam_rotid.estimate import calibrate
-from gtsam_rotid.export import OutputError
 from gtsam_rotid.report import (
     CalibrationReport,
     add_report_parser,

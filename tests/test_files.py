@@ -1,0 +1,85 @@
+"""The one I/O layer (gtsam_rotid.files): staged writes that never touch a user's files, one "exists" error, one
+image-folder order shared by the tracker and the recordings."""
+
+import os
+
+import cv2
+import numpy as np
+import pytest
+
+from gtsam_rotid import cli, simulate
+from gtsam_rotid.errors import DatasetExistsError, OutputError, OutputExistsError
+from gtsam_rotid.files import check_output, image_files, staged, write_json, write_text
+from gtsam_rotid.recordings import read_frames
+from gtsam_rotid.tracking import frame_source
+
+
+def test_a_staged_write_leaves_the_users_tmp_file_alone(tmp_path):
+    target = tmp_path / "result.json"
+    mine = tmp_path / "result.json.tmp"
+    mine.write_text("my notes")
+    write_json(target, {"a": 1})
+    assert target.read_text() == '{"a": 1}\n'
+    assert mine.read_text() == "my notes"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["result.json", "result.json.tmp"]
+
+
+def test_an_existing_file_is_refused_with_the_one_exists_error(tmp_path):
+    target = tmp_path / "out.txt"
+    target.write_text("old")
+    with pytest.raises(OutputExistsError, match=f"{target} exists; pass overwrite=True") as info:
+        write_text(target, "new")
+    assert isinstance(info.value, FileExistsError) and isinstance(info.value, OutputError)
+    assert issubclass(DatasetExistsError, OutputExistsError)
+    assert target.read_text() == "old"
+    write_text(target, "new", overwrite=True)
+    assert target.read_text() == "new"
+
+
+def test_a_failed_or_interrupted_write_keeps_the_old_file_and_leaves_nothing(tmp_path):
+    target = tmp_path / "out.txt"
+    target.write_text("old")
+    for error in (OSError(28, "No space left on device"), KeyboardInterrupt()):
+        with pytest.raises(OutputError if isinstance(error, OSError) else KeyboardInterrupt) as info:
+            with staged(target, overwrite=True) as staging:
+                staging.write_text("half")
+                raise error
+        if isinstance(error, OSError):
+            assert str(info.value) == f"cannot write {target}: No space left on device"
+        assert target.read_text() == "old"
+        assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+
+
+def test_outputs_are_checked_before_any_work(tmp_path):
+    with pytest.raises(OutputError, match="is a directory"):
+        check_output(tmp_path)
+    with pytest.raises(OutputError, match="the directory .*missing does not exist"):
+        check_output(tmp_path / "missing" / "x.json")
+    assert check_output(tmp_path / "missing" / "x.json", make_parent=True) == tmp_path / "missing" / "x.json"
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(OutputError, match="is not a directory"):
+        check_output(tmp_path / "afile" / "x.json", make_parent=True)
+
+
+def test_image_folders_are_read_in_natural_order_by_the_tracker_and_the_recordings(tmp_path):
+    for i in (10, 2, 1):
+        cv2.imwrite(str(tmp_path / f"img{i}.png"), np.full((8, 8), i, np.uint8))
+    (tmp_path / ".hidden.png").write_bytes(b"")
+    (tmp_path / "notes.txt").write_text("not an image")
+    assert [p.name for p in image_files(tmp_path)] == ["img1.png", "img2.png", "img10.png"]
+    source, total = frame_source(tmp_path)
+    assert total == 3 and [int(image[0, 0]) for image, _ in source] == [1, 2, 10]
+    assert [int(frame[0, 0]) for frame in read_frames(tmp_path)] == [1, 2, 10]
+
+
+def test_calibrate_refuses_to_write_its_result_over_its_own_dataset(tmp_path, capsys):
+    dataset, _ = simulate.reference_scene(seed=0, duration=2.0, n_measurements=3)
+    root = dataset.save(tmp_path / "ds")
+    before = (root / "dataset.json").read_bytes()
+    listing = sorted(os.listdir(root))
+    code = cli.main(["calibrate", str(root), "-o", str(root / "dataset.json"), "--overwrite"])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert "is a file of the dataset" in err and "write the result elsewhere" in err
+    assert (root / "dataset.json").read_bytes() == before
+    assert sorted(os.listdir(root)) == listing
