@@ -3,18 +3,22 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from . import __version__
-from .errors import InputError, OutputError, OutputExistsError, RotIdError
-from .export import add_export_parser
-from .files import OVERWRITE_HINT, check_output
+from .arm import Arm
+from .errors import DatasetExistsError, InputError, OutputError, OutputExistsError, RotIdError
+from .export import DEFAULT_CHILD, JOINT_NAME, PARENT_FRAME, CameraFrame, Format, export_result, load_result
+from .files import OVERWRITE_HINT, check_output, check_outputs, write_text
 from .meshrender import COVERINGS
 from .pixels import DEMO_COVERING
-from .recordings import add_track_parser
-from .report import add_report_parser, error_vs_truth_lines
+from .recordings import MIN_SPIN_DEG, STILL_TOLERANCE_DEG, load_tracker_params, make_dataset, videos_in
+from .report import ReportFormat, error_vs_truth_lines, make_report
 
 SCENES = ("reference", "single-crossing")
 #: ``gtsam_rotid.estimate.Method`` values (kept literal so that ``--help`` does not import the estimator).
@@ -168,6 +172,213 @@ def _demo_simulated(args) -> int:
         _save_result(result, out / RESULT_FILE, args.overwrite)
     return 0
 
+
+# ---------------------------------------------------------------------------------------------------
+# command line: ``gtsam-rotid export RESULT.json --to FORMAT [-o FILE]``
+
+
+def add_export_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``export`` command to an ``argparse`` subparsers object ."""
+    p = subparsers.add_parser(
+        "export", help="write arm_T_camera (and its covariance) as YAML, JSON, URDF, a ROS 2 command or a matrix",
+        description="Export a calibration result. yaml/json: pose (position, quaternion x y z w) and the covariance "
+                    "in ROS's geometry_msgs/PoseWithCovariance layout (6x6 row-major; x, y, z, rotation about X, Y, "
+                    "Z of the parent frame; metres, radians). urdf: a fixed <joint>. ros2: a tf2_ros "
+                    "static_transform_publisher command line (Humble+ flags). matrix: the 4x4 matrix. The child "
+                    "frame is the camera's OpenCV optical frame (x right, y down, z forward) unless "
+                    "--camera-frame body.")
+    p.add_argument("result", metavar="RESULT_JSON", help="result file written by `calibrate -o`")
+    p.add_argument("--to", required=True, choices=[f.value for f in Format], help="output format")
+    p.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of standard output")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    p.add_argument("--parent", default=PARENT_FRAME, metavar="FRAME",
+                   help=f"parent frame / link: the arm base, i.e. the URDF's root link (default {PARENT_FRAME})")
+    p.add_argument("--child", metavar="FRAME",
+                   help=f"child frame / link (default {DEFAULT_CHILD[CameraFrame.OPTICAL]}, or "
+                        f"{DEFAULT_CHILD[CameraFrame.BODY]} with --camera-frame body)")
+    p.add_argument("--camera-frame", choices=[f.value for f in CameraFrame], default=CameraFrame.OPTICAL.value,
+                   help="optical (default): the estimated OpenCV frame, z forward; body: turned to ROS's x-forward "
+                        "camera_link convention (REP 103)")
+    p.add_argument("--joint-name", default=JOINT_NAME, help=f"URDF joint name (default {JOINT_NAME})")
+    p.set_defaults(func=cmd_export)
+    return p
+
+
+def cmd_export(args) -> int:
+    output = None if args.output is None else check_output(args.output, args.overwrite)
+    result = load_result(args.result)
+    fmt = Format(args.to)
+    text = export_result(result, fmt, parent_frame=args.parent, child_frame=args.child,
+                         camera_frame=args.camera_frame, joint_name=args.joint_name)
+    if fmt in (Format.YAML, Format.JSON) and not result.covariance_usable:
+        print("gtsam-rotid export: warning: the covariance is unusable (the arm poses do not determine the "
+              "calibration; see `gtsam-rotid report`); it is exported with covariance_usable: false",
+              file=sys.stderr)
+    if output is None:
+        sys.stdout.write(text if text.endswith("\n") else text + "\n")
+    else:
+        write_text(output, text, overwrite=args.overwrite)
+        print(f"wrote {output}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------
+# command line: ``gtsam-rotid report RESULT.json [--dataset DIR] [--plots DIR] [--format ...]``
+
+
+def add_report_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``report`` command to an ``argparse`` subparsers object ."""
+    p = subparsers.add_parser(
+        "report", help="print the estimate, its uncertainty, consistency and observability (and plots)",
+        description="Report a calibration result: the estimate (mm, roll-pitch-yaw in degrees, quaternion), 1σ and "
+                    "95 % bounds, correlations, per-measurement residuals, weights, outliers and rejected tracks, the "
+                    "χ² consistency of the fit and the observability verdict in words. With --dataset the verdict "
+                    "locates the wrist axes' common point and --plots also draws the tracks and residuals.")
+    p.add_argument("result", metavar="RESULT_JSON", help="result file written by `calibrate -o`")
+    p.add_argument("--dataset", metavar="DIR", help="the dataset directory that was calibrated (optional)")
+    p.add_argument("--format", choices=[f.value for f in ReportFormat], default=ReportFormat.TEXT.value,
+                   help="text (default), markdown or json")
+    p.add_argument("-o", "--output", metavar="FILE", help="write the report to FILE instead of standard output")
+    p.add_argument("--plots", metavar="DIR", help="write PNG plots into DIR (created if missing)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.set_defaults(func=cmd_report)
+    return p
+
+
+def cmd_report(args) -> int:
+    output = None if args.output is None else check_output(args.output, args.overwrite)
+    plots_dir = None if args.plots is None else Path(args.plots)
+    if plots_dir is not None:
+        if plots_dir.exists() and not plots_dir.is_dir():
+            raise OutputError(f"{plots_dir} exists and is not a directory")
+        if not plots_dir.parent.is_dir():
+            raise OutputError(f"cannot write plots into {plots_dir}: the directory {plots_dir.parent} does not "
+                                  "exist")
+    result = load_result(args.result)
+    dataset = None
+    if args.dataset is not None:
+        from .dataset import Dataset
+
+        dataset = Dataset.load(args.dataset)
+    if plots_dir is not None:
+        from .plots import plot_files
+
+        if plots_dir.is_dir():  # refuse before writing anything
+            check_outputs(plot_files(result, dataset, plots_dir), args.overwrite)
+    text = make_report(result, dataset).render(args.format)
+    # with the report on standard output, progress lines go to standard error (the output stays parseable)
+    progress = sys.stdout if output is not None else sys.stderr
+    if output is None:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    else:
+        write_text(output, text, overwrite=args.overwrite)
+        print(f"wrote {output}", file=progress)
+    if plots_dir is not None:
+        from .plots import save_plots
+
+        plots_dir.mkdir(exist_ok=True)
+        if dataset is None:
+            print("gtsam-rotid report: note: only the 3-D view is drawn; give --dataset for the tracks and the "
+                  "residual histograms", file=sys.stderr)
+        for path in save_plots(result, dataset, plots_dir, overwrite=args.overwrite):
+            print(f"wrote {path}", file=progress)
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------
+# ``gtsam-rotid track``
+
+def _parse_pair(text: str, what: str, convert: Callable[[str], Any]) -> tuple[Any, Any]:
+    if text.count(":") != 1:
+        raise InputError(f"{what} {text!r} must be START:STOP (either may be empty)")
+    start, stop = (part.strip() for part in text.split(":"))
+    try:
+        return (convert(start) if start else None), (convert(stop) if stop else None)
+    except ValueError:
+        raise InputError(f"{what} {text!r} must be START:STOP with numbers") from None
+
+
+def cmd_track(args: argparse.Namespace) -> int:
+    """``gtsam-rotid track``: videos + joint angles + camera file -> a dataset directory."""
+    output = Path(args.output)
+    if os.path.lexists(output) and not args.overwrite:
+        raise DatasetExistsError(f"{output} exists; {OVERWRITE_HINT}")
+    videos = [Path(v) for v in args.videos] if args.videos else videos_in(Path(args.videos_dir))
+    frame_ranges = None
+    if args.frames:
+        if len(args.frames) != len(videos):
+            raise InputError(f"{len(args.frames)} --frames range(s) for {len(videos)} video(s); give one START:STOP "
+                             f"per video (':' for all frames)")
+        frame_ranges = [_parse_pair(text, "--frames", int) for text in args.frames]
+    spans = None
+    if args.spans:
+        spans = [_parse_pair(text, "--spans", float) for text in args.spans]
+        if any(a is None or b is None for a, b in spans):
+            raise InputError("each --spans entry needs both its first and last stamp, T0:T1")
+    arm = Arm.from_urdf(args.urdf, wrist_joint=args.wrist_joint) if args.urdf else \
+        Arm.from_robot(args.robot, wrist_joint=args.wrist_joint)
+    joint_options = {"degrees": bool(args.degrees), "spans": spans, "still_tolerance_deg": args.still_tolerance,
+                     "min_spin_deg": args.min_spin, "ignore_joints": list(args.ignore_joints)}
+    settings = dict(features=args.features, max_corners=args.max_corners, min_length=args.min_track_length)
+    params = None   # the tracker's defaults
+    if args.tracker_params is not None or any(v is not None for v in settings.values()):
+        params = load_tracker_params(args.tracker_params, **settings)
+    print(f"{len(videos)} video(s); {arm!r}" + ("" if params is None else f"; features: {params.features}"),
+          flush=True)
+    dataset = make_dataset(videos, args.joints, args.camera, arm, frame_ranges=frame_ranges,
+                           progress=not args.no_progress, joint_options=joint_options, tracker_params=params)
+    dataset.save(output, overwrite=args.overwrite)
+    print(dataset.summary())
+    print(f"wrote {output}")
+    return 0
+
+
+def add_track_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``track`` command to an ``argparse`` subparsers object; returns its parser (func = cmd_track)."""
+    p = subparsers.add_parser(
+        "track", help="make a dataset from recorded videos, joint angles and a camera file",
+        description="Track features in one video (or image folder) per arm pose and write a dataset. The joint "
+                    "file is CSV or JSON: one row of angles per video, or a time series of joint states "
+                    "(a time/stamp column) from which each spin's still joints are read.")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--video", "--videos", dest="videos", nargs="+", metavar="VIDEO",
+                        help="one video file or image folder per measurement, in the joint file's order")
+    source.add_argument("--videos-dir", metavar="DIR",
+                        help="a directory whose videos and image folders (sorted by name) are the measurements")
+    p.add_argument("--joints", required=True, metavar="FILE", help="joint-angle file (CSV or JSON)")
+    p.add_argument("--camera", required=True, metavar="CAMERA_YAML",
+                   help="OpenCV calibration YAML or ROS camera_info YAML")
+    robot = p.add_mutually_exclusive_group(required=True)
+    robot.add_argument("--robot", metavar="NAME", help="example-robot-data arm (kinova, ur5, ur10, panda, xarm7)")
+    robot.add_argument("--urdf", metavar="FILE", help="the arm's URDF")
+    p.add_argument("--wrist-joint", metavar="NAME", help="the spinning joint (default: the last revolute joint)")
+    p.add_argument("--frames", nargs="+", metavar="START:STOP",
+                   help="frame range per video (stop exclusive; ':' = all frames)")
+    p.add_argument("--spans", nargs="+", metavar="T0:T1",
+                   help="time span of each video's spin in the joint time series (default: found automatically)")
+    p.add_argument("--degrees", action="store_true", help="the joint file is in degrees (default radians)")
+    p.add_argument("--still-tolerance", type=float, default=STILL_TOLERANCE_DEG, metavar="DEG",
+                   help=f"largest motion of a non-wrist joint during a spin (default {STILL_TOLERANCE_DEG})")
+    p.add_argument("--min-spin", type=float, default=MIN_SPIN_DEG, metavar="DEG",
+                   help=f"smallest wrist rotation that counts as a spin (default {MIN_SPIN_DEG:g})")
+    p.add_argument("--ignore-joints", nargs="+", default=(), metavar="NAME",
+                   help="joint-file columns to ignore (e.g. fingers)")
+    p.add_argument("--tracker-params", metavar="FILE",
+                   help="YAML or JSON file of tracker settings (gtsam_rotid.tracking.TrackerParams fields)")
+    p.add_argument("--features", choices=("auto", "blobs", "corners"),
+                   help="what to track: blobs (dots), corners (ambient texture) or auto (both; the default)")
+    p.add_argument("--max-corners", type=int, metavar="N", help="most corner tracks at once (default 300)")
+    p.add_argument("--min-track-length", type=int, metavar="N", help="shortest track kept, in points (default 10)")
+    p.add_argument("-o", "--output", required=True, metavar="DATASET", help="dataset directory to write")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing dataset")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_track)
+    return p
+
+
+# ---------------------------------------------------------------------------------------------------
+# the commands' shared options and the parser
 
 def _add_scene_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")

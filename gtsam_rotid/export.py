@@ -27,13 +27,11 @@ ROS *body* convention (x forward, y left, z up; ``camera_link``) share it, only 
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
 import re
 import shlex
-import sys
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -42,7 +40,6 @@ import gtsam
 import numpy as np
 
 from .errors import InputError
-from .files import check_output, write_text
 
 FORMAT_MARKER = "gtsam_rotid.transform"
 FORMAT_VERSION = 1
@@ -359,52 +356,3 @@ def load_result(path: str | os.PathLike):
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise InputError(f"{path} is not a readable gtsam_rotid calibration result ({type(exc).__name__}: "
                          f"{exc})") from None
-
-
-# ---------------------------------------------------------------------------------------------------
-# command line: ``gtsam-rotid export RESULT.json --to FORMAT [-o FILE]``
-
-
-def add_export_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``export`` command to an ``argparse`` subparsers object (``gtsam_rotid.cli`` wires it)."""
-    p = subparsers.add_parser(
-        "export", help="write arm_T_camera (and its covariance) as YAML, JSON, URDF, a ROS 2 command or a matrix",
-        description="Export a calibration result. yaml/json: pose (position, quaternion x y z w) and the covariance "
-                    "in ROS's geometry_msgs/PoseWithCovariance layout (6x6 row-major; x, y, z, rotation about X, Y, "
-                    "Z of the parent frame; metres, radians). urdf: a fixed <joint>. ros2: a tf2_ros "
-                    "static_transform_publisher command line (Humble+ flags). matrix: the 4x4 matrix. The child "
-                    "frame is the camera's OpenCV optical frame (x right, y down, z forward) unless "
-                    "--camera-frame body.")
-    p.add_argument("result", metavar="RESULT_JSON", help="result file written by `calibrate -o`")
-    p.add_argument("--to", required=True, choices=[f.value for f in Format], help="output format")
-    p.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of standard output")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
-    p.add_argument("--parent", default=PARENT_FRAME, metavar="FRAME",
-                   help=f"parent frame / link: the arm base, i.e. the URDF's root link (default {PARENT_FRAME})")
-    p.add_argument("--child", metavar="FRAME",
-                   help=f"child frame / link (default {DEFAULT_CHILD[CameraFrame.OPTICAL]}, or "
-                        f"{DEFAULT_CHILD[CameraFrame.BODY]} with --camera-frame body)")
-    p.add_argument("--camera-frame", choices=[f.value for f in CameraFrame], default=CameraFrame.OPTICAL.value,
-                   help="optical (default): the estimated OpenCV frame, z forward; body: turned to ROS's x-forward "
-                        "camera_link convention (REP 103)")
-    p.add_argument("--joint-name", default=JOINT_NAME, help=f"URDF joint name (default {JOINT_NAME})")
-    p.set_defaults(func=cmd_export)
-    return p
-
-
-def cmd_export(args) -> int:
-    output = None if args.output is None else check_output(args.output, args.overwrite)
-    result = load_result(args.result)
-    fmt = _format(args.to)
-    text = export_result(result, fmt, parent_frame=args.parent, child_frame=args.child,
-                         camera_frame=args.camera_frame, joint_name=args.joint_name)
-    if fmt in (Format.YAML, Format.JSON) and not result.covariance_usable:
-        print("gtsam-rotid export: warning: the covariance is unusable (the arm poses do not determine the "
-              "calibration; see `gtsam-rotid report`); it is exported with covariance_usable: false",
-              file=sys.stderr)
-    if output is None:
-        sys.stdout.write(text if text.endswith("\n") else text + "\n")
-    else:
-        write_text(output, text, overwrite=args.overwrite)
-        print(f"wrote {output}")
-    return 0

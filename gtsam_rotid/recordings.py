@@ -19,7 +19,6 @@ start at 100 or later).
 
 from __future__ import annotations
 
-import argparse
 import csv
 import dataclasses
 import io
@@ -41,7 +40,7 @@ from tqdm import tqdm
 from .arm import Arm
 from .camera import Camera
 from .dataset import Dataset, Measurement, Track
-from .errors import ArmError, CameraError, DatasetExistsError, InputError, RecordingError
+from .errors import ArmError, CameraError, InputError, RecordingError
 from .files import IMAGE_SUFFIXES, VIDEO_SUFFIXES, image_files, natural_key
 
 #: Column names (case-insensitive) that make a joint CSV a time series.
@@ -104,10 +103,12 @@ def parse_yaml(text: str) -> Any:
         documents = yaml.load_all(text, Loader=_YamlLoader)
         return next(documents, None)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
-        where = f"line {mark.line + 1}: " if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise ValueError(f"{where}{problem}") from None
+        parts = []
+        for text, mark in ((getattr(exc, "context", None), getattr(exc, "context_mark", None)),
+                           (getattr(exc, "problem", None), getattr(exc, "problem_mark", None))):
+            if text:
+                parts.append(f"line {mark.line + 1}: {text}" if mark is not None else text)
+        raise ValueError("; ".join(parts) or str(exc)) from None
 
 
 # ---------------------------------------------------------------------------------------------- camera files
@@ -885,17 +886,9 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
 
 
 # ---------------------------------------------------------------------------------------------- command line
-def _parse_pair(text: str, what: str, convert: Callable[[str], Any]) -> tuple[Any, Any]:
-    if text.count(":") != 1:
-        raise InputError(f"{what} {text!r} must be START:STOP (either may be empty)")
-    start, stop = (part.strip() for part in text.split(":"))
-    try:
-        return (convert(start) if start else None), (convert(stop) if stop else None)
-    except ValueError:
-        raise InputError(f"{what} {text!r} must be START:STOP with numbers") from None
 
 
-def _videos_in(folder: Path) -> list[Path]:
+def videos_in(folder: Path) -> list[Path]:
     if not folder.is_dir():
         raise RecordingError(f"--videos-dir {folder} is not a directory")
     entries = sorted((p for p in folder.iterdir() if not p.name.startswith(".") and
@@ -953,81 +946,3 @@ def load_tracker_params(path: str | os.PathLike | None = None, **overrides):
         return TrackerParams(**values)
     except InputError as exc:
         raise InputError(f"{where}: {exc}") from None
-
-
-def cmd_track(args: argparse.Namespace) -> int:
-    """``gtsam-rotid track``: videos + joint angles + camera file -> a dataset directory."""
-    output = Path(args.output)
-    if os.path.lexists(output) and not args.overwrite:
-        raise DatasetExistsError(f"{output} exists; pass --overwrite to replace it")
-    videos = [Path(v) for v in args.videos] if args.videos else _videos_in(Path(args.videos_dir))
-    frame_ranges = None
-    if args.frames:
-        if len(args.frames) != len(videos):
-            raise InputError(f"{len(args.frames)} --frames range(s) for {len(videos)} video(s); give one START:STOP "
-                             f"per video (':' for all frames)")
-        frame_ranges = [_parse_pair(text, "--frames", int) for text in args.frames]
-    spans = None
-    if args.spans:
-        spans = [_parse_pair(text, "--spans", float) for text in args.spans]
-        if any(a is None or b is None for a, b in spans):
-            raise InputError("each --spans entry needs both its first and last stamp, T0:T1")
-    arm = Arm.from_urdf(args.urdf, wrist_joint=args.wrist_joint) if args.urdf else \
-        Arm.from_robot(args.robot, wrist_joint=args.wrist_joint)
-    joint_options = {"degrees": bool(args.degrees), "spans": spans, "still_tolerance_deg": args.still_tolerance,
-                     "min_spin_deg": args.min_spin, "ignore_joints": list(args.ignore_joints)}
-    settings = dict(features=args.features, max_corners=args.max_corners, min_length=args.min_track_length)
-    params = None   # the tracker's defaults
-    if args.tracker_params is not None or any(v is not None for v in settings.values()):
-        params = load_tracker_params(args.tracker_params, **settings)
-    print(f"{len(videos)} video(s); {arm!r}" + ("" if params is None else f"; features: {params.features}"),
-          flush=True)
-    dataset = make_dataset(videos, args.joints, args.camera, arm, frame_ranges=frame_ranges,
-                           progress=not args.no_progress, joint_options=joint_options, tracker_params=params)
-    dataset.save(output, overwrite=args.overwrite)
-    print(dataset.summary())
-    print(f"wrote {output}")
-    return 0
-
-
-def add_track_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``track`` command to an ``argparse`` subparsers object; returns its parser (func = cmd_track)."""
-    p = subparsers.add_parser(
-        "track", help="make a dataset from recorded videos, joint angles and a camera file",
-        description="Track features in one video (or image folder) per arm pose and write a dataset. The joint "
-                    "file is CSV or JSON: one row of angles per video, or a time series of joint states "
-                    "(a time/stamp column) from which each spin's still joints are read.")
-    source = p.add_mutually_exclusive_group(required=True)
-    source.add_argument("--video", "--videos", dest="videos", nargs="+", metavar="VIDEO",
-                        help="one video file or image folder per measurement, in the joint file's order")
-    source.add_argument("--videos-dir", metavar="DIR",
-                        help="a directory whose videos and image folders (sorted by name) are the measurements")
-    p.add_argument("--joints", required=True, metavar="FILE", help="joint-angle file (CSV or JSON)")
-    p.add_argument("--camera", required=True, metavar="CAMERA_YAML",
-                   help="OpenCV calibration YAML or ROS camera_info YAML")
-    robot = p.add_mutually_exclusive_group(required=True)
-    robot.add_argument("--robot", metavar="NAME", help="example-robot-data arm (kinova, ur5, ur10, panda, xarm7)")
-    robot.add_argument("--urdf", metavar="FILE", help="the arm's URDF")
-    p.add_argument("--wrist-joint", metavar="NAME", help="the spinning joint (default: the last revolute joint)")
-    p.add_argument("--frames", nargs="+", metavar="START:STOP",
-                   help="frame range per video (stop exclusive; ':' = all frames)")
-    p.add_argument("--spans", nargs="+", metavar="T0:T1",
-                   help="time span of each video's spin in the joint time series (default: found automatically)")
-    p.add_argument("--degrees", action="store_true", help="the joint file is in degrees (default radians)")
-    p.add_argument("--still-tolerance", type=float, default=STILL_TOLERANCE_DEG, metavar="DEG",
-                   help=f"largest motion of a non-wrist joint during a spin (default {STILL_TOLERANCE_DEG})")
-    p.add_argument("--min-spin", type=float, default=MIN_SPIN_DEG, metavar="DEG",
-                   help=f"smallest wrist rotation that counts as a spin (default {MIN_SPIN_DEG:g})")
-    p.add_argument("--ignore-joints", nargs="+", default=(), metavar="NAME",
-                   help="joint-file columns to ignore (e.g. fingers)")
-    p.add_argument("--tracker-params", metavar="FILE",
-                   help="YAML or JSON file of tracker settings (gtsam_rotid.tracking.TrackerParams fields)")
-    p.add_argument("--features", choices=("auto", "blobs", "corners"),
-                   help="what to track: blobs (dots), corners (ambient texture) or auto (both); default blobs")
-    p.add_argument("--max-corners", type=int, metavar="N", help="most corner tracks at once (default 300)")
-    p.add_argument("--min-track-length", type=int, metavar="N", help="shortest track kept, in points (default 10)")
-    p.add_argument("-o", "--output", required=True, metavar="DATASET", help="dataset directory to write")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing dataset")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
-    p.set_defaults(func=cmd_track)
-    return p

@@ -20,21 +20,17 @@ pose to add.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import sys
 from dataclasses import dataclass, field
 from enum import StrEnum
-from pathlib import Path
 
 import gtsam
 import numpy as np
 
-from .errors import InputError, OutputError
+from .errors import InputError
 from .estimate import ambiguity_words, kinematics_words, untrusted_words
-from .export import load_result, quaternion_xyzw, ros_covariance
-from .files import check_output, check_outputs, write_text
+from .export import quaternion_xyzw, ros_covariance
 from .geometry import Line3
 from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  # noqa: F401 (re-export)
 
@@ -656,67 +652,3 @@ def error_vs_truth_lines(result, arm_T_camera_true) -> list[str]:
         total += " (covariance unusable: no comparison with a 1-sigma)"
     lines.append(total)
     return lines
-
-
-# ---------------------------------------------------------------------------------------------------
-# command line: ``gtsam-rotid report RESULT.json [--dataset DIR] [--plots DIR] [--format ...]``
-
-
-def add_report_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``report`` command to an ``argparse`` subparsers object (``gtsam_rotid.cli`` wires it)."""
-    p = subparsers.add_parser(
-        "report", help="print the estimate, its uncertainty, consistency and observability (and plots)",
-        description="Report a calibration result: the estimate (mm, roll-pitch-yaw in degrees, quaternion), 1σ and "
-                    "95 % bounds, correlations, per-measurement residuals, weights, outliers and rejected tracks, the "
-                    "χ² consistency of the fit and the observability verdict in words. With --dataset the verdict "
-                    "locates the wrist axes' common point and --plots also draws the tracks and residuals.")
-    p.add_argument("result", metavar="RESULT_JSON", help="result file written by `calibrate -o`")
-    p.add_argument("--dataset", metavar="DIR", help="the dataset directory that was calibrated (optional)")
-    p.add_argument("--format", choices=[f.value for f in ReportFormat], default=ReportFormat.TEXT.value,
-                   help="text (default), markdown or json")
-    p.add_argument("-o", "--output", metavar="FILE", help="write the report to FILE instead of standard output")
-    p.add_argument("--plots", metavar="DIR", help="write PNG plots into DIR (created if missing)")
-    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
-    p.set_defaults(func=cmd_report)
-    return p
-
-
-def cmd_report(args) -> int:
-    output = None if args.output is None else check_output(args.output, args.overwrite)
-    plots_dir = None if args.plots is None else Path(args.plots)
-    if plots_dir is not None:
-        if plots_dir.exists() and not plots_dir.is_dir():
-            raise OutputError(f"{plots_dir} exists and is not a directory")
-        if not plots_dir.parent.is_dir():
-            raise OutputError(f"cannot write plots into {plots_dir}: the directory {plots_dir.parent} does not "
-                                  "exist")
-    result = load_result(args.result)
-    dataset = None
-    if args.dataset is not None:
-        from .dataset import Dataset
-
-        dataset = Dataset.load(args.dataset)
-    if plots_dir is not None:
-        from .plots import plot_files
-
-        if plots_dir.is_dir():  # refuse before writing anything
-            check_outputs(plot_files(result, dataset, plots_dir), args.overwrite)
-    text = make_report(result, dataset).render(args.format)
-    # with the report on standard output, progress lines go to standard error (the output stays parseable)
-    progress = sys.stdout if output is not None else sys.stderr
-    if output is None:
-        sys.stdout.write(text)
-        sys.stdout.flush()
-    else:
-        write_text(output, text, overwrite=args.overwrite)
-        print(f"wrote {output}", file=progress)
-    if plots_dir is not None:
-        from .plots import save_plots
-
-        plots_dir.mkdir(exist_ok=True)
-        if dataset is None:
-            print("gtsam-rotid report: note: only the 3-D view is drawn; give --dataset for the tracks and the "
-                  "residual histograms", file=sys.stderr)
-        for path in save_plots(result, dataset, plots_dir, overwrite=args.overwrite):
-            print(f"wrote {path}", file=progress)
-    return 0

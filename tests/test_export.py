@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from gtsam_rotid import InputError, OutputError, RotIdError, simulate
+from gtsam_rotid.cli import add_export_parser
 from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.export import (
     Transform,
-    add_export_parser,
     export_result,
     gtsam_covariance,
     ros_covariance,

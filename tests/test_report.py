@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from gtsam_rotid import Line3, simulate
+from gtsam_rotid.cli import add_report_parser
 from gtsam_rotid.errors import OutputError
 from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.report import (
     CalibrationReport,
-    add_report_parser,
     axis_geometry,
     chi2_sf,
     make_report,
