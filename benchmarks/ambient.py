@@ -58,10 +58,11 @@ from gtsam_rotid import simulate
 from gtsam_rotid.camera import Camera
 from gtsam_rotid.dataset import Dataset, Measurement
 from gtsam_rotid.errors import InputError, RotIdError
-from gtsam_rotid.estimate import calibrate, untrusted_words
+from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.simulate import SceneConfig
 from gtsam_rotid.tracking import Tracker, TrackerParams
 from gtsam_rotid.uncertainty import chi2_mean_interval
+from gtsam_rotid.words import untrusted_words
 
 CHI2_999_6DOF = 22.458
 #: arm poses per scene, drawn from up to this many candidates of the simulator (the sampler knows no meshes;

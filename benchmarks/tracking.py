@@ -40,6 +40,7 @@ from gtsam_rotid.estimate import calibrate  # noqa: E402
 from gtsam_rotid.patterns import render_dots, spin_dots  # noqa: E402
 from gtsam_rotid.pixels import dataset_from_video, tracking_accuracy  # noqa: E402
 from gtsam_rotid.tracking import Tracker, TrackerParams  # noqa: E402
+from gtsam_rotid.words import summary  # noqa: E402
 
 TARGET_FPS = 150.0
 TARGET_RMS_PX = 0.1
@@ -103,7 +104,7 @@ def calibration_part(duration: float, seed: int, params: TrackerParams) -> dict:
     result = calibrate(scene.dataset)
     seconds = time.perf_counter() - start
     print(f"calibrated ({result.method}) in {seconds:.1f} s")
-    print(result.summary())
+    print(summary(result))
     error = result.error_to(truth.arm_T_camera)
     rot_deg = np.degrees(error[:3])
     trans_mm = 1000.0 * error[3:]

@@ -31,11 +31,19 @@ __version__ = "0.1.0"
 _CALIBRATION = ("CalibrationError", "CalibrationOptions", "CalibrationResult", "Method", "calibrate")
 
 
+#: ... and the result's words: ``gtsam_rotid.summary(result)``, ``gtsam_rotid.make_report(result, dataset)``.
+_WORDS = {"summary": "words", "make_report": "report"}
+
+
 def __getattr__(name: str):
     if name in _CALIBRATION:
         from . import estimate
 
         return getattr(estimate, name)
+    if name in _WORDS:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_WORDS[name]}", __name__), name)
     raise AttributeError(f"module 'gtsam_rotid' has no attribute {name!r}")
 
 __all__ = [
@@ -62,6 +70,8 @@ __all__ = [
     "TrackerParams",
     "ValidationError",
     "calibrate",
+    "make_report",
     "simulate",
+    "summary",
     "track",
 ]

@@ -19,6 +19,7 @@ from .meshrender import COVERINGS
 from .pixels import DEMO_COVERING
 from .recordings import MIN_SPIN_DEG, STILL_TOLERANCE_DEG, load_tracker_params, make_dataset, videos_in
 from .report import ReportFormat, error_vs_truth_lines, make_report
+from .words import summary
 
 SCENES = ("reference", "single-crossing")
 #: ``gtsam_rotid.estimate.Method`` values (kept literal so that ``--help`` does not import the estimator).
@@ -116,7 +117,7 @@ def cmd_calibrate(args) -> int:
     from .estimate import CalibrationOptions
 
     result = _calibrate_timed(dataset, args.method, CalibrationOptions(joint_sigma_deg=args.joint_sigma_deg))
-    print(result.summary())
+    print(summary(result))
     if truth is not None:
         _print_lines(error_vs_truth_lines(result, truth.arm_T_camera))
     if output is not None:
@@ -166,7 +167,7 @@ def _demo_simulated(args) -> int:
         truth.save(out / "dataset" / TRUTH_FILE, overwrite=True)
         print(f"wrote {out / 'dataset'}")
     result = _calibrate_timed(dataset, args.method)
-    print(result.summary())
+    print(summary(result))
     _print_lines(error_vs_truth_lines(result, truth.arm_T_camera))
     if out is not None:
         _save_result(result, out / RESULT_FILE, args.overwrite)

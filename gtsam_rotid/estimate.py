@@ -219,15 +219,6 @@ class AxisConsistency:
     def consistent(self) -> bool:
         return self.scale == 1.0
 
-    def sentence(self) -> str:
-        head = (f"image axes vs the projected FK axes: χ² = {self.chi2:.3g} for {self.dof} dof, "
-                f"P(χ² ≥ this) = {self.p_value:.2g}")
-        if self.scale == 1.0:
-            return f"{head}: consistent with the pixel noise"
-        return (f"{head}: the axes disagree beyond their pixel noise (errors shared across tracks: a tracker "
-                f"bias, joint angles, kinematics or intrinsics); the covariance is scaled by {self.scale:.3g} "
-                + ("(χ²/(dof − 2): the scale's mean given the scatter)" if self.dof > 2 else "(χ²/dof)"))
-
     def to_dict(self) -> dict:
         return asdict(self)
 
@@ -265,12 +256,8 @@ class CalibrationResult:
     #: kinematics were taken as exact (always so for ``paper``)
     joint_sigma_deg: float = 0.0
     #: why the covariance cannot be trusted although the poses determine the calibration (kind -> measurement
-    #: indices involved); see :data:`UNTRUSTED_KINDS` and :func:`untrusted_words`
+    #: indices involved); see :data:`UNTRUSTED_KINDS` and :func:`gtsam_rotid.words.untrusted_words`
     untrusted: dict[str, list[int]] = field(default_factory=dict)
-
-    def kinematics_words(self) -> str:
-        """What the covariance assumes of the joint readings, in words."""
-        return kinematics_words(self.joint_sigma_deg)
 
     @property
     def ambiguous(self) -> bool:
@@ -300,39 +287,6 @@ class CalibrationResult:
     def error_to(self, arm_T_camera_true: gtsam.Pose3) -> np.ndarray:
         """Tangent-space error (rotation rad, translation m) of this estimate against a reference pose."""
         return arm_T_camera_true.localCoordinates(self.arm_T_camera)
-
-    def summary(self) -> str:
-        t = self.arm_T_camera.translation() * 1000.0
-        rpy = np.degrees(self.arm_T_camera.rotation().rpy())
-        lines = [
-            f"arm_T_camera ({self.method}, {'converged' if self.converged else 'NOT converged'}, "
-            f"{self.iterations} iterations, pixel sigma {self.sigma_px:.3f} px)",
-            f"  translation (mm):  {t[0]:9.2f} {t[1]:9.2f} {t[2]:9.2f}",
-            f"  roll/pitch/yaw (deg): {rpy[0]:8.3f} {rpy[1]:8.3f} {rpy[2]:8.3f}",
-        ]
-        if self.ambiguous:
-            lines.append("  AMBIGUOUS: " + ambiguity_words(self))
-        if self.covariance_usable:
-            s, r = self.sigma_mm_arm, self.sigma_deg
-            lines.append(f"  1-sigma position, arm frame (mm): {s[0]:.3f} {s[1]:.3f} {s[2]:.3f}")
-            lines.append(f"  1-sigma rotation (deg):           {r[0]:.4f} {r[1]:.4f} {r[2]:.4f}")
-        elif self.ambiguous:
-            lines.append("  COVARIANCE UNUSABLE: it describes one of several poses that fit the data")
-        elif self.untrusted:
-            lines.extend("  COVARIANCE UNUSABLE: " + w for w in untrusted_words(self))
-        else:
-            lines.append("  COVARIANCE UNUSABLE: the arm poses do not determine the calibration")
-        lines.extend("  " + line for line in self.observability.describe())
-        if self.axis_consistency is not None and not self.axis_consistency.consistent:
-            lines.append("  " + self.axis_consistency.sentence())
-        lines.append("  " + self.kinematics_words())
-        for m in self.measurements:
-            flag = f"  OUTLIER ({m.outlier_reason})" if m.outlier else ""
-            n_rejected = len(m.rejected_tracks)
-            lines.append(f"  measurement {m.index}: {m.n_tracks} tracks, {m.n_points} points, residual RMS "
-                         f"{m.residual_rms_px:.3f} px, weight {m.weight:.2f}, {n_rejected} "
-                         f"track{'' if n_rejected == 1 else 's'} rejected{flag}")
-        return "\n".join(lines)
 
     def to_dict(self) -> dict:
         return {
@@ -390,12 +344,6 @@ class CalibrationResult:
             untrusted={str(k): [int(i) for i in v] for k, v in data.get("untrusted", {}).items()},
         )
 
-    def report(self, dataset=None, **kwargs):
-        """The covariance report (:func:`gtsam_rotid.report.make_report`): numbers as fields, ``.to_text()``."""
-        from .report import make_report  # the report module sits above the estimator in the data flow
-
-        return make_report(self, dataset, **kwargs)
-
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
         write_json(path, self.to_dict(), overwrite, indent=1)
 
@@ -412,79 +360,6 @@ UNTRUSTED_KINDS = {
     "too_uncertain": "the uncertainty is too large to be a calibration",
     "unmeasured_scatter": "the measurements disagree beyond their noise and are too few to measure by how much",
 }
-
-
-def evidence_words(m: MeasurementReport) -> str:
-    """A measurement's evidence in words: tracks, points, the longest arc."""
-    arc = "" if m.arc_span_deg is None else f", longest arc {m.arc_span_deg:.0f}°"
-    return f"{m.n_tracks} track{'' if m.n_tracks == 1 else 's'}, {m.n_points} points{arc}"
-
-
-def untrusted_words(result: CalibrationResult) -> list[str]:
-    """Plain words for each reason in ``result.untrusted``: what is wrong, which measurements, what to do."""
-    out = []
-    by_index = {m.index: m for m in result.measurements}
-    for kind, ks in result.untrusted.items():
-        named = "; ".join(f"measurement {k} ({evidence_words(by_index[k])})" for k in ks if k in by_index)
-        if kind == "thin_evidence":
-            c = result.axis_consistency
-            strong = sum(not m.weak and not m.outlier for m in result.measurements)
-            if c is not None and c.p_value < RESTART_P:
-                head = (f"the image axes disagree with the estimate beyond their pixel noise (χ² = {c.chi2:.3g} for "
-                        f"{c.dof} dof, P = {c.p_value:.2g}) and these")
-            elif c is None:
-                head = "nothing tests the image axes against each other (too few measurements), and these"
-            else:
-                head = (f"the estimate rests on weak measurements (only {strong} of the measurements used have strong "
-                        f"evidence; {MIN_MEASUREMENTS} are needed to determine the pose without the weak ones): these")
-            out.append(f"{head} measurements have too little evidence for their axes to be Gaussian: {named}. Few or "
-                       "short arcs admit wrong circle fits, so the estimate may be a wrong minimum and no scaling of "
-                       "the covariance can be trusted. Spin the wrist longer (a full turn or more), give the hand more "
-                       "texture (more tracks), or add arm poses; the tracking, not the joint angles, is the weak part")
-        elif kind == "inconsistent":
-            c = result.axis_consistency
-            out.append(f"the measurements' axes disagree with one pose by χ²/dof = {c.chi2 / c.dof:.3g}, more than "
-                       f"{MAX_CONSISTENCY_SCALE:g}x their pixel noise: the model does not describe the data (wrong "
-                       "intrinsics, joint angles or kinematics, a moved camera, or tracks that are not on the hand)")
-        elif kind == "unmeasured_scatter":
-            c = result.axis_consistency
-            out.append(f"the measurements' axes disagree with one pose beyond their pixel noise (χ² = {c.chi2:.3g} "
-                       f"for {c.dof} dof, P = {c.p_value:.2g}), and only {c.dof // 2 + 3} measurements are used: "
-                       "too few to measure by how much the noise is understated, so no covariance can be given; add "
-                       "arm poses (six or more used), or spin longer where measurements were left out")
-        elif kind == "too_uncertain":
-            out.append(f"the 1σ ({np.max(result.sigma_mm_arm):.3g} mm, {np.max(result.sigma_deg):.3g}°) exceeds "
-                       f"{100 * MAX_RELATIVE_SIGMA:g} % of the camera's distance to the wrist or {MAX_SIGMA_DEG:g}°: "
-                       "the data do not determine the calibration in practice, and an error that large changes the "
-                       "geometry the covariance was computed in; add arm poses, longer spins or more texture")
-    return out
-
-
-def kinematics_words(joint_sigma_deg: float) -> str:
-    """What a covariance that includes joint-angle noise of ``joint_sigma_deg`` (0: none) assumes, in words."""
-    if joint_sigma_deg > 0.0:
-        return (f"kinematics: joint readings uncertain by {joint_sigma_deg:g} deg (1 sigma, per joint and arm "
-                "pose), propagated into the covariance")
-    return ("kinematics: joint readings taken as exact; their errors are not in this covariance (declare them "
-            "with CalibrationOptions.joint_sigma_deg / --joint-sigma-deg)")
-
-
-def ambiguity_words(result: CalibrationResult) -> str:
-    """Plain words for an ambiguous result: which other poses fit, and what to do."""
-    close = sorted((a for a in result.alternatives if a.delta_chi2 < AMBIGUITY_CHI2), key=lambda a: a.delta_chi2)
-    t = np.asarray(result.arm_T_camera.translation(), dtype=float)
-    where = "; ".join(
-        f"camera at {np.round(1000 * np.asarray(a.arm_T_camera.translation(), dtype=float), 1).tolist()} mm, "
-        f"{1000 * np.linalg.norm(np.asarray(a.arm_T_camera.translation(), dtype=float) - t):.0f} mm and "
-        f"{np.degrees(np.linalg.norm(result.arm_T_camera.rotation().localCoordinates(a.arm_T_camera.rotation()))):.1f}"
-        f"° from this estimate, chi-square only {max(a.delta_chi2, 0.0):.3g} worse" for a in close)
-    return (f"{len(close)} other pose{'s' if len(close) > 1 else ''} of the camera fit the pixels almost as well "
-            f"({where}; a difference below {AMBIGUITY_CHI2:.1f} is a likelihood ratio under 1000:1): the data cannot "
-            f"tell them apart, so neither this estimate nor its covariance can be trusted. "
-            + ("With three arm poses the wrist axes give exactly as many equations as the six unknowns, and those "
-               "have several exact solutions" if len(result.measurements) == MIN_MEASUREMENTS else
-               "The chosen wrist axes do not single one out")
-            + "; add arm poses whose wrist axes are tilted from the others and miss their common point")
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -34,6 +34,7 @@ from .files import OVERWRITE_HINT, check_outputs, write_text
 from .meshrender import MeshRenderConfig, MeshSpin, load_arm_meshes, render_mesh_measurement, track_errors
 from .render import RenderConfig, RenderedSpin, render_measurement
 from .tracking import Tracker, TrackerParams, TrackingResult
+from .words import summary
 
 __all__ = [
     "DEMO_DURATION",
@@ -441,7 +442,7 @@ def run_demo(out_dir: str | os.PathLike | None = None, *, seed: int = 0, duratio
     result = calibrate(scene.dataset, method=method)
     seconds["calibrate"] = time.perf_counter() - start
     print(f"calibrated in {seconds['calibrate']:.1f} s")
-    print(result.summary())
+    print(summary(result))
     for line in error_vs_truth_lines(result, truth.arm_T_camera):
         print(line)
     paths: list[Path] = []

@@ -29,10 +29,10 @@ import gtsam
 import numpy as np
 
 from .errors import InputError
-from .estimate import ambiguity_words, kinematics_words, untrusted_words
 from .export import quaternion_xyzw, ros_covariance
 from .geometry import Line3
 from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  # noqa: F401 (re-export)
+from .words import ambiguity_words, axis_consistency_sentence, kinematics_words, untrusted_words
 
 #: Two-sided 95 % point of the normal distribution: the 95 % bound of one axis is Z95 σ.
 Z95 = 1.959963984540054
@@ -374,7 +374,7 @@ class CalibrationReport:
         if self.chi2.note:
             out.append(f"  note: {self.chi2.note}")
         if self.axis_consistency is not None:
-            out.append("  " + self.axis_consistency.sentence())
+            out.append("  " + axis_consistency_sentence(self.axis_consistency))
         out += ["", "observability:"] + ["  " + line for line in self._observability_lines()]
         out += ["", "measurements:",
                 f"  {'k':>3} {'tracks':>6} {'points':>7} {'RMS px':>7} {'weight':>6} {'rejected':>8}  status"]
@@ -396,7 +396,7 @@ class CalibrationReport:
         if self.chi2.note:
             out.append(f"- note: {self.chi2.note}")
         if self.axis_consistency is not None:
-            out.append(f"- {self.axis_consistency.sentence()}")
+            out.append(f"- {axis_consistency_sentence(self.axis_consistency)}")
         out += ["", "## Observability", ""] + [f"- {line}" for line in self._observability_lines()]
         out += ["", "## Measurements", "", "| k | tracks | points | RMS (px) | weight | rejected | status |",
                 "|---:|---:|---:|---:|---:|---:|---|"]

@@ -20,6 +20,7 @@ import numpy as np
 
 from gtsam_rotid.errors import InputError, RotIdError, SimulationError, ValidationError
 from gtsam_rotid.plots import DPI
+from gtsam_rotid.report import make_report
 from gtsam_rotid.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -223,7 +224,7 @@ def calibrate_and_print(verdict, dataset, truth_pose: gtsam.Pose3, method: str, 
 
 def print_observability(result, dataset=None, indent: str = "  ") -> list[str]:
     """Print (and return) the report's observability words and suggestion."""
-    report = result.report(dataset)
+    report = make_report(result, dataset)
     words = list(report.observability)
     if report.suggestion:
         words.append(f"SUGGESTION: {report.suggestion}")
@@ -379,7 +380,7 @@ def sweep_scene(config, poses, direction: np.ndarray, *, seed: int, arm, noise_v
     scene = SweepScene(dataset, truth, geometry, bound, bound_along(bound, truth.arm_T_camera, direction), result,
                        seconds, failure)
     if result is not None:
-        scene.report = result.report(dataset)
+        scene.report = make_report(result, dataset)
         scene.sigma = sigma_along(result, direction) if result.covariance_usable else float("inf")
         scene.along = float(position_error_mm(result.arm_T_camera, truth.arm_T_camera) @ direction)
     return scene

@@ -41,6 +41,7 @@ from _common import (
 from gtsam_rotid import simulate
 from gtsam_rotid.pixels import DEMO_DURATION, dataset_from_video
 from gtsam_rotid.plots import plot_pose_3d, plot_residual_histograms, save_overlays
+from gtsam_rotid.words import axis_consistency_sentence
 
 #: the issue's targets (benchmarks/tracking.py): tracked points vs the rendered truth, calibration error per axis
 TARGET_RMS_PX = 0.1
@@ -120,7 +121,7 @@ def main(argv=None) -> int:
         print_observability(pixels, tracked)
         print("  report: " + pixels.report(tracked).chi2.sentence())
         if pixels.axis_consistency is not None:
-            print("  report: " + pixels.axis_consistency.sentence())
+            print("  report: " + axis_consistency_sentence(pixels.axis_consistency))
 
     print("\nchecks:")
     verdict.check(accuracy.rms_px <= TARGET_RMS_PX,

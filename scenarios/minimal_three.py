@@ -37,6 +37,7 @@ from single_crossing import extra_pose
 
 from gtsam_rotid import simulate
 from gtsam_rotid.plots import plot_pose_3d
+from gtsam_rotid.report import make_report
 from gtsam_rotid.simulate import SceneConfig
 
 NOISE_VAR = 1.5
@@ -74,7 +75,7 @@ def main(argv=None) -> int:
         if result is None:
             continue
         results[method] = result
-        print("    report: " + result.report(minimal).chi2.sentence())
+        print("    report: " + make_report(result, minimal).chi2.sentence())
         print("    residual RMS per measurement (px): "
               + ", ".join(f"{m.residual_rms_px:.3f}" for m in result.measurements))
     joint = results.get("joint")
@@ -99,7 +100,7 @@ def main(argv=None) -> int:
         figures.append(save_figure(plot_pose_3d(joint, minimal), args.out, "minimal_pose_3d.png"))
     weighted = results.get("weighted")
     if weighted is not None:
-        verdict.check(weighted.covariance_usable and weighted.report(minimal).chi2.dof == 0,
+        verdict.check(weighted.covariance_usable and make_report(weighted, minimal).chi2.dof == 0,
                       "(a) weighted: determined, with no redundancy (0 residual dof: the report says so)")
 
     print("\n(b) measurements 0, 1, 2: three axes through P")

@@ -35,6 +35,7 @@ from _common import (
 from gtsam_rotid import simulate
 from gtsam_rotid.dataset import Dataset, Measurement
 from gtsam_rotid.plots import plot_tracks
+from gtsam_rotid.report import make_report
 from gtsam_rotid.simulate import SceneConfig
 
 NOISE_VAR = 1.5
@@ -121,7 +122,7 @@ def main(argv=None) -> int:
         result = results.get((case, "joint"))
         if result is None:
             continue
-        report = result.report(dataset)
+        report = make_report(result, dataset)
         reasons = {}
         for _, _, why in report.rejected_tracks:
             key = re.match(r"[^\d(:]*", why).group().strip()  # the words before the numbers

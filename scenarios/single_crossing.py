@@ -35,6 +35,7 @@ from _common import (
 
 from gtsam_rotid import simulate
 from gtsam_rotid.plots import plot_pose_3d
+from gtsam_rotid.report import make_report
 from gtsam_rotid.simulate import SceneConfig
 
 NOISE_VAR = 1.5
@@ -116,7 +117,7 @@ def main(argv=None) -> int:
             verdict.check(angle < 2.0 and rotation_part < 0.05,
                           f"crossing: the undetermined direction is the camera's position along its ray to P "
                           f"({angle:.2f} deg from it, rotation part {rotation_part:.1e}), as the paper says")
-        words = " ".join(result.report(crossing).observability)
+        words = " ".join(make_report(result, crossing).observability)
         verdict.check("DEGENERATE" in words and "P = " in words,
                       "crossing: the report's words say DEGENERATE and locate the crossing point P")
         # what the data do determine is estimated honestly: e^T I e over the determined directions
@@ -135,7 +136,7 @@ def main(argv=None) -> int:
         verdict.check(r2 <= CHI2_3_999, f"crossing: the orientation is recovered (rotation error inside its 99.9 % "
                       f"region, {r2:.2f} <= {CHI2_3_999})")
         # ... and the report should say so: its rotation 1σ against the rotation marginal of the information
-        report = result.report(crossing)
+        report = make_report(result, crossing)
         R = result.arm_T_camera.rotation().matrix()
         marginal = np.degrees(np.sqrt(np.diag(R @ rotation_cov @ R.T)))
         shown = report.sigma_rotation_arm_deg

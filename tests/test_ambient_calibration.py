@@ -11,6 +11,7 @@ from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.meshrender import MeshRenderConfig
 from gtsam_rotid.pixels import dataset_from_video
 from gtsam_rotid.tracking import TrackerParams
+from gtsam_rotid.words import summary
 
 CHI2_999_6DOF = 22.458
 
@@ -25,6 +26,6 @@ def test_short_textured_scene_calibrates_within_its_covariance():
     error = result.error_to(truth.arm_T_camera)
     chi2 = float(error @ np.linalg.solve(result.covariance, error))
     # measured: 0.47 mm and 0.046 deg off (worst axis), 1 sigma 3.1 mm and 0.28 deg, chi2 of the error 3.3
-    assert result.covariance_usable, result.summary()
-    assert chi2 < CHI2_999_6DOF, (chi2, result.summary())
+    assert result.covariance_usable, summary(result)
+    assert chi2 < CHI2_999_6DOF, (chi2, summary(result))
     assert np.max(np.abs(error[3:])) < 0.005  # and a calibration: mm, not cm

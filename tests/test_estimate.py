@@ -5,9 +5,11 @@ import numpy as np
 import pytest
 
 from gtsam_rotid import Camera, Dataset, InputError, Measurement, Track, estimate, simulate
-from gtsam_rotid.estimate import CalibrationError, CalibrationResult, calibrate, initial_pose, untrusted_words
+from gtsam_rotid.estimate import CalibrationError, CalibrationResult, calibrate, initial_pose
 from gtsam_rotid.graph import Model, track_huber
+from gtsam_rotid.report import make_report
 from gtsam_rotid.simulate import SceneConfig
+from gtsam_rotid.words import summary, untrusted_words
 
 METHODS = ["joint", "weighted", "paper"]
 
@@ -126,7 +128,7 @@ def test_single_crossing_is_reported_degenerate(single_crossing, method):
     # the rotation is still determined (the circles pick it; the image axes alone allow a half-turned twin)
     assert np.max(np.abs(result.error_to(truth.arm_T_camera)[:3])) < 1e-6
     assert any("not determined" in words for words in result.observability.describe())
-    assert "COVARIANCE UNUSABLE" in result.summary()
+    assert "COVARIANCE UNUSABLE" in summary(result)
 
 
 @pytest.mark.parametrize("method", ["weighted", "joint"])
@@ -157,7 +159,7 @@ def test_wrong_joint_angles_end_in_a_reported_poor_minimum():
         except CalibrationError as error:
             assert "ended in a poor minimum" in str(error)
         else:  # never a confident number
-            assert not result.covariance_usable and "COVARIANCE UNUSABLE" in result.summary(), method
+            assert not result.covariance_usable and "COVARIANCE UNUSABLE" in summary(result), method
 
 
 def test_a_measurement_without_usable_tracks_is_left_out_and_named(noise_free_scene):
@@ -244,7 +246,7 @@ def test_a_wrong_joint_reading_is_left_out(method):
     assert flagged == [2]
     assert result.measurements[2].weight == 0.0
     assert "disagrees with the FK axis" in result.measurements[2].outlier_reason
-    assert "OUTLIER (left out" in result.summary()
+    assert "OUTLIER (left out" in summary(result)
     error = result.error_to(truth.arm_T_camera)
     assert np.all(np.abs(error) < 4.0 * np.sqrt(np.diag(result.covariance)))
 
@@ -393,9 +395,9 @@ def test_axes_that_disagree_beyond_their_noise_scale_the_covariance(noisy_scene,
     assert result.arm_T_camera.equals(unscaled.arm_T_camera, 1e-12)
     np.testing.assert_allclose(result.covariance, test.scale * unscaled.covariance, rtol=1e-12)
     # said in words, in the summary and the report, and kept through save / load
-    assert f"scaled by {test.scale:.3g}" in result.summary()
-    assert "the axes disagree beyond their pixel noise" in result.report(shifted).to_text()
-    assert result.report(shifted).to_dict()["axis_consistency"]["scale"] == pytest.approx(test.scale)
+    assert f"scaled by {test.scale:.3g}" in summary(result)
+    assert "the axes disagree beyond their pixel noise" in make_report(result, shifted).to_text()
+    assert make_report(result, shifted).to_dict()["axis_consistency"]["scale"] == pytest.approx(test.scale)
     result.save(tmp_path / "r.json")
     assert CalibrationResult.load(tmp_path / "r.json").axis_consistency == test
 
@@ -412,7 +414,7 @@ def test_axes_that_disagree_with_too_few_measurements_to_scale_are_not_trusted(n
     assert list(result.untrusted) == ["unmeasured_scatter"] and result.untrusted["unmeasured_scatter"] == [0, 1, 2, 3]
     words = " ".join(untrusted_words(result))
     assert "only 4 measurements are used" in words and "add arm poses" in words
-    assert "COVARIANCE UNUSABLE" in result.summary()
+    assert "COVARIANCE UNUSABLE" in summary(result)
     # the same four measurements without the offsets agree: trusted
     clean = calibrate(Dataset(dataset.arm, dataset.camera, list(dataset)[:4]), method="joint")
     assert clean.axis_consistency.consistent and clean.covariance_usable
@@ -474,7 +476,7 @@ def test_joint_angle_noise_is_in_the_covariance_when_declared(method):
     assert chi2(declared) < 22.46  # chi2(6) 99.9 % point
     # what the covariance assumes is said, and kept through save / load
     assert exact.joint_sigma_deg == 0.0 and "joint readings taken as exact" in exact.summary()
-    assert declared.joint_sigma_deg == 0.1 and "uncertain by 0.1 deg" in declared.report(noisy).to_text()
+    assert declared.joint_sigma_deg == 0.1 and "uncertain by 0.1 deg" in make_report(declared, noisy).to_text()
     assert CalibrationResult.from_dict(declared.to_dict()).joint_sigma_deg == 0.1
     assert declared.axis_consistency.consistent  # the axes now agree with the pose within their noise
     # millimetres of error, and a covariance that says so
@@ -540,12 +542,12 @@ def test_thin_evidence_is_flagged_or_holds_its_covariance(seed):
         return
     error = result.error_to(truth.arm_T_camera)
     chi2 = float(error @ np.linalg.solve(result.covariance, error))
-    assert not result.covariance_usable or chi2 < 22.46, (seed, chi2, result.summary())
+    assert not result.covariance_usable or chi2 < 22.46, (seed, chi2, summary(result))
     weak = [m for m in result.measurements if m.weak]
     assert weak and all(m.arc_span_deg is not None and m.arc_span_deg < 360.0 for m in weak)
     if not result.covariance_usable:
-        assert "thin_evidence" in result.untrusted, result.summary()
-        text = result.summary()
+        assert "thin_evidence" in result.untrusted, summary(result)
+        text = summary(result)
         assert "COVARIANCE UNUSABLE" in text and "not the joint angles" in text
         for m in result.measurements:
             if m.outlier and m.weak:  # a weak measurement left out is not blamed on its joint angles first

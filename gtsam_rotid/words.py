@@ -1,0 +1,140 @@
+"""A calibration result in words (the report layer): the summary, why a covariance is not trusted, what an
+ambiguity means, what the covariance assumes of the kinematics. :class:`~gtsam_rotid.estimate.CalibrationResult`
+holds the numbers; everything that turns them into sentences is here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .estimate import (
+    AMBIGUITY_CHI2,
+    MAX_CONSISTENCY_SCALE,
+    MAX_RELATIVE_SIGMA,
+    MAX_SIGMA_DEG,
+    MIN_MEASUREMENTS,
+    RESTART_P,
+    AxisConsistency,
+    CalibrationResult,
+    MeasurementReport,
+)
+
+
+def summary(result: CalibrationResult) -> str:
+    """The result in a few lines: the pose, its 1σ or why the covariance is unusable, the observability, each
+    measurement."""
+    t = result.arm_T_camera.translation() * 1000.0
+    rpy = np.degrees(result.arm_T_camera.rotation().rpy())
+    lines = [
+        f"arm_T_camera ({result.method}, {'converged' if result.converged else 'NOT converged'}, "
+        f"{result.iterations} iterations, pixel sigma {result.sigma_px:.3f} px)",
+        f"  translation (mm):  {t[0]:9.2f} {t[1]:9.2f} {t[2]:9.2f}",
+        f"  roll/pitch/yaw (deg): {rpy[0]:8.3f} {rpy[1]:8.3f} {rpy[2]:8.3f}",
+    ]
+    if result.ambiguous:
+        lines.append("  AMBIGUOUS: " + ambiguity_words(result))
+    if result.covariance_usable:
+        s, r = result.sigma_mm_arm, result.sigma_deg
+        lines.append(f"  1-sigma position, arm frame (mm): {s[0]:.3f} {s[1]:.3f} {s[2]:.3f}")
+        lines.append(f"  1-sigma rotation (deg):           {r[0]:.4f} {r[1]:.4f} {r[2]:.4f}")
+    elif result.ambiguous:
+        lines.append("  COVARIANCE UNUSABLE: it describes one of several poses that fit the data")
+    elif result.untrusted:
+        lines.extend("  COVARIANCE UNUSABLE: " + w for w in untrusted_words(result))
+    else:
+        lines.append("  COVARIANCE UNUSABLE: the arm poses do not determine the calibration")
+    lines.extend("  " + line for line in result.observability.describe())
+    if result.axis_consistency is not None and not result.axis_consistency.consistent:
+        lines.append("  " + axis_consistency_sentence(result.axis_consistency))
+    lines.append("  " + kinematics_words(result.joint_sigma_deg))
+    for m in result.measurements:
+        flag = f"  OUTLIER ({m.outlier_reason})" if m.outlier else ""
+        n_rejected = len(m.rejected_tracks)
+        lines.append(f"  measurement {m.index}: {m.n_tracks} tracks, {m.n_points} points, residual RMS "
+                     f"{m.residual_rms_px:.3f} px, weight {m.weight:.2f}, {n_rejected} "
+                     f"track{'' if n_rejected == 1 else 's'} rejected{flag}")
+    return "\n".join(lines)
+
+
+def axis_consistency_sentence(c: AxisConsistency) -> str:
+    """The test of the axes against one pose, and the scale it applied, in one sentence."""
+    head = (f"image axes vs the projected FK axes: χ² = {c.chi2:.3g} for {c.dof} dof, "
+            f"P(χ² ≥ this) = {c.p_value:.2g}")
+    if c.scale == 1.0:
+        return f"{head}: consistent with the pixel noise"
+    return (f"{head}: the axes disagree beyond their pixel noise (errors shared across tracks: a tracker "
+            f"bias, joint angles, kinematics or intrinsics); the covariance is scaled by {c.scale:.3g} "
+            + ("(χ²/(dof − 2): the scale's mean given the scatter)" if c.dof > 2 else "(χ²/dof)"))
+
+
+def evidence_words(m: MeasurementReport) -> str:
+    """A measurement's evidence in words: tracks, points, the longest arc."""
+    arc = "" if m.arc_span_deg is None else f", longest arc {m.arc_span_deg:.0f}°"
+    return f"{m.n_tracks} track{'' if m.n_tracks == 1 else 's'}, {m.n_points} points{arc}"
+
+
+def untrusted_words(result: CalibrationResult) -> list[str]:
+    """Plain words for each reason in ``result.untrusted``: what is wrong, which measurements, what to do."""
+    out = []
+    by_index = {m.index: m for m in result.measurements}
+    for kind, ks in result.untrusted.items():
+        named = "; ".join(f"measurement {k} ({evidence_words(by_index[k])})" for k in ks if k in by_index)
+        if kind == "thin_evidence":
+            c = result.axis_consistency
+            strong = sum(not m.weak and not m.outlier for m in result.measurements)
+            if c is not None and c.p_value < RESTART_P:
+                head = (f"the image axes disagree with the estimate beyond their pixel noise (χ² = {c.chi2:.3g} for "
+                        f"{c.dof} dof, P = {c.p_value:.2g}) and these")
+            elif c is None:
+                head = "nothing tests the image axes against each other (too few measurements), and these"
+            else:
+                head = (f"the estimate rests on weak measurements (only {strong} of the measurements used have strong "
+                        f"evidence; {MIN_MEASUREMENTS} are needed to determine the pose without the weak ones): these")
+            out.append(f"{head} measurements have too little evidence for their axes to be Gaussian: {named}. Few or "
+                       "short arcs admit wrong circle fits, so the estimate may be a wrong minimum and no scaling of "
+                       "the covariance can be trusted. Spin the wrist longer (a full turn or more), give the hand more "
+                       "texture (more tracks), or add arm poses; the tracking, not the joint angles, is the weak part")
+        elif kind == "inconsistent":
+            c = result.axis_consistency
+            out.append(f"the measurements' axes disagree with one pose by χ²/dof = {c.chi2 / c.dof:.3g}, more than "
+                       f"{MAX_CONSISTENCY_SCALE:g}x their pixel noise: the model does not describe the data (wrong "
+                       "intrinsics, joint angles or kinematics, a moved camera, or tracks that are not on the hand)")
+        elif kind == "unmeasured_scatter":
+            c = result.axis_consistency
+            out.append(f"the measurements' axes disagree with one pose beyond their pixel noise (χ² = {c.chi2:.3g} "
+                       f"for {c.dof} dof, P = {c.p_value:.2g}), and only {c.dof // 2 + 3} measurements are used: "
+                       "too few to measure by how much the noise is understated, so no covariance can be given; add "
+                       "arm poses (six or more used), or spin longer where measurements were left out")
+        elif kind == "too_uncertain":
+            out.append(f"the 1σ ({np.max(result.sigma_mm_arm):.3g} mm, {np.max(result.sigma_deg):.3g}°) exceeds "
+                       f"{100 * MAX_RELATIVE_SIGMA:g} % of the camera's distance to the wrist or {MAX_SIGMA_DEG:g}°: "
+                       "the data do not determine the calibration in practice, and an error that large changes the "
+                       "geometry the covariance was computed in; add arm poses, longer spins or more texture")
+    return out
+
+
+def kinematics_words(joint_sigma_deg: float) -> str:
+    """What a covariance that includes joint-angle noise of ``joint_sigma_deg`` (0: none) assumes, in words."""
+    if joint_sigma_deg > 0.0:
+        return (f"kinematics: joint readings uncertain by {joint_sigma_deg:g} deg (1 sigma, per joint and arm "
+                "pose), propagated into the covariance")
+    return ("kinematics: joint readings taken as exact; their errors are not in this covariance (declare them "
+            "with CalibrationOptions.joint_sigma_deg / --joint-sigma-deg)")
+
+
+def ambiguity_words(result: CalibrationResult) -> str:
+    """Plain words for an ambiguous result: which other poses fit, and what to do."""
+    close = sorted((a for a in result.alternatives if a.delta_chi2 < AMBIGUITY_CHI2), key=lambda a: a.delta_chi2)
+    t = np.asarray(result.arm_T_camera.translation(), dtype=float)
+    where = "; ".join(
+        f"camera at {np.round(1000 * np.asarray(a.arm_T_camera.translation(), dtype=float), 1).tolist()} mm, "
+        f"{1000 * np.linalg.norm(np.asarray(a.arm_T_camera.translation(), dtype=float) - t):.0f} mm and "
+        f"{np.degrees(np.linalg.norm(result.arm_T_camera.rotation().localCoordinates(a.arm_T_camera.rotation()))):.1f}"
+        f"° from this estimate, chi-square only {max(a.delta_chi2, 0.0):.3g} worse" for a in close)
+    return (f"{len(close)} other pose{'s' if len(close) > 1 else ''} of the camera fit the pixels almost as well "
+            f"({where}; a difference below {AMBIGUITY_CHI2:.1f} is a likelihood ratio under 1000:1): the data cannot "
+            f"tell them apart, so neither this estimate nor its covariance can be trusted. "
+            + ("With three arm poses the wrist axes give exactly as many equations as the six unknowns, and those "
+               "have several exact solutions" if len(result.measurements) == MIN_MEASUREMENTS else
+               "The chosen wrist axes do not single one out")
+            + "; add arm poses whose wrist axes are tilted from the others and miss their common point")
