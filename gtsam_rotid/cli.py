@@ -12,11 +12,11 @@ from typing import Any
 
 from . import __version__
 from .arm import Arm
+from .demo import DEMO_COVERING
 from .errors import DatasetExistsError, InputError, OutputError, OutputExistsError, RotIdError
 from .export import DEFAULT_CHILD, JOINT_NAME, PARENT_FRAME, CameraFrame, Format, export_result, load_result
 from .files import OVERWRITE_HINT, check_output, check_outputs, write_text
 from .meshrender import COVERINGS
-from .pixels import DEMO_COVERING
 from .recordings import MIN_SPIN_DEG, STILL_TOLERANCE_DEG, load_tracker_params, make_dataset, videos_in
 from .report import ReportFormat, error_vs_truth_lines, make_report
 from .words import summary
@@ -133,7 +133,7 @@ def cmd_demo(args) -> int:
     if args.noise_var is not None:
         raise InputError("--noise-var sets the pixel noise of simulated tracks: use it with --no-video (the video "
                          "demo's noise is the rendered image noise)")
-    from .pixels import DEMO_DURATION, demo_render_config, run_demo
+    from .demo import DEMO_DURATION, demo_render_config, run_demo
 
     if args.renderer == "cylinder" and args.covering is not None:
         raise InputError("--covering chooses what covers the hand in the mesh renderer; the cylinder has dots")

@@ -81,6 +81,24 @@ class Method(StrEnum):
     JOINT = "joint"
 
 
+class SpinModel(StrEnum):
+    """How the phases of one spin's features are modelled (``CalibrationOptions.spin_model``)."""
+
+    #: a free phase per observation
+    FREE = "free"
+    #: one wrist angle per frame and one phase per track (tracks with frame indices, line model only)
+    RIGID = "rigid"
+
+
+def _choice(enum: type[StrEnum], name: str, value) -> StrEnum:
+    """``value`` as a member of ``enum``, or an InputError naming the option and its choices."""
+    try:
+        return enum(value)
+    except ValueError:
+        raise InputError(f"CalibrationOptions.{name} must be one of {', '.join(repr(m.value) for m in enum)}, got "
+                         f"{value!r}") from None
+
+
 class CalibrationError(RotIdError, RuntimeError):
     """The optimisation could not produce a trustworthy estimate (e.g. every start ended in a poor minimum)."""
 
@@ -138,6 +156,24 @@ class CalibrationOptions:
     joint_sigma_deg: float = 0.0
 
     def __post_init__(self):
+        # a misspelt choice ("rigd") must not silently run the default
+        self.spin_model = _choice(SpinModel, "spin_model", self.spin_model)
+        self.joint_model = _choice(Model, "joint_model", self.joint_model)
+        for name in ("max_iterations", "n_candidates", "min_track_points"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise InputError(f"CalibrationOptions.{name} must be an integer >= 1, got {value!r}")
+        for name in ("restarts", "seed"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+                raise InputError(f"CalibrationOptions.{name} must be an integer >= 0, got {value!r}")
+        for name in ("min_track_extent_px", "outlier_track_ratio", "outlier_track_z", "outlier_measurement_ratio",
+                     "outlier_measurement_chi2", "max_initial_rms_px", "tie_sigma_px", "stage1_tolerance",
+                     "max_feature_radius_m", "min_sigma_px"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float | np.number) or not np.isfinite(value) \
+                    or value < 0:
+                raise InputError(f"CalibrationOptions.{name} must be a finite number >= 0, got {value!r}")
         if self.axis_consistency_p is not None and not 0.0 <= self.axis_consistency_p < 1.0:
             raise InputError(f"CalibrationOptions.axis_consistency_p must be in [0, 1), got {self.axis_consistency_p}")
         if not (np.isfinite(self.joint_sigma_deg) and self.joint_sigma_deg >= 0.0):
@@ -797,8 +833,16 @@ def _cube_root_variances(stats: dict[int, tuple[float, int]], options: Calibrati
     return np.cbrt(np.maximum(sse / dof, options.min_sigma_px**2)) / (1.0 - h), h / (1.0 - h) ** 2
 
 
+class FitRejection(str):
+    """The reason a track is rejected for not fitting its circle (a ``str``: what the result reports). Stage 1
+    re-tests these, and only these, at its final line (see :func:`_retest`); other reasons (too short, an
+    outlier of the graph builder, a jackknife group) are plain strings."""
+
+    __slots__ = ()
+
+
 def _outlier_tracks(stats: dict[int, tuple[float, int]], options: CalibrationOptions,
-                    spread: float = 0.0) -> dict[int, str]:
+                    spread: float = 0.0) -> dict[int, FitRejection]:
     """Tracks that do not fit: a residual RMS far above the measurement's median, or a residual variance beyond the
     99.9 % point (``outlier_track_z``) about the tracks' median (an arc of a wrong circle fits a coaxial one only
     roughly).
@@ -817,13 +861,15 @@ def _outlier_tracks(stats: dict[int, tuple[float, int]], options: CalibrationOpt
     out = {}
     for i, (j, (sse, n)) in enumerate(stats.items()):
         if rms[j] > options.outlier_track_ratio * median:
-            out[j] = f"residual RMS {rms[j]:.2f} px > {options.outlier_track_ratio:g}x the median {median:.2f} px"
+            out[j] = FitRejection(f"residual RMS {rms[j]:.2f} px > {options.outlier_track_ratio:g}x the median "
+                                  f"{median:.2f} px")
         elif z[i] > options.outlier_track_z:
             limit = (1.0 + options.outlier_track_z * np.sqrt(sampling[i] + spread)) ** 1.5
             rms_j = np.sqrt(sse / max(n - 2, 1))
             levels = f" and a spread of the tracks' noise levels of {150.0 * np.sqrt(spread):.0f} %" if spread else ""
-            out[j] = (f"does not fit a circle about the axis: residual RMS {rms_j:.3f} px is {rms_j / sigma:.2f}x the "
-                      f"median track's {sigma:.3f} px, beyond the 99.9 % point {limit:.2f}x for {n} points{levels}")
+            out[j] = FitRejection(f"does not fit a circle about the axis: residual RMS {rms_j:.3f} px is "
+                                  f"{rms_j / sigma:.2f}x the median track's {sigma:.3f} px, beyond the 99.9 % point "
+                                  f"{limit:.2f}x for {n} points{levels}")
     return out
 
 
@@ -1042,9 +1088,6 @@ def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepar
 
 
 #: Reasons of stage 1's fit tests (the tracks that :func:`_readmit_tracks` re-tests).
-_FIT_REASONS = ("does not fit", "residual RMS")
-
-
 def _retest(builder: RotIdGraph, measurement, k, pose, prepared, s: _Stage1, options):
     """Every track stage 1 kept or rejected for its fit, at its final line: (stats, circles) with the rejected
     tracks' circles solved there (started from their rays about that line: the builder's start is about the FK axis
@@ -1053,12 +1096,12 @@ def _retest(builder: RotIdGraph, measurement, k, pose, prepared, s: _Stage1, opt
     K_inv = np.linalg.inv(builder.camera.K)
     circles = dict(s.circles)
     for j, why in s.outliers.items():
-        if why.startswith(_FIT_REASONS):
+        if isinstance(why, FitRejection):
             track = prepared.usable[j]
             rays = np.column_stack([track.ideal, np.ones(len(track.ideal))]) @ K_inv.T
             centre_ray = K_inv @ np.append(track.ellipse.centre, 1.0)
             circles[j] = np.array(initial_circle(R[:, 0], R[:, 1], rays, centre_ray))
-    others = {j: why for j, why in s.outliers.items() if not why.startswith(_FIT_REASONS)}
+    others = {j: why for j, why in s.outliers.items() if not isinstance(why, FitRejection)}
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False, prepared=prepared,
                                    skip_tracks=others, refine_circles=False, initial_line=s.rotation,
@@ -1088,7 +1131,7 @@ def _readmit_tracks(builders, measurements, pose, setup: _Setup, stage1: list[_S
     instead of 0.4 mm without this test).
     """
     tested = {k: _retest(builders[0], measurements[k], k, pose, setup.prepared[k], s, options)
-              for k, s in enumerate(stage1) if any(why.startswith(_FIT_REASONS) for why in s.outliers.values())}
+              for k, s in enumerate(stage1) if any(isinstance(why, FitRejection) for why in s.outliers.values())}
     if not tested:
         return stage1
     spread = _noise_spread([tested[k][0] if k in tested else s.stats for k, s in enumerate(stage1)], options)
@@ -1101,7 +1144,7 @@ def _readmit_tracks(builders, measurements, pose, setup: _Setup, stage1: list[_S
         flagged.update({j: f"pulls the axis away from the other tracks' (score test {value:.3g} > {limit:.3g}, "
                            "3 dof, at the line fitted without it)"
                         for j, value in pull.items() if j not in flagged and value > limit})
-        back = [j for j, why in s.outliers.items() if why.startswith(_FIT_REASONS) and j not in flagged]
+        back = [j for j, why in s.outliers.items() if isinstance(why, FitRejection) and j not in flagged]
         s.outliers.update({j: why for j, why in flagged.items() if j in s.outliers})  # the reasons at the final line
         if not back:
             continue
@@ -1740,7 +1783,7 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
     tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
     reports = _reports(stage1, setup, sigmas, used, options, chi2, tied)
     variances = {k: sigmas[k] ** 2 for k in used}
-    if options.spin_model == "rigid" and builder.model is not Model.POSE:
+    if options.spin_model is SpinModel.RIGID and builder.model is not Model.POSE:
         rigid = _rigid_spin(camera, measurements, setup, keys, result, sigmas, options)
         if rigid is not None:
             pose, covariance, it, error, converged = rigid

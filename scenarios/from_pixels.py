@@ -39,8 +39,10 @@ from _common import (
 )
 
 from gtsam_rotid import simulate
-from gtsam_rotid.pixels import DEMO_DURATION, dataset_from_video
+from gtsam_rotid.demo import DEMO_DURATION
+from gtsam_rotid.pixels import dataset_from_video
 from gtsam_rotid.plots import plot_pose_3d, plot_residual_histograms, save_overlays
+from gtsam_rotid.report import make_report
 from gtsam_rotid.words import axis_consistency_sentence
 
 #: the issue's targets (benchmarks/tracking.py): tracked points vs the rendered truth, calibration error per axis
@@ -119,7 +121,7 @@ def main(argv=None) -> int:
     if pixels is not None:
         print("\nfrom pixels, the report (observability and fit consistency):")
         print_observability(pixels, tracked)
-        print("  report: " + pixels.report(tracked).chi2.sentence())
+        print("  report: " + make_report(pixels, tracked).chi2.sentence())
         if pixels.axis_consistency is not None:
             print("  report: " + axis_consistency_sentence(pixels.axis_consistency))
 

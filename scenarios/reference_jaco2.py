@@ -33,6 +33,7 @@ from _common import (
 
 from gtsam_rotid import simulate
 from gtsam_rotid.plots import save_plots
+from gtsam_rotid.report import make_report
 
 METHODS = ("joint", "weighted", "paper")
 NOISE_VAR = 1.5
@@ -92,7 +93,7 @@ def main(argv=None) -> int:
     if "joint" in results:
         print("\njoint report (observability and fit consistency):")
         print_observability(results["joint"], dataset)
-        print("  report: " + results["joint"].report(dataset).chi2.sentence())
+        print("  report: " + make_report(results["joint"], dataset).chi2.sentence())
 
     print("\nchecks:")
     for method in ("joint", "weighted"):

@@ -159,9 +159,6 @@ class _StubResult:
 
     save = CalibrationResult.save
 
-    def summary(self) -> str:
-        return "stub result"
-
     def to_dict(self) -> dict:
         return {"stub": True}
 
@@ -182,6 +179,7 @@ def test_calibrate_keeps_a_result_file_that_appears_while_it_runs(noise_free_dat
         return _StubResult()
 
     monkeypatch.setattr(estimate, "calibrate", calibrate_while_someone_writes)
+    monkeypatch.setattr(cli, "summary", lambda result: "stub result")
     assert cli.main(["calibrate", str(dataset), "-o", str(out)]) == 1
     assert f"{out} exists; pass --overwrite" in capsys.readouterr().err
     assert out.read_bytes() == theirs

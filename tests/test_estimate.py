@@ -1,11 +1,13 @@
 """Estimators against ground truth they never see: noise-free, noisy, distorted, degenerate and broken scenes."""
 
+import re
+
 import gtsam
 import numpy as np
 import pytest
 
 from gtsam_rotid import Camera, Dataset, InputError, Measurement, Track, estimate, simulate
-from gtsam_rotid.estimate import CalibrationError, CalibrationResult, calibrate, initial_pose
+from gtsam_rotid.estimate import CalibrationError, CalibrationOptions, CalibrationResult, calibrate, initial_pose
 from gtsam_rotid.graph import Model, track_huber
 from gtsam_rotid.report import make_report
 from gtsam_rotid.simulate import SceneConfig
@@ -475,7 +477,7 @@ def test_joint_angle_noise_is_in_the_covariance_when_declared(method):
     assert chi2(exact) > 100.0
     assert chi2(declared) < 22.46  # chi2(6) 99.9 % point
     # what the covariance assumes is said, and kept through save / load
-    assert exact.joint_sigma_deg == 0.0 and "joint readings taken as exact" in exact.summary()
+    assert exact.joint_sigma_deg == 0.0 and "joint readings taken as exact" in summary(exact)
     assert declared.joint_sigma_deg == 0.1 and "uncertain by 0.1 deg" in make_report(declared, noisy).to_text()
     assert CalibrationResult.from_dict(declared.to_dict()).joint_sigma_deg == 0.1
     assert declared.axis_consistency.consistent  # the axes now agree with the pose within their noise
@@ -587,3 +589,16 @@ def test_jackknife_holds_the_line_covariance_where_the_linearisation_does_not():
     jackknifed = whitened_variances(np.mean([j.rotation_cov * j.sigma2 for _, j in fits], axis=0))
     assert linear.max() > 2.5, linear  # the case this is about: the linearisation fails here
     assert np.all(jackknifed < 2.0) and np.all(jackknifed > 0.3), jackknifed
+
+
+@pytest.mark.parametrize(("options", "words"), [
+    (dict(spin_model="rigd"), "spin_model must be one of 'free', 'rigid', got 'rigd'"),
+    (dict(joint_model="lines"), "joint_model must be one of"),
+    (dict(max_iterations=0), "max_iterations must be an integer >= 1"),
+    (dict(restarts=-1), "restarts must be an integer >= 0"),
+    (dict(outlier_track_z=float("nan")), "outlier_track_z must be a finite number"),
+])
+def test_misspelt_or_impossible_options_are_refused_not_replaced_by_defaults(options, words):
+    with pytest.raises(InputError, match=re.escape(words)):
+        CalibrationOptions(**options)
+    assert CalibrationOptions(spin_model="rigid").spin_model == "rigid"

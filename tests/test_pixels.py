@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 from gtsam_rotid import Dataset, OutputError, Track
+from gtsam_rotid.demo import demo_files, run_demo
 from gtsam_rotid.estimate import CalibrationResult
-from gtsam_rotid.pixels import TrackingAccuracy, demo_files, run_demo, tracking_accuracy
+from gtsam_rotid.pixels import TrackingAccuracy, tracking_accuracy
 from gtsam_rotid.render import RenderConfig
 
 #: 99.9 % point of the chi-square distribution with 6 degrees of freedom.
