@@ -37,9 +37,9 @@ _WORDS = {"summary": "words", "make_report": "report"}
 
 def __getattr__(name: str):
     if name in _CALIBRATION:
-        from . import estimate
+        from . import calibration
 
-        return getattr(estimate, name)
+        return getattr(calibration, name)
     if name in _WORDS:
         import importlib
 

@@ -63,7 +63,7 @@ def _save_result(result, path: Path, overwrite: bool) -> None:
 
 
 def _calibrate_timed(dataset, method: str, options=None):
-    from .estimate import calibrate
+    from .calibration import calibrate
 
     print(f"calibrating ({method})...", flush=True)
     start = time.perf_counter()
@@ -114,7 +114,7 @@ def cmd_calibrate(args) -> int:
     dataset = Dataset.load(path)
     truth = _load_truth(path)
     print(dataset.summary())
-    from .estimate import CalibrationOptions
+    from .calibration import CalibrationOptions
 
     result = _calibrate_timed(dataset, args.method, CalibrationOptions(joint_sigma_deg=args.joint_sigma_deg))
     print(summary(result))

@@ -94,7 +94,7 @@ def run_demo(out_dir: str | os.PathLike | None = None, *, seed: int = 0, duratio
     ``print`` receives every line of output (progress bars go to stderr when ``progress``).
     """
     from . import simulate  # the estimator on first use: ``gtsam-rotid --help`` need not load it
-    from .estimate import calibrate
+    from .calibration import calibrate
     from .report import error_vs_truth_lines
 
     clock = time.perf_counter()

@@ -333,7 +333,7 @@ def load_result(path: str | os.PathLike):
 
     Raises :class:`InputError` (one line, naming the file) when it is missing or not a result.
     """
-    from .estimate import CalibrationResult
+    from .calibration import CalibrationResult
 
     path = Path(path)
     if path.is_dir():

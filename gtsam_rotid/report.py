@@ -188,7 +188,7 @@ def axis_geometry(axes: list[Line3], indices: list[int] | None = None) -> AxisGe
     """Common point (least squares), miss distances and angular spread of wrist axes; None for fewer than 2."""
     if len(axes) < 2:
         return None
-    from .estimate import closest_point
+    from .calibration import closest_point
 
     point = closest_point(axes)
     miss = np.array([float(a.distance_to(point)[0]) for a in axes])

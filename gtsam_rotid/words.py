@@ -7,17 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .estimate import (
-    AMBIGUITY_CHI2,
-    MAX_CONSISTENCY_SCALE,
-    MAX_RELATIVE_SIGMA,
-    MAX_SIGMA_DEG,
-    MIN_MEASUREMENTS,
-    RESTART_P,
-    AxisConsistency,
-    CalibrationResult,
-    MeasurementReport,
-)
+from .calibration.options import MIN_MEASUREMENTS
+from .calibration.result import AMBIGUITY_CHI2, AxisConsistency, CalibrationResult, MeasurementReport
+from .calibration.tuning import MAX_CONSISTENCY_SCALE, MAX_RELATIVE_SIGMA, MAX_SIGMA_DEG, RESTART_P
 
 
 def summary(result: CalibrationResult) -> str:

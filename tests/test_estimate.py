@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from gtsam_rotid import Camera, Dataset, InputError, Measurement, Track, estimate, simulate
+from gtsam_rotid.calibration import initial, lm, stage1, stage2
+from gtsam_rotid.calibration import joint as joint_stage
 from gtsam_rotid.estimate import CalibrationError, CalibrationOptions, CalibrationResult, calibrate, initial_pose
 from gtsam_rotid.graph import Model, track_huber
 from gtsam_rotid.report import make_report
@@ -100,7 +102,8 @@ def test_noisy_error_within_reported_uncertainty(noisy_scene, method):
 def test_joint_is_at_least_as_precise_as_weighted(noisy_scene, monkeypatch):
     # the two graphs' information under one noise model: stage 1's jackknife (which replaces a line's linearised
     # covariance where the fit is far from quadratic) reaches the two through different projections, so it is off
-    monkeypatch.setattr(estimate, "_jackknife", lambda builder, measurement, k, pose, prepared, s, options: s)
+    for module in (stage1, stage2):  # each stage that calls it holds its own name for it
+        monkeypatch.setattr(module, "_jackknife", lambda builder, measurement, k, pose, prepared, s, options: s)
     dataset, _ = noisy_scene
     joint, weighted = calibrate(dataset, method="joint"), calibrate(dataset, method="weighted")
     assert np.all(np.diag(joint.covariance) <= 1.05 * np.diag(weighted.covariance))
@@ -307,7 +310,8 @@ def test_errors_shared_along_a_track_widen_the_covariance(method, monkeypatch):
     dataset, truth = simulate.reference_scene(seed=3, noise_var=0.04, duration=10.0, n_features=60)
     biased = calibrate(with_track_offsets(dataset, 0.2, seed=7), method=method, options=options)
     white = calibrate(dataset, method=method, options=options)
-    monkeypatch.setattr(estimate, "_track_correlation", lambda factor, values, sigma2=1.0: np.zeros((3, 3)))
+    for module in (stage1, joint_stage):
+        monkeypatch.setattr(module, "_track_correlation", lambda factor, values, sigma2=1.0: np.zeros((3, 3)))
     white_model = calibrate(dataset, method=method, options=options)
     # white pixel noise: the scores agree with the white-noise information (the noise model is the floor)
     ratio = generalised_eigenvalues(white.covariance, white_model.covariance)
@@ -335,13 +339,13 @@ class _TracksOf:
 def test_a_track_that_holds_a_direction_alone_does_not_blow_up_the_cluster_robust_covariance():
     """CR2 divides a track's score by sqrt(1 - leverage); a track whose leverage reaches 1 (or passes it, when the
     other tracks' information is not positive semi-definite) must not turn rounding noise into an unbounded
-    covariance: the correction is capped (estimate.MAX_TRACK_LEVERAGE), at most sqrt(10) on a score."""
+    covariance: the correction is capped (calibration.tuning.MAX_TRACK_LEVERAGE), at most sqrt(10) on a score."""
     rng = np.random.default_rng(0)
     information = np.array([np.diag([1.0, 1.0, 1.0]) for _ in range(8)])
     information[0, 2, 2] = 12.0     # track 0 holds the third direction: leverage 12 / 10 > 1
     information[1, 2, 2] = -8.0     # (a per-track information that is not positive semi-definite)
     scores = rng.standard_normal((8, 3))
-    D = estimate._track_correlation(_TracksOf(information, scores), None)
+    D = stage1._track_correlation(_TracksOf(information, scores), None)
     H = information.sum(axis=0)
     whiten = np.diag(1.0 / np.sqrt(np.diag(H)))
     raw = whiten @ (scores.T @ scores) @ whiten                    # the meat without any leverage correction
@@ -565,10 +569,10 @@ def test_jackknife_holds_the_line_covariance_where_the_linearisation_does_not():
     the jackknifed one holds on every direction."""
     clean, truth = simulate.reference_scene(seed=11, noise_var=0.0, duration=12.0)
     k, options = 3, estimate.CalibrationOptions()
-    _, setup, _ = estimate._initial(clean.arm, clean.camera, list(clean), options, list(range(len(clean))))
-    builders = [estimate._builder(clean.arm, clean.camera, options, model=Model.PROJECTED, robust=track_huber),
-                estimate._builder(clean.arm, clean.camera, options, robust=track_huber)]
-    start = estimate._start_line(clean.camera, setup.axes[k], setup.lines[k], truth.arm_T_camera)
+    _, setup, _ = initial._initial(clean.arm, clean.camera, list(clean), options, list(range(len(clean))))
+    builders = [lm._builder(clean.arm, clean.camera, options, model=Model.PROJECTED, robust=track_huber),
+                lm._builder(clean.arm, clean.camera, options, robust=track_huber)]
+    start = stage1._start_line(clean.camera, setup.axes[k], setup.lines[k], truth.arm_T_camera)
     rng = np.random.default_rng(1)
     fits = []
     for _ in range(30):
@@ -576,8 +580,8 @@ def test_jackknife_holds_the_line_covariance_where_the_linearisation_does_not():
             Track(np.asarray(t.pixels) + rng.normal(0.0, np.sqrt(1.5), np.shape(t.pixels)), frames=t.frames)
             for t in clean[k].tracks])
         prepared = builders[0].prepare(noisy, k)
-        s = estimate._stage1_measurement(builders, noisy, k, truth.arm_T_camera, prepared, options, start)
-        fits.append((s, estimate._jackknife(builders[0], noisy, k, truth.arm_T_camera, prepared, s, options)))
+        s = stage1._stage1_measurement(builders, noisy, k, truth.arm_T_camera, prepared, options, start)
+        fits.append((s, stage1._jackknife(builders[0], noisy, k, truth.arm_T_camera, prepared, s, options)))
     offsets = np.array([gtsam.Rot3.Logmap(fits[0][0].rotation.between(s.rotation)) for s, _ in fits])
     offsets -= offsets.mean(axis=0)
 

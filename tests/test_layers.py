@@ -15,7 +15,7 @@ LAYERS = {
     "camera": 2, "arm": 2, "dataset": 2,
     "tracking": 3, "corners": 3, "patterns": 3, "render": 3, "meshrender": 3, "simulate": 3, "recordings": 3,
     "graph": 4, "initialise": 4, "uncertainty": 4,
-    "estimate": 5, "fits": 5,
+    "calibration": 5, "estimate": 5, "fits": 5,
     "report": 6, "words": 6, "plots": 6, "export": 6, "pixels": 6,
     "cli": 7, "demo": 7, "__main__": 7, "__init__": 8,
 }
@@ -24,9 +24,10 @@ KNOWN_UPWARD: set[tuple[str, str]] = set()
 KNOWN_ARGPARSE: set[str] = set()
 
 
-def _imports(path: Path, relative: bool = True) -> tuple[set[str], bool]:
+def _imports(path: Path, relative: bool = True, depth: int = 1) -> tuple[set[str], bool]:
     """The package modules ``path`` imports (at any depth of its code), and whether it imports argparse;
-    ``relative``: its relative imports name gtsam_rotid's modules (not those of ``factors/``)."""
+    ``relative``: its relative imports name gtsam_rotid's modules (not those of ``factors/``); ``depth``: the
+    relative level that names them (2 inside a sub-package, whose own level-1 imports stay inside it)."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
     found, argparse = set(), False
     for node in ast.walk(tree):
@@ -40,7 +41,7 @@ def _imports(path: Path, relative: bool = True) -> tuple[set[str], bool]:
                     found.add("factors")
         elif isinstance(node, ast.ImportFrom):
             module = node.module or ""
-            if node.level == 1 and relative:
+            if node.level == depth and relative:
                 found.update([module.split(".")[0]] if module else [a.name for a in node.names])
             elif module.startswith("gtsam_rotid."):
                 found.add(module.split(".")[1])
@@ -54,6 +55,10 @@ def _imports(path: Path, relative: bool = True) -> tuple[set[str], bool]:
 
 def _graph() -> dict[str, tuple[set[str], bool]]:
     graph = {p.stem: _imports(p) for p in sorted((ROOT / "gtsam_rotid").glob("*.py"))}
+    for package in sorted(p.parent for p in (ROOT / "gtsam_rotid").glob("*/__init__.py")):
+        # a sub-package is one node: what its modules import from the rest of gtsam_rotid
+        parts = [_imports(p, depth=2) for p in sorted(package.glob("*.py"))]
+        graph[package.name] = (set().union(*(d for d, _ in parts)) - {package.name}, any(a for _, a in parts))
     factors = [_imports(p, relative=False) for p in sorted((ROOT / "factors").glob("*.py"))]
     graph["factors"] = (set().union(*(f[0] for f in factors)) - {"factors"}, any(f[1] for f in factors))
     return graph

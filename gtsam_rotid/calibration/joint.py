@@ -1,0 +1,292 @@
+"""The joint estimator: every track's circle factors and the projected-axis ties in one graph on the pose, its
+sandwich covariance, restarts, and the rigid-spin model.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from ..dataset import Track
+from ..errors import RotIdError
+from ..factors import (
+    chunk_segments,
+    closest_phases,
+    image_line_from_rot3,
+    initial_spin,
+    make_axis_to_line_variable_factor,
+    make_circle_point_factor,
+    make_rigid_circle_factor,
+    spin_priors,
+)
+from ..factors.rigid import DEFAULT_CHUNK_SIZE
+from ..graph import (
+    CIRCLE_STRIDE,
+    Model,
+    axis_test_points,
+    chi2_quantile,
+    tie_noise_model,
+    track_huber,
+)
+from ..uncertainty import (
+    pose_information,
+    sandwich_marginal,
+)
+from .lm import _builder, _graph_dof, _lm, _turned
+from .options import CalibrationError, Method, SpinModel
+from .result import CalibrationResult
+from .setup import joint_tie_covariance
+from .stage1 import _circles, _noise_variance, _track_correlation, _track_stats
+from .stage2 import (
+    _axis_consistency,
+    _finish,
+    _reports,
+    _robust_weighted,
+    _second_opinion,
+    _tied_circles,
+    _weighted_stage2,
+)
+from .tuning import MIN_STRONG, POSE_KEY, RESTART_LEAVE_OUT, RESTART_P, RESTART_SAME_M, SAME_ANGLE_DEG, WATCH_POSE
+
+
+def _opinion(arm, camera, measurements, setup, stage1, options):
+    return lambda k, pose: _second_opinion(arm, camera, measurements, setup, stage1, k, pose, options)
+
+
+def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
+    pose, iterations, graph, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options, anchor,
+                                                           _opinion(arm, camera, measurements, setup, stage1, options))
+    values = gtsam.Values()
+    values.insert(POSE_KEY, pose)
+    sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
+    tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
+    reports = _reports(stage1, setup, sigmas, used, options, chi2, tied)
+    consistency = _axis_consistency(camera, setup, stage1, used, pose, {k: stage1[k].sigma2 for k in used}, options)
+    return _finish(pose, None, pose_information(graph, values, POSE_KEY), Method.WEIGHTED, True, iterations,
+                   graph.error(values), reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(graph, values),
+                   consistency=consistency)
+
+
+def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
+    """One graph: every circle-point factor (Huber per track) tied to the pose; Marginals of the whole graph.
+
+    It starts from the weighted two-stage pose, within the joint problem's basin (from a few degrees off,
+    circles of short arcs can run off to degenerate solutions that LM cannot leave), with the circles
+    fitted at that pose (``"line"`` model: the stage-1 lines and circles, see RotIdGraph.add_measurement).
+    """
+    pose, iterations, _, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options, anchor,
+                                                       _opinion(arm, camera, measurements, setup, stage1, options))
+    result = _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used, chi2, options)
+    if result.axis_consistency is None or result.axis_consistency.p_value >= RESTART_P:
+        return result
+    weak_used = [k for k in used if k in setup.weak]
+    if weak_used and len([k for k in used if k not in setup.weak]) >= MIN_STRONG:
+        # the axes disagree and weak measurements take part: fit the strong ones alone (the weak are named)
+        pose, it, _, used, chi2 = _robust_weighted(camera, setup, stage1, pose, options, anchor,
+                                                   _opinion(arm, camera, measurements, setup, stage1, options),
+                                                   drop_weak=True)
+        result = _joint_fit(arm, camera, measurements, setup, stage1, pose, result.iterations + it, used, chi2,
+                            options)
+        if result.axis_consistency is None or result.axis_consistency.p_value >= RESTART_P:
+            return result
+    return _restarted(arm, camera, measurements, setup, stage1, result, used, chi2, options, anchor)
+
+
+def _restarted(arm, camera, measurements, setup, stage1, result, used, chi2, options, anchor) -> CalibrationResult:
+    """When the measurements disagree with the joint estimate far beyond their noise, the estimate may be a local
+    minimum that weak measurements (few tracks, short arcs) led stage 2 into: fit again from the stage-2 pose
+    without each measurement in turn, and keep the fit of lowest chi-square on the same tracks (then re-test the
+    measurements left out, which a wrong estimate blames)."""
+    candidates = [result]
+    worst = sorted(used, key=lambda k: -chi2.get(k, 0.0))[:RESTART_LEAVE_OUT]
+    for k in worst:
+        rest = [i for i in used if i != k]
+        start, _, _ = _weighted_stage2(camera, setup, stage1, rest, result.arm_T_camera, options, anchor)
+        if _turned(start, result.arm_T_camera) < np.radians(SAME_ANGLE_DEG) and np.linalg.norm(
+                start.translation() - result.arm_T_camera.translation()) < RESTART_SAME_M:
+            continue
+        try:
+            candidates.append(_joint_fit(arm, camera, measurements, setup, stage1, start, 0, used, chi2, options))
+        except (CalibrationError, RotIdError, RuntimeError):
+            continue
+    if len(candidates) > 1:
+        costs = _common_chi2(arm, camera, measurements, setup, candidates, options)[0]
+        best = candidates[int(np.argmin(costs))]
+    else:
+        best = candidates[0]
+    iterations = sum(c.iterations for c in candidates)
+    left_out = [k for k in range(len(stage1)) if k not in used and k not in setup.dropped]
+    opinions = {k: _second_opinion(arm, camera, measurements, setup, stage1, k, best.arm_T_camera, options)
+                for k in left_out}
+    back = [k for k, (_, statistic) in opinions.items() if statistic <= options.outlier_measurement_chi2]
+    if back:
+        chi2 = dict(chi2)
+        for k in back:
+            refit, chi2[k] = opinions[k]
+            if refit is not None:
+                stage1[k] = refit
+        try:
+            best = _joint_fit(arm, camera, measurements, setup, stage1, best.arm_T_camera, 0, sorted(used + back),
+                              chi2, options)
+        except (CalibrationError, RotIdError, RuntimeError):
+            pass
+        iterations += best.iterations
+    best.iterations = iterations
+    return best
+
+
+def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used, chi2, options) -> CalibrationResult:
+    """The joint graph of the measurements ``used`` from ``pose`` (see :func:`_joint`)."""
+    builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model)
+    sigmas = {k: float(np.sqrt(stage1[k].sigma2)) for k in used}
+    circles = {k: None if builder.model is Model.POSE else dict(stage1[k].circles) for k in used}
+    lines = {k: stage1[k].rotation for k in used}
+    converged = True
+    for _round in range(3):
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        values.insert(POSE_KEY, pose)
+        keys = {k: builder.add_measurement(graph, values, k, measurements[k], track_sigmas=dict.fromkeys(
+                    setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
+                    prepared=setup.prepared[k], initial_circles=circles[k], initial_line=lines[k],
+                    refine_circles=circles[k] is None, tie_covariance=joint_tie_covariance(
+                        camera, setup.axes[k], stage1[k].line, pose, setup.noise(k))) for k in used}
+        start_pose = pose
+        result, it, error, converged = _lm(
+            graph, values, options.max_iterations, anchor=True, watch_tolerance=WATCH_POSE,
+            watch=lambda v, start_pose=start_pose: start_pose.localCoordinates(v.atPose3(POSE_KEY)))
+        iterations += it
+        pose = result.atPose3(POSE_KEY)
+        new_sigmas = {k: float(np.sqrt(_noise_variance(_track_stats(graph, keys[k], result), 1, options)))
+                      for k in used}
+        failed = [setup.index[k] if setup.index else k for k in used if not np.isfinite(new_sigmas[k])]
+        if failed:
+            raise CalibrationError(f"the joint fit failed: the circles of measurement(s) {failed} have no finite "
+                                   "residuals at the estimate (too little evidence: few tracks or short arcs)")
+        circles = {k: dict(zip(keys[k].tracks, _circles(keys[k], result), strict=True)) for k in used}
+        lines = {k: None if keys[k].line is None else result.atRot3(keys[k].line) for k in used}
+        stable = all(abs(new_sigmas[k] / sigmas[k] - 1.0) < 0.05 for k in used)
+        sigmas = new_sigmas
+        if stable:
+            break
+    info = pose_information(graph, result, POSE_KEY)
+    tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
+    reports = _reports(stage1, setup, sigmas, used, options, chi2, tied)
+    variances = {k: sigmas[k] ** 2 for k in used}
+    if options.spin_model is SpinModel.RIGID and builder.model is not Model.POSE:
+        rigid = _rigid_spin(camera, measurements, setup, keys, result, sigmas, options)
+        if rigid is not None:
+            pose, covariance, it, error, converged = rigid
+            # the free-phase information is the one whose eigen-analysis names undetermined directions; the
+            # rigid graph is too large for a dense Schur complement and has the same null directions
+            return _finish(pose, covariance, info, Method.JOINT, converged, iterations + it, error, reports,
+                           np.median(list(sigmas.values())),
+                           consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options))
+    try:
+        covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
+    except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
+        covariance = None
+    # plus the jackknife's excess of each line (a variance in units of its pixel noise: information H E H)
+    correlated = {keys[k].line: _track_correlation(keys[k].coaxial, result)
+                  + stage1[k].rotation_info @ stage1[k].excess @ stage1[k].rotation_info / sigmas[k] ** 2
+                  for k in used if keys[k].coaxial is not None}
+    if covariance is not None and correlated:  # errors shared along a track: the cluster-robust covariance
+        robust = sandwich_marginal(graph, result, POSE_KEY, 6, correlated)
+        covariance = covariance if robust is None else robust
+    return _finish(pose, covariance, info, Method.JOINT, converged, iterations, error, reports,
+                   np.median(list(sigmas.values())), dof=_graph_dof(graph, result),
+                   consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options))
+
+
+def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options):
+    """The joint graph with the rigid spin (docs/design.md §4), started from the free-phase joint solution ``free``.
+
+    Every track with frame indices gets a (d, r, phi0) variable and 2-D reprojection factors (one per
+    two-chunk segment, Huber per segment) at phase ``theta_f + phi0``, the spin angles ``theta_f`` being
+    shared by the measurement's tracks; tracks without frames keep their free-phase factor. Returns
+    (pose, covariance or None, iterations, error, converged), or None when no track has frames.
+    """
+    K = camera.K
+    C = DEFAULT_CHUNK_SIZE
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(POSE_KEY, free.atPose3(POSE_KEY))
+    rigid_tracks = 0
+    for k, keys_k in keys.items():
+        R = free.atRot3(keys_k.line)
+        values.insert(keys_k.line, R)
+        tie_cov = joint_tie_covariance(camera, setup.axes[k], image_line_from_rot3(K, R)[0], free.atPose3(POSE_KEY),
+                                       setup.noise(k))
+        graph.add(make_axis_to_line_variable_factor(tie_noise_model(options.tie_sigma_px, tie_cov),
+                                                    POSE_KEY, keys_k.line, axis_test_points(setup.axes[k]), K))
+        spun = []
+        for j, (d, r) in zip(keys_k.tracks, _circles(keys_k, free), strict=True):
+            circle_key = gtsam.symbol("c", k * CIRCLE_STRIDE + j)
+            ideal = setup.prepared[k].usable[j].ideal
+            frames = Track.from_any(measurements[k].tracks[j]).frames
+            if frames is None:
+                values.insert(circle_key, np.array([d, r]))
+                noise = gtsam.noiseModel.Robust.Create(track_huber(len(ideal)),
+                                                       gtsam.noiseModel.Isotropic.Sigma(len(ideal), sigmas[k]))
+                graph.add(make_circle_point_factor(noise, keys_k.line, circle_key, ideal, K))
+                continue
+            spun.append((j, d, r, ideal, frames, closest_phases(K, R, d, r, ideal)))
+        if not spun:
+            continue
+        rigid_tracks += len(spun)
+        first = int(min(t[4].min() for t in spun))
+        init = initial_spin([(t[4], t[5]) for t in spun], C, first)
+
+        def chunk_key(c, k=k):
+            return gtsam.symbol("s", k * CIRCLE_STRIDE + int(c))
+
+        track_keys = [gtsam.symbol("t", k * CIRCLE_STRIDE + t[0]) for t in spun]
+        for c, theta in init.theta.items():
+            values.insert(chunk_key(c), np.asarray(theta, dtype=float))
+        for i, (_, d, r, ideal, frames, _) in enumerate(spun):
+            values.insert(track_keys[i], np.array([d, r, init.phi0[i]]))
+            for idx in chunk_segments(frames, C, 2, first):
+                n = 2 * len(idx)
+                noise = gtsam.noiseModel.Robust.Create(
+                    gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(chi2_quantile(n))),
+                    gtsam.noiseModel.Isotropic.Sigma(n, sigmas[k]))
+                graph.add(make_rigid_circle_factor(noise, keys_k.line, track_keys[i], chunk_key, ideal[idx],
+                                                   frames[idx], K, C, first))
+        for prior in spin_priors(init, chunk_key, track_keys):
+            graph.add(prior)
+    if rigid_tracks == 0:
+        return None
+    result, iterations, error, converged = _lm(graph, values, options.max_iterations, anchor=True)
+    try:
+        covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
+    except RuntimeError:
+        covariance = None
+    return result.atPose3(POSE_KEY), covariance, iterations, error, converged
+
+
+def _common_chi2(arm, camera, measurements, setup, results: list[CalibrationResult],
+                 options) -> tuple[np.ndarray, list[gtsam.Pose3]]:
+    """Chi-square and pose of each result re-solved (from its pose) on one joint graph: the measurements and tracks
+    that none of ``results`` rejected, each measurement at the smallest of their pixel sigmas."""
+    used = [k for k in range(len(measurements)) if not any(r.measurements[k].outlier for r in results)]
+    sigmas = {k: max(min(r.measurements[k].residual_rms_px for r in results), options.min_sigma_px) for k in used}
+    skip = {k: set().union(*(r.measurements[k].rejected_tracks for r in results)) for k in used}
+    builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model)
+    chi2, poses = [], []
+    for r in results:
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        values.insert(POSE_KEY, r.arm_T_camera)
+        try:
+            for k in used:
+                builder.add_measurement(graph, values, k, measurements[k], skip_tracks=skip[k],
+                                        track_sigmas=dict.fromkeys(setup.prepared[k].usable, sigmas[k]),
+                                        prepared=setup.prepared[k], tie_covariance=joint_tie_covariance(
+                                            camera, setup.axes[k], None, r.arm_T_camera, setup.noise(k)))
+        except RotIdError:  # this pose cannot carry those tracks (e.g. an ellipse behind the camera)
+            chi2.append(np.inf)
+            poses.append(r.arm_T_camera)
+            continue
+        start = r.arm_T_camera
+        solved, _, error, _ = _lm(graph, values, options.max_iterations, anchor=True, watch_tolerance=WATCH_POSE,
+                                  watch=lambda v, start=start: start.localCoordinates(v.atPose3(POSE_KEY)))
+        chi2.append(2.0 * error)
+        poses.append(solved.atPose3(POSE_KEY))
+    return np.array(chi2), poses

@@ -1,0 +1,127 @@
+"""What a calibration is asked to do: the method, the spin model, the solver settings (validated), and the error
+raised when it cannot be done.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+
+from ..errors import InputError, RotIdError
+from ..graph import (
+    MIN_TRACK_EXTENT_PX,
+    MIN_TRACK_POINTS,
+    Model,
+)
+
+MIN_MEASUREMENTS = 3
+#: Fewest tracks (all measurements) from which stage 1 estimates how much their noise levels differ.
+MIN_TRACKS_FOR_SPREAD = 8
+
+
+class Method(StrEnum):
+    PAPER = "paper"
+    WEIGHTED = "weighted"
+    JOINT = "joint"
+
+
+class SpinModel(StrEnum):
+    """How the phases of one spin's features are modelled (``CalibrationOptions.spin_model``)."""
+
+    #: a free phase per observation
+    FREE = "free"
+    #: one wrist angle per frame and one phase per track (tracks with frame indices, line model only)
+    RIGID = "rigid"
+
+
+def _choice(enum: type[StrEnum], name: str, value) -> StrEnum:
+    """``value`` as a member of ``enum``, or an InputError naming the option and its choices."""
+    try:
+        return enum(value)
+    except ValueError:
+        raise InputError(f"CalibrationOptions.{name} must be one of {', '.join(repr(m.value) for m in enum)}, got "
+                         f"{value!r}") from None
+
+
+class CalibrationError(RotIdError, RuntimeError):
+    """The optimisation could not produce a trustworthy estimate (e.g. every start ended in a poor minimum)."""
+
+
+@dataclass
+class CalibrationOptions:
+    """Solver settings; the defaults suit the reference scene."""
+
+    max_iterations: int = 100
+    #: Pose candidates from the SO(3) grid refined by LM.
+    n_candidates: int = 5
+    #: Extra random restarts around the best start (the paper's method).
+    restarts: int = 5
+    seed: int = 0
+    min_track_points: int = MIN_TRACK_POINTS
+    #: Tracks whose pixels span less than this image extent (px) are rejected (a few degrees of arc).
+    min_track_extent_px: float = MIN_TRACK_EXTENT_PX
+    #: A track whose residual RMS exceeds this multiple of its measurement's median track RMS is rejected.
+    outlier_track_ratio: float = 3.0
+    #: ...or whose chi-square (at the median track RMS) exceeds the upper quantile at this normal z
+    #: (3.09: the 99.9 % point).
+    outlier_track_z: float = 3.09
+    #: A measurement whose residual scale exceeds this multiple of the median is reported as an outlier.
+    outlier_measurement_ratio: float = 3.0
+    #: A measurement whose stage-1 image axis and the FK axis projected by the estimate disagree beyond this
+    #: chi-square (2 dof) value is an outlier (e.g. a wrong joint reading) and is left out (weighted, joint).
+    outlier_measurement_chi2: float = 30.0
+    #: Initial stage-2 RMS (px) above which the start is declared a poor minimum.
+    max_initial_rms_px: float = 25.0
+    tie_sigma_px: float = 1e-3
+    #: Joint method: ``"free"`` phase per observation, or ``"rigid"`` spin (one wrist angle per frame and one
+    #: phase per track, docs/design.md §4; for tracks with frame indices, line model only). Rigid is slower.
+    spin_model: str = "free"
+    #: LM stops when the relative decrease of the error falls below these (stage 1; everything else).
+    stage1_tolerance: float = 1e-8
+    #: Joint graph: ``"projected"`` (docs/design.md §4's line variables with a projected-axis tie, the circles
+    #: projected out inside one factor per measurement), ``"line"`` (the same with a circle variable per track:
+    #: the same solution, ~5x slower) or ``"pose"`` (circles bound to the pose through the FK axis; biased tilt
+    #: with free phases), see :class:`gtsam_rotid.graph.Model`.
+    joint_model: str = "projected"
+    #: Features farther than this (m, median over tracks) from the wrist axis are not on an end effector: an
+    #: estimate that implies them is a poor minimum (typically a camera put metres away by wrong joint angles).
+    max_feature_radius_m: float = 0.5
+    #: Floor of the estimated pixel noise (px), so noise-free data keeps finite weights.
+    min_sigma_px: float = 1e-3
+    #: weighted, joint: when the measurements' image axes disagree with the FK axes projected by the estimate
+    #: beyond this upper-tail probability, the covariance is scaled by their chi-square over (dof - 2) (the mean
+    #: of the understatement given the scatter; see :class:`AxisConsistency`). 0 disables the scaling (the test is
+    #: still reported). None (default): 0.01, or SHORT_ARC_CONSISTENCY_P where some measurement has no arc of
+    #: WEAK_ARC_DEG (see ``_calibrate``).
+    axis_consistency_p: float | None = None
+    #: weighted, joint: standard deviation (deg) of each joint-angle reading, independent per joint and per arm
+    #: pose (encoder noise, backlash). It moves the FK wrist axis; the projected-axis ties and the stage-2 weights
+    #: include that uncertainty (propagated through the kinematics). 0: the kinematics are taken as exact.
+    joint_sigma_deg: float = 0.0
+
+    def __post_init__(self):
+        # a misspelt choice ("rigd") must not silently run the default
+        self.spin_model = _choice(SpinModel, "spin_model", self.spin_model)
+        self.joint_model = _choice(Model, "joint_model", self.joint_model)
+        for name in ("max_iterations", "n_candidates", "min_track_points"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise InputError(f"CalibrationOptions.{name} must be an integer >= 1, got {value!r}")
+        for name in ("restarts", "seed"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+                raise InputError(f"CalibrationOptions.{name} must be an integer >= 0, got {value!r}")
+        for name in ("min_track_extent_px", "outlier_track_ratio", "outlier_track_z", "outlier_measurement_ratio",
+                     "outlier_measurement_chi2", "max_initial_rms_px", "tie_sigma_px", "stage1_tolerance",
+                     "max_feature_radius_m", "min_sigma_px"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float | np.number) or not np.isfinite(value) \
+                    or value < 0:
+                raise InputError(f"CalibrationOptions.{name} must be a finite number >= 0, got {value!r}")
+        if self.axis_consistency_p is not None and not 0.0 <= self.axis_consistency_p < 1.0:
+            raise InputError(f"CalibrationOptions.axis_consistency_p must be in [0, 1), got {self.axis_consistency_p}")
+        if not (np.isfinite(self.joint_sigma_deg) and self.joint_sigma_deg >= 0.0):
+            raise InputError(f"CalibrationOptions.joint_sigma_deg must be a finite value >= 0 (deg), got "
+                             f"{self.joint_sigma_deg}")

@@ -1,0 +1,235 @@
+"""What a calibration returns: the pose, its covariance and the evidence behind them, as data (the words are in
+:mod:`gtsam_rotid.words`); saved and loaded as JSON.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field
+
+import gtsam
+import numpy as np
+
+from ..errors import InputError
+from ..files import write_json
+from ..uncertainty import (
+    Observability,
+)
+
+
+@dataclass
+class MeasurementReport:
+    index: int
+    n_tracks: int
+    n_points: int
+    residual_rms_px: float
+    weight: float  # 1 / sigma^2 applied to its pixels (joint) or its line (two-stage), relative to the median
+    outlier: bool
+    rejected_tracks: dict[int, str] = field(default_factory=dict)
+    #: why the measurement is an outlier ("" when it is not)
+    outlier_reason: str = ""
+    #: the FK wrist axis of this arm pose (arm frame, m): a point on it and its unit direction
+    axis_point: list[float] | None = None
+    axis_direction: list[float] | None = None
+    #: the stage-1 image axis (homogeneous line, ``l1^2 + l2^2 = 1``, ideal pixels)
+    image_axis: list[float] | None = None
+    #: chi-square (2 dof) of its image axis against the FK axis projected by the estimate (weighted and joint)
+    axis_chi2: float | None = None
+    #: the longest arc among its kept tracks (deg, about its fitted circle: :func:`circle_arc_span_deg`; about the
+    #: track's own ellipse for a measurement left out before stage 1); None when unknown
+    arc_span_deg: float | None = None
+    #: too little evidence for a Gaussian image axis: fewer than WEAK_TRACKS kept tracks, or fewer than
+    #: WEAK_MANY_TRACKS and no arc of WEAK_ARC_DEG
+    weak: bool = False
+
+
+@dataclass
+class Alternative:
+    """Another ``arm_T_camera`` that the estimator found to explain the data (a distinct local minimum).
+
+    ``delta_chi2`` is its chi-square minus the estimate's, both on the same tracks and pixel noise (the joint
+    graph, re-solved from each): ``2 ln`` of the likelihood ratio in favour of the estimate.
+    """
+
+    arm_T_camera: gtsam.Pose3
+    delta_chi2: float
+
+    def to_dict(self) -> dict:
+        return {"arm_T_camera": self.arm_T_camera.matrix().tolist(), "delta_chi2": self.delta_chi2}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Alternative:
+        return cls(gtsam.Pose3(np.array(data["arm_T_camera"])), float(data["delta_chi2"]))
+
+
+@dataclass
+class AxisConsistency:
+    """Do the measurements' rotation axes agree with one ``arm_T_camera`` as closely as their pixel noise says?
+
+    ``chi2`` sums, over the measurements used, the chi-square (2 dof) of each stage-1 image axis against the FK
+    axis projected by the estimate, at the line covariance the fit assumed (pixel noise from the residuals,
+    cluster-robust over tracks); ``dof`` is ``2 n - 6``. Errors the per-track noise model does not describe
+    (a sub-pixel bias the tracker shares across a measurement's tracks, joint-angle or kinematic errors, wrong
+    intrinsics) move whole axes and show here, while every pixel residual looks white. When the test fails
+    (``p_value`` < ``CalibrationOptions.axis_consistency_p``) the axes' covariance is taken to be understated by a
+    common factor k, which their scatter measures, and the covariance is multiplied by ``scale`` =
+    ``chi2 / (dof - 2)``: the mean of k given the scatter (chi2 ~ k chi2(dof), Jeffreys prior 1/k: an inverse-gamma
+    posterior). It is the Birge ratio ``chi2 / dof`` (as the Particle Data Group scales inconsistent measurements)
+    times ``dof / (dof - 2)``: with k estimated from ``dof`` degrees of freedom the error is Student-t, not Gaussian,
+    and this is the Gaussian with its second moment (with six measurements, 6 dof, the Birge ratio alone leaves the
+    error's chi-square 1.5x its dof on average). With 2 dof (four measurements) k's mean is unbounded: the scale is
+    then the Birge ratio and the result is not trusted (``CalibrationResult.untrusted``: ``unmeasured_scatter``).
+    """
+
+    chi2: float
+    dof: int
+    p_value: float
+    #: the covariance was multiplied by this (1: consistent, or not scaled)
+    scale: float
+
+    @property
+    def consistent(self) -> bool:
+        return self.scale == 1.0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> AxisConsistency:
+        return cls(float(data["chi2"]), int(data["dof"]), float(data["p_value"]), float(data["scale"]))
+
+
+#: An alternative whose chi-square exceeds the estimate's by less than this (likelihood ratio 1000:1) makes the
+#: calibration ambiguous: the data cannot tell the two apart.
+AMBIGUITY_CHI2 = 2.0 * np.log(1000.0)
+
+
+@dataclass
+class CalibrationResult:
+    """``arm_T_camera`` (camera pose in the arm-base frame) with its covariance and diagnostics."""
+
+    arm_T_camera: gtsam.Pose3
+    covariance: np.ndarray  # 6x6, Pose3 tangent: rotation (rad) then translation (m, camera frame)
+    method: str
+    converged: bool
+    iterations: int
+    final_error: float
+    measurements: list[MeasurementReport]
+    observability: Observability
+    sigma_px: float  # pixel noise estimated from the residuals
+    #: residual degrees of freedom of ``final_error``'s graph (residuals minus parameters); 2 * final_error is
+    #: its chi-square at the noise the graph assumed
+    dof: int | None = None
+    #: other local minima the estimator examined (several starts), with how much worse they fit
+    alternatives: list[Alternative] = field(default_factory=list)
+    #: weighted, joint: the test of the axes against one pose, and the covariance scale it applied
+    axis_consistency: AxisConsistency | None = None
+    #: the joint-angle sigma (deg) propagated into the covariance (CalibrationOptions.joint_sigma_deg); 0: the
+    #: kinematics were taken as exact (always so for ``paper``)
+    joint_sigma_deg: float = 0.0
+    #: why the covariance cannot be trusted although the poses determine the calibration (kind -> measurement
+    #: indices involved); see :data:`UNTRUSTED_KINDS` and :func:`gtsam_rotid.words.untrusted_words`
+    untrusted: dict[str, list[int]] = field(default_factory=dict)
+
+    @property
+    def ambiguous(self) -> bool:
+        """True when another, distinct pose fits the data almost as well (see :data:`AMBIGUITY_CHI2`)."""
+        return any(a.delta_chi2 < AMBIGUITY_CHI2 for a in self.alternatives)
+
+    @property
+    def covariance_usable(self) -> bool:
+        return self.observability.is_observable and not self.ambiguous and not self.untrusted
+
+    @property
+    def sigma_deg(self) -> np.ndarray:
+        """1σ of the rotation (roll, pitch, yaw about the camera axes), degrees."""
+        return np.degrees(np.sqrt(np.diag(self.covariance)[:3]))
+
+    @property
+    def sigma_mm(self) -> np.ndarray:
+        """1σ of the translation, mm, in the camera frame (GTSAM's tangent)."""
+        return 1000.0 * np.sqrt(np.diag(self.covariance)[3:])
+
+    @property
+    def sigma_mm_arm(self) -> np.ndarray:
+        """1σ of the camera position in the arm-base frame, mm."""
+        R = self.arm_T_camera.rotation().matrix()
+        return 1000.0 * np.sqrt(np.diag(R @ self.covariance[3:, 3:] @ R.T))
+
+    def error_to(self, arm_T_camera_true: gtsam.Pose3) -> np.ndarray:
+        """Tangent-space error (rotation rad, translation m) of this estimate against a reference pose."""
+        return arm_T_camera_true.localCoordinates(self.arm_T_camera)
+
+    def to_dict(self) -> dict:
+        return {
+            "format": "gtsam_rotid.calibration",
+            "version": 1,
+            "method": self.method,
+            "arm_T_camera": self.arm_T_camera.matrix().tolist(),
+            "covariance": self.covariance.tolist(),
+            "covariance_order": "Pose3 tangent: rx, ry, rz (rad), tx, ty, tz (m, camera frame)",
+            "covariance_usable": self.covariance_usable,
+            "sigma_mm_arm": self.sigma_mm_arm.tolist(),
+            "sigma_deg": self.sigma_deg.tolist(),
+            "converged": self.converged,
+            "iterations": self.iterations,
+            "final_error": self.final_error,
+            "sigma_px": self.sigma_px,
+            "dof": self.dof,
+            "measurements": [
+                {**asdict(m), "rejected_tracks": {str(k): v for k, v in m.rejected_tracks.items()},
+                 "residual_rms_px": m.residual_rms_px if np.isfinite(m.residual_rms_px) else None}
+                for m in self.measurements
+            ],
+            "observability": self.observability.to_dict(),
+            "ambiguous": self.ambiguous,
+            "alternatives": [a.to_dict() for a in self.alternatives],
+            "axis_consistency": None if self.axis_consistency is None else self.axis_consistency.to_dict(),
+            "joint_sigma_deg": self.joint_sigma_deg,
+            "untrusted": self.untrusted,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> CalibrationResult:
+        if data.get("format") != "gtsam_rotid.calibration":
+            raise InputError("not a gtsam_rotid calibration result (missing format marker)")
+        return cls(
+            arm_T_camera=gtsam.Pose3(np.array(data["arm_T_camera"])),
+            covariance=np.array(data["covariance"]),
+            method=data["method"],
+            converged=data["converged"],
+            iterations=data["iterations"],
+            final_error=data["final_error"],
+            sigma_px=data["sigma_px"],
+            dof=data.get("dof"),
+            measurements=[
+                MeasurementReport(**{**m, "rejected_tracks": {int(k): v for k, v in m["rejected_tracks"].items()},
+                                     "residual_rms_px": np.nan if m["residual_rms_px"] is None
+                                     else m["residual_rms_px"]})
+                for m in data["measurements"]
+            ],
+            observability=Observability.from_dict(data["observability"]),
+            alternatives=[Alternative.from_dict(a) for a in data.get("alternatives", [])],
+            axis_consistency=None if data.get("axis_consistency") is None
+            else AxisConsistency.from_dict(data["axis_consistency"]),
+            joint_sigma_deg=float(data.get("joint_sigma_deg", 0.0)),
+            untrusted={str(k): [int(i) for i in v] for k, v in data.get("untrusted", {}).items()},
+        )
+
+    def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
+        write_json(path, self.to_dict(), overwrite, indent=1)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> CalibrationResult:
+        with open(path, encoding="utf-8") as handle:
+            return cls.from_dict(json.load(handle))
+
+
+#: Why a determined calibration's covariance is not trusted (keys of ``CalibrationResult.untrusted``).
+UNTRUSTED_KINDS = {
+    "thin_evidence": "the estimate rests on weak measurements (few tracks or short arcs) that nothing vouches for",
+    "inconsistent": "the measurements disagree far beyond their noise",
+    "too_uncertain": "the uncertainty is too large to be a calibration",
+    "unmeasured_scatter": "the measurements disagree beyond their noise and are too few to measure by how much",
+}

@@ -1,0 +1,187 @@
+"""``calibrate``: the orchestration of the stages for each method, several starts and the choice between them,
+and the reasons not to trust a result.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import gtsam
+import numpy as np
+
+from ..arm import Arm
+from ..camera import Camera
+from ..dataset import Dataset, Measurement
+from ..errors import InputError
+from .initial import _initial
+from .joint import _common_chi2, _joint, _weighted
+from .lm import _builder, _turned
+from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method
+from .result import Alternative, CalibrationResult, MeasurementReport
+from .setup import _Setup, arc_span_deg
+from .stage2 import _check_scale, _paper, _refined_stage1
+from .tuning import (
+    CHI2_6_999,
+    LONG_ARC_CONSISTENCY_P,
+    MAX_CONSISTENCY_SCALE,
+    MAX_RELATIVE_SIGMA,
+    MAX_SIGMA_DEG,
+    RESTART_P,
+    SAME_ANGLE_DEG,
+    SHORT_ARC_CONSISTENCY_P,
+)
+
+
+def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: list[Measurement] | None = None,
+              method: str | Method = Method.JOINT, options: CalibrationOptions | None = None) -> CalibrationResult:
+    """Estimate ``arm_T_camera`` from wrist spins.
+
+    Call as ``calibrate(dataset)`` or ``calibrate(arm, camera, measurements)``.
+    """
+    if isinstance(arm, Dataset):
+        dataset = arm
+        arm, camera, measurements = dataset.arm, dataset.camera, list(dataset)
+    if camera is None or measurements is None:
+        raise InputError("calibrate needs a Dataset, or an Arm, a Camera and a list of Measurements")
+    try:
+        method = Method(method)
+    except ValueError:
+        raise InputError(f"unknown method {method!r}; choose one of {[m.value for m in Method]}") from None
+    options = CalibrationOptions() if options is None else options
+    measurements = [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements]
+    # a measurement with fewer than two usable tracks has no image axis: it is left out and named, not fatal
+    builder = _builder(arm, camera, options)
+    prepared = [builder.prepare(m, k) for k, m in enumerate(measurements)]
+    kept = [k for k, p in enumerate(prepared) if len(p.usable) >= 2]
+    if len(kept) < MIN_MEASUREMENTS:
+        bad = "; ".join(f"measurement {k}: only {len(p.usable)} usable track(s) (rejected: "
+                        + ", ".join(f"track {j}: {why}" for j, why in p.rejected.items()) + ")"
+                        for k, p in enumerate(prepared) if len(p.usable) < 2)
+        raise InputError(f"need at least {MIN_MEASUREMENTS} measurements (arm poses) with at least 2 usable tracks "
+                         f"each, got {len(kept)} of {len(measurements)}" + (f" ({bad})" if bad else "")
+                         + "; spin the wrist longer or give the hand more texture")
+    result, setup = _calibrate(arm, camera, [measurements[k] for k in kept], method, options, kept)
+    for r in result.measurements:
+        r.index = kept[r.index]
+    for k, p in enumerate(prepared):
+        if k in kept:
+            continue
+        axis = arm.wrist_axis(measurements[k].joint_angles)
+        spans = [arc_span_deg(t.ideal, t.ellipse) for t in p.usable.values()]
+        result.measurements.append(MeasurementReport(
+            k, len(p.usable), sum(len(t.ideal) for t in p.usable.values()), float("nan"), 0.0, True,
+            dict(p.rejected), f"left out: only {len(p.usable)} usable track(s), need at least 2 for an image axis; "
+            "spin longer or give the hand more texture", axis_point=[float(v) for v in axis.point],
+            axis_direction=[float(v) for v in axis.direction], arc_span_deg=max(spans) if spans else None, weak=True))
+    result.measurements.sort(key=lambda r: r.index)
+    result.untrusted = _untrusted(result, setup)
+    return result
+
+
+def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]:
+    """The reasons (see :data:`UNTRUSTED_KINDS`) not to trust a determined result's covariance."""
+    if not result.observability.is_observable or result.ambiguous:
+        return {}
+    out = {}
+    c = result.axis_consistency
+    weak = [m.index for m in result.measurements if m.weak]
+    strong = [m.index for m in result.measurements if not m.weak and not m.outlier]
+    # weak measurements are trusted only where strong ones determine the pose without them and the axes agree
+    # (without redundancy, three measurements used, nothing tests them)
+    weak_used = [m.index for m in result.measurements if m.weak and not m.outlier]
+    if weak_used and (c is None or c.p_value < RESTART_P or len(strong) < MIN_MEASUREMENTS):
+        out["thin_evidence"] = weak
+    if c is not None and c.dof > 0 and c.chi2 / c.dof > MAX_CONSISTENCY_SCALE:
+        out["inconsistent"] = [m.index for m in result.measurements if not m.outlier]
+    elif c is not None and not c.consistent and c.dof <= 2:
+        out["unmeasured_scatter"] = [m.index for m in result.measurements if not m.outlier]
+    distance = float(np.median([np.linalg.norm(result.arm_T_camera.transformTo(a.point)) for a in setup.axes]))
+    limit_mm = 1000.0 * MAX_RELATIVE_SIGMA * distance
+    if (not np.all(np.isfinite(result.covariance)) or np.max(result.sigma_mm_arm) > limit_mm
+            or np.max(result.sigma_deg) > MAX_SIGMA_DEG):
+        out["too_uncertain"] = []
+    return out
+
+
+def _calibrate(arm, camera, measurements, method, options, index) -> tuple[CalibrationResult, _Setup]:
+    starts, setup, anchors = _initial(arm, camera, measurements, options, index)
+    # Short arcs (a tracker's drift shared by a measurement's tracks, which neither the per-track scores nor the
+    # jackknife see) lower the level at which the axes' scatter scales the covariance: the test has 2 n - 6
+    # dof, little power with six poses (18 rendered corner-tracked scenes: at 0.01 three of nine usable results
+    # were outside their 99.9 % region, 11 mm off with a 1 sigma of 4-8 mm; at 0.2 none). They also make stage 1
+    # refit itself from its own estimate (``_refined_stage1``: the axis through short arcs' ellipse centres, which
+    # starts it, is unreliable).
+    if options.axis_consistency_p is None:
+        options = replace(options, axis_consistency_p=SHORT_ARC_CONSISTENCY_P if setup.short_arcs
+                          else LONG_ARC_CONSISTENCY_P)
+    runs = [_refined_stage1(arm, camera, measurements, start, setup, options, anchor)
+            for start, anchor in zip(starts, anchors, strict=True)]
+    alternatives = []
+    if len(runs) > 1:  # the image axes cannot choose between the starts: the joint fit of the circles does
+        joints, failures = [], []
+        for (start, stage1), anchor in zip(runs, anchors, strict=True):
+            try:  # a wrong start's circles may not fit at all: its estimate is then a poor one
+                joint = _joint(arm, camera, measurements, setup, stage1, start, options, anchor)
+                _check_scale(joint, setup, stage1, options)
+                joints.append(joint)
+            except CalibrationError as failure:
+                joints.append(None)
+                failures.append(failure)
+        if len(failures) == len(runs):
+            raise failures[0]
+        best, alternatives = _choose(arm, camera, measurements, setup, joints, options)
+        if method is Method.JOINT:
+            joints[best].alternatives = alternatives
+            joints[best].joint_sigma_deg = options.joint_sigma_deg
+            return joints[best], setup
+        runs, anchors = [runs[best]], [anchors[best]]
+    init_pose, stage1 = runs[0]
+    result = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
+    _check_scale(result, setup, stage1, options)
+    result.alternatives = alternatives
+    result.joint_sigma_deg = 0.0 if method is Method.PAPER else options.joint_sigma_deg
+    return result, setup
+
+
+def _same_solution(result: CalibrationResult, pose: gtsam.Pose3) -> bool:
+    """``pose`` is ``result``'s solution again: inside its 99.9 % region when the covariance is usable, else
+    turned less than SAME_ANGLE_DEG from it (positions differ arbitrarily along undetermined directions)."""
+    xi = result.arm_T_camera.localCoordinates(pose)
+    if result.observability.is_observable:
+        try:
+            return float(xi @ np.linalg.solve(result.covariance, xi)) <= CHI2_6_999
+        except np.linalg.LinAlgError:
+            pass
+    return float(np.linalg.norm(xi[:3])) < np.radians(SAME_ANGLE_DEG)
+
+
+def _choose(arm, camera, measurements, setup, joints: list[CalibrationResult | None],
+            options) -> tuple[int, list[Alternative]]:
+    """The joint result that fits best and the other distinct ones as :class:`Alternative`.
+
+    The results may have rejected different tracks and estimated different pixel noise, so their own errors are
+    not comparable: each pose is re-solved on one graph (the tracks and measurements none of them rejected, one
+    pixel sigma per measurement) and the chi-squares of that graph compared.
+    """
+    ok = [i for i, r in enumerate(joints) if r is not None]
+    if len(ok) == 1:
+        return ok[0], []
+    results = [joints[i] for i in ok]
+    chi2, poses = _common_chi2(arm, camera, measurements, setup, results, options)
+    order = [int(j) for j in np.argsort(chi2)]
+    best = results[order[0]]
+    alternatives: list[Alternative] = []
+    for j in order[1:]:
+        if not np.isfinite(chi2[j]) or _same_solution(best, poses[j]) or any(
+                _turned(a.arm_T_camera, poses[j]) < np.radians(SAME_ANGLE_DEG) for a in alternatives):
+            continue
+        alternatives.append(Alternative(poses[j], float(chi2[j] - chi2[order[0]])))
+    return ok[order[0]], alternatives
+
+
+def _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
+    if method is Method.PAPER:
+        return _paper(camera, setup, stage1, init_pose, options, anchor)
+    if method is Method.WEIGHTED:
+        return _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
+    return _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)

@@ -1,0 +1,470 @@
+"""Stage 2 and the two-stage estimators: the projected-axis distances of the FK axes to the stage-1 image axes,
+weighted and robust, the axes' consistency test and its covariance scale, the evidence of each measurement, the
+refits of stage 1 at the estimate (short arcs), the paper's and the weighted method, the per-measurement reports.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from ..camera import Camera
+from ..errors import RotIdError
+from ..factors import (
+    line_distance_covariance,
+    line_distances,
+)
+from ..graph import (
+    Model,
+    RotIdGraph,
+    axis_test_points,
+    track_huber,
+)
+from ..uncertainty import (
+    analyse_observability,
+    chi2_sf,
+    pose_information,
+)
+from .initial import _best_stage2, _random_restarts, _stage2_graph, _stage2_minima
+from .lm import _builder, _graph_dof, _lm, _turned
+from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method
+from .result import AxisConsistency, CalibrationResult, MeasurementReport
+from .setup import _Setup, circle_arc_span_deg, joint_tie_covariance
+from .stage1 import _circles, _jackknife, _Stage1, _stage1, _stage1_result, _stage1_round, _track_stats
+from .tuning import (
+    MIN_STRONG,
+    POSE_KEY,
+    REFINE_DEG,
+    REFINE_M,
+    REFINE_PASSES,
+    STAGE1_MAX_ITERATIONS,
+    TIE_PX2,
+    WEAK_ARC_DEG,
+    WEAK_MANY_TRACKS,
+    WEAK_TRACKS,
+)
+
+
+def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup, options,
+                    anchor) -> tuple[gtsam.Pose3, list[_Stage1]]:
+    """Stage 1 from ``start``; where some measurement has only short arcs (``setup.short_arcs``), again from the
+    pose its lines give (weighted stage 2, Huber on whole measurements) while that pose moves more than REFINE_DEG
+    or REFINE_M (at most REFINE_PASSES fits), and the last fit jackknifed (:func:`_jackknife`). Returns the pose
+    stage 1 last started from and its fit. Where every measurement has a long arc: one fit from the start.
+
+    Each measurement's fit starts from the FK axis seen from the start. With long arcs it finds the same circles
+    from anywhere near; with short ones (corner tracks of 25 degrees) it stays in a minimum near the start, and
+    the initialisation from ellipse centres can be 20 degrees off: on one rendered scene three of six lines fitted
+    from there were 100-13 000 chi-square off the truth, and 0-4 when fitted from the truth.
+    """
+    pose = start
+    builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
+    everything = list(range(len(measurements)))
+    stage1 = _stage1(arm, camera, measurements, pose, setup, options)
+    if not setup.short_arcs:
+        return pose, stage1
+    for _ in range(REFINE_PASSES - 1):
+        moved, _, _ = _weighted_stage2(camera, setup, stage1, everything, pose, options, anchor)
+        if _turned(moved, pose) < np.radians(REFINE_DEG) and np.linalg.norm(
+                moved.translation() - pose.translation()) < REFINE_M:
+            break
+        pose = moved
+        stage1 = _stage1(arm, camera, measurements, pose, setup, options, image_axes=False)
+    return pose, [_jackknife(builder, measurements[k], k, pose, setup.prepared[k], s, options)
+                  for k, s in enumerate(stage1)]
+
+
+# ---------------------------------------------------------------------------------------------------
+# stage 2 and the estimators
+
+
+def _axis_distances(camera: Camera, axis, stage1: _Stage1, pose: gtsam.Pose3,
+                    sigma2: float | None = None, noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Distances of the projected FK test points to the stage-1 image axis, and their covariance (at the
+    measurement's own pixel noise variance unless ``sigma2`` is given; plus the joint-angle noise's, ``noise`` as
+    in :func:`joint_tie_covariance`)."""
+    points = np.array([pose.transformTo(p) for p in axis_test_points(axis)])
+    pixels = camera.project(points, distort=False)
+    e = line_distances(stage1.line, pixels)
+    sigma2 = stage1.sigma2 if sigma2 is None else sigma2
+    cov = line_distance_covariance(stage1.line_cov * sigma2, pixels) + 1e-12 * np.eye(len(e))
+    if noise is not None:
+        cov = cov + joint_tie_covariance(camera, axis, stage1.line, pose, noise)
+    return e, cov
+
+
+def _chi2(camera, setup: _Setup, stage1, pose, sigma2: dict[int, float] | None = None) -> np.ndarray:
+    """Per measurement: chi-square (2 dof) of its stage-1 image axis against the FK axis projected by ``pose``.
+
+    The line covariance is at ``sigma2[k]`` when given; otherwise at the larger of the measurement's and the
+    median pixel noise variance: the geometric distance to a strongly curved (near edge-on) projected circle
+    absorbs part of the noise, so a measurement's own residuals can understate it, and a test at that scale
+    would reject good data. Measurements missing from ``sigma2`` get NaN.
+    """
+    median = float(np.median([s.sigma2 for s in stage1]))
+    out = []
+    for k, (axis, s) in enumerate(zip(setup.axes, stage1, strict=True)):
+        if sigma2 is not None and k not in sigma2:
+            out.append(np.nan)
+            continue
+        variance = max(s.sigma2, median) if sigma2 is None else sigma2[k]
+        e, cov = _axis_distances(camera, axis, s, pose, variance, setup.noise(k))
+        out.append(float(e @ np.linalg.pinv(cov, hermitian=True) @ e))  # pinv: test points may project badly
+    return np.array(out)
+
+
+def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3, sigma2: dict[int, float],
+                      options) -> AxisConsistency | None:
+    """The test of :class:`AxisConsistency` at ``pose``, each measurement's line at its pixel noise variance
+    ``sigma2[k]`` (the one the fit weighted it by); None without redundancy (fewer than 4 measurements)."""
+    dof = 2 * len(used) - 6
+    if dof <= 0:
+        return None
+    chi2 = float(np.sum(_chi2(camera, setup, stage1, pose, {k: sigma2[k] for k in used})[used]))
+    p = chi2_sf(chi2, dof)
+    scale = 1.0
+    if p < options.axis_consistency_p:  # see AxisConsistency: k's mean given the scatter, where it has one
+        scale = chi2 / (dof - 2) if dof > 2 else chi2 / dof
+    return AxisConsistency(chi2, dof, p, scale)
+
+
+def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsam.Pose3, options, anchor):
+    """Stage 2 weighted by the stage-1 line covariances, Huber on whole measurements; returns (pose, its, graph)."""
+    pose, iterations, graph = start, 0, None
+    for _round in range(3):  # the distance covariance depends on where the test points project
+        noises = []
+        for k in used:
+            _, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, noise=setup.noise(k))
+            base = gtsam.noiseModel.Gaussian.Covariance(cov)
+            noises.append(gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(3.0), base))
+        graph = _stage2_graph([setup.axes[k] for k in used], [stage1[k].line for k in used], camera.K, noises)
+        previous = pose
+        pose, _, it, _ = _best_stage2(graph, [pose], options, anchor=anchor)
+        iterations += it
+        step = previous.localCoordinates(pose)
+        if np.max(np.abs(step[:3])) < 1e-9 and np.max(np.abs(step[3:])) < 1e-9:
+            break
+    return pose, iterations, graph
+
+
+def _evidence(setup: _Setup, s: _Stage1, k: int, tied=None) -> tuple[float | None, bool]:
+    """(longest arc in deg, weak) of measurement k's kept tracks. Each arc is measured about its stage-1 circle and,
+    when ``tied = (line, circles)`` is given (the circles fitted with the line on the estimate's FK axis), about that
+    circle too, and the smaller is taken: a short arc fitted with a circle far too small wraps around it."""
+    spans = []
+    for j in s.keys.tracks:
+        ideal = setup.prepared[k].usable[j].ideal
+        span = circle_arc_span_deg(ideal, setup.K, s.rotation, s.circles[j]) if j in s.circles else np.inf
+        if tied is not None and j in tied[1]:
+            span = min(span, circle_arc_span_deg(ideal, setup.K, tied[0], tied[1][j]))
+        if np.isfinite(span):
+            spans.append(span)
+    longest = max(spans) if spans else None
+    n = len(s.keys.tracks)
+    return longest, n < WEAK_TRACKS or (n < WEAK_MANY_TRACKS and (longest is None or longest < WEAK_ARC_DEG))
+
+
+def _tied_circles(arm, camera, measurements, setup: _Setup, stage1, pose: gtsam.Pose3, options, ks) -> dict:
+    """k -> (line, circles) of measurement k fitted with its line on the FK axis seen from ``pose``."""
+    builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
+    out = {}
+    for k in ks:
+        fit = _tied_fit(builder, measurements[k], k, setup.prepared[k], stage1[k], pose, options, setup, fresh=True)
+        if fit is not None:
+            out[k] = fit[1], fit[2]
+    return out
+
+
+def _named(setup: _Setup, ks) -> list[int]:
+    """Internal measurement positions -> the caller's measurement indices."""
+    return [setup.index[k] for k in ks] if setup.index else list(ks)
+
+
+def _poor_minimum(chi2: np.ndarray, limit: float, what: str, setup: _Setup | None = None,
+                  bad=()) -> CalibrationError:
+    names = _named(setup, range(len(chi2))) if setup is not None else list(range(len(chi2)))
+    listing = ", ".join(f"{name}: {value:.3g}" for name, value in zip(names, chi2, strict=True))
+    return CalibrationError(
+        f"the estimate ended in a poor minimum or the data are inconsistent: {what} (chi-square of each "
+        f"measurement's image axis against the projected FK axis, 2 dof, limit {limit:g}: {listing}); check "
+        "the joint angles, the intrinsics and the wrist joint (if the kinematics are known to be inaccurate, "
+        "raise CalibrationOptions.outlier_measurement_chi2)" + _weak_words(setup, bad))
+
+
+def _weak_words(setup: _Setup | None, bad=()) -> str:
+    """For a refusal: the measurements whose evidence is thin (from ``setup.weak``), which come first, and those of
+    ``bad`` whose arcs are all short (``setup.short``)."""
+    if setup is None:
+        return ""
+    out = ""
+    if setup.weak:
+        named = "; ".join(f"measurement {_named(setup, [k])[0]}: {why}" for k, why in setup.weak.items())
+        out += (f". But first: these measurements have too little evidence for a reliable image axis ({named}); spin "
+                "the wrist longer (a full turn or more) or give the hand more texture: the tracking, more likely than "
+                "the joint angles, is at fault")
+    short = [k for k in bad if k in setup.short]
+    if short:
+        out += ". " + _short_words(setup, short)
+    return out
+
+
+def _short_words(setup: _Setup, ks) -> str:
+    """Words for measurements of many tracks whose arcs are all short: tracking is as likely a cause as joints."""
+    arcs = ", ".join(f"{_named(setup, [k])[0]}: {setup.short[k]:.0f}°" for k in ks)
+    return (f"The arcs of measurement(s) {arcs} (longest) are short: a tracker's drift along short arcs can put an "
+            "image axis off as far as a wrong joint angle does, so suspect the tracking as much as the joints (spin "
+            "longer, a full turn or more, or track features that can be followed further)")
+
+
+def _tied_fit(builder: RotIdGraph, measurement, k: int, prepared, s: _Stage1, pose: gtsam.Pose3, options,
+              setup: _Setup, fresh: bool = False):
+    """Measurement k's circles with its line held on the FK axis projected by ``pose`` (its tilt within the
+    projection plane free; the tie as soft as the joint-angle noise makes the FK axis): (residual sum of squares in
+    px^2, line variable, circles, the tie's chi-square), or None if it fails. The circles start from stage 1's, or
+    with ``fresh`` from each track's rays about the FK axis (a short arc's stage-1 circle can be far too small)."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(POSE_KEY, pose)
+    try:
+        keys = builder.add_measurement(graph, values, k, measurement, prepared=prepared, skip_tracks=s.outliers,
+                                       initial_line=None if fresh else s.rotation,
+                                       initial_circles=None if fresh else dict(s.circles),
+                                       refine_circles=fresh, track_sigmas=dict.fromkeys(prepared.usable, 1.0),
+                                       tie_covariance=joint_tie_covariance(builder.camera, setup.axes[k], s.line,
+                                                                           pose, setup.noise(k)))
+    except RotIdError:
+        return None
+    graph.add(gtsam.NonlinearEqualityPose3(POSE_KEY, pose))
+    result, _, _, _ = _lm(graph, values, min(options.max_iterations, STAGE1_MAX_ITERATIONS),
+                          relative_tolerance=options.stage1_tolerance)
+    sse = sum(v[0] for v in _track_stats(graph, keys, result).values())
+    if not np.isfinite(sse):
+        return None
+    tie = 2.0 * graph.at(keys.tie_factor).error(result) if keys.tie_factor >= 0 else 0.0
+    return sse, result.atRot3(keys.line), dict(zip(keys.tracks, _circles(keys, result), strict=True)), tie
+
+
+def _sse(s: _Stage1) -> float:
+    return float(sum(v[0] for v in s.stats.values()))
+
+
+def _second_opinion(arm, camera, measurements, setup: _Setup, stage1: list[_Stage1], k: int, pose: gtsam.Pose3,
+                    options) -> tuple[_Stage1 | None, float]:
+    """Measurement k's disagreement with ``pose`` as a likelihood ratio, and a better stage-1 fit if there is one.
+
+    The linearised chi-square of an image axis (:func:`_chi2`) assumes the axis is Gaussian about the stage-1 fit.
+    With few tracks or short arcs it is not: the fit can sit in a local minimum of its own (two arcs of 60 degrees
+    admit several coaxial circle pairs), or the cost can rise far more slowly than its curvature says, and a good
+    measurement then looks like an outlier (and gets blamed on its joint angles). This fits the measurement's
+    circles with its line tied to the FK axis seen from ``pose``, then frees the line from there: if that free fit is
+    better than stage 1's, stage 1 was in a local minimum and the new fit replaces it. The returned statistic is
+    ``(sse_tied - sse_free) / sigma^2`` (2 dof under the model), at the larger of the measurement's and the median
+    pixel noise variance as in :func:`_chi2`; inf if the tied fit fails.
+    """
+    s = stage1[k]
+    if s.keys.coaxial is None:  # a circle-variable stage 1 (its projected fit stalled): no second opinion
+        return None, np.nan
+    builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
+    tied = _tied_fit(builder, measurements[k], k, setup.prepared[k], s, pose, options, setup)
+    if tied is None:
+        return None, np.inf
+    sse_tied, line, circles, tie = tied
+    graph, keys, result, it, _, _ = _stage1_round(builder, measurements[k], k, pose, setup.prepared[k], s.outliers,
+                                                  line, circles, options)
+    stats = _track_stats(graph, keys, result)
+    refit = None
+    free = _sse(s)
+    new_free = float(sum(v[0] for v in stats.values()))
+    if np.isfinite(new_free) and new_free < free * (1.0 - 1e-9):
+        refit = _stage1_result(builder, graph, keys, result, stats, dict(s.outliers), s.iterations + it, options)
+        if setup.short_arcs:  # as stage 1's own fits (``_refined_stage1``)
+            refit = _jackknife(builder, measurements[k], k, pose, setup.prepared[k], refit, options)
+        free = new_free
+    variance = max(s.sigma2 if refit is None else refit.sigma2, float(np.median([t.sigma2 for t in stage1])))
+    return refit, max(sse_tied - free, 0.0) / variance + tie
+
+
+def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opinion=None, drop_weak: bool = False
+                     ) -> tuple[gtsam.Pose3, int, gtsam.NonlinearFactorGraph, list[int], dict[int, float]]:
+    """Weighted stage 2 that leaves out measurements whose image axis disagrees with the FK axis.
+
+    At most ``(n - 3) // 2`` measurements are left out, so that the rest still over-determine the pose and
+    the test stays meaningful; more disagreement than that is reported as a poor minimum. A measurement whose
+    linearised chi-square exceeds the limit gets a ``second_opinion(k, pose) -> (refit or None, statistic)``
+    (:func:`_second_opinion`) before it can be left out: a better stage-1 fit found from the estimate replaces its
+    own (``stage1`` is updated in place) and the likelihood-ratio statistic decides instead of the linearised one.
+    """
+    n = len(stage1)
+    limit = options.outlier_measurement_chi2
+    iterations = 0
+    refitted: set[int] = set()
+    setup.weak, setup.short = {}, {}
+    for k, s in enumerate(stage1):
+        span, weak = _evidence(setup, s, k)
+        if not weak and setup.turning[k] < WEAK_ARC_DEG:
+            setup.short[k] = setup.turning[k]
+        if weak:
+            arc = "" if span is None else f", longest arc {span:.0f}° (at most)"
+            setup.weak[k] = f"{len(s.keys.tracks)} tracks{arc}"
+    # with ``drop_weak``, weak measurements (their image axes need not be Gaussian) are left out when enough strong
+    # ones remain
+    strong = [k for k in range(n) if k not in setup.weak]
+    setup.dropped = set(setup.weak) if drop_weak and setup.weak and len(strong) >= MIN_STRONG else set()
+    used = [k for k in range(n) if k not in setup.dropped]
+    max_excluded = max(0, (len(used) - MIN_MEASUREMENTS) // 2) + len(setup.dropped)
+    while True:
+        pose, it, graph = _weighted_stage2(camera, setup, stage1, used, start, options, anchor)
+        iterations += it
+        chi2 = _chi2(camera, setup, stage1, pose)
+        bad = [k for k in used if chi2[k] > limit]
+        if bad and second_opinion is not None:
+            opinions = {k: second_opinion(k, pose) for k in bad}
+            new = [k for k, (refit, _) in opinions.items() if refit is not None and k not in refitted]
+            for k in new:
+                stage1[k] = opinions[k][0]
+                refitted.add(k)
+            if new:  # better stage-1 fits: estimate again with them
+                start = pose
+                continue
+            for k, (_, statistic) in opinions.items():
+                if not np.isnan(statistic):
+                    chi2[k] = statistic
+            bad = [k for k in used if chi2[k] > limit]
+        if not bad:
+            break
+        if n - len(used) >= max_excluded:
+            gone = _named(setup, sorted(set(range(n)) - set(used)))
+            left_out = f", after leaving out {gone}" if len(used) < n else ""
+            raise _poor_minimum(chi2, limit, f"measurement(s) {_named(setup, bad)} disagree{left_out}", setup,
+                                bad)
+        # One at a time, by leave-one-out: a wrong measurement drags the pose, so the largest chi-square may
+        # belong to a good one; leave out the one whose absence best reconciles the others.
+        best = None
+        for k in used:
+            rest = [i for i in used if i != k]
+            rest_pose, it, _ = _weighted_stage2(camera, setup, stage1, rest, pose, options, anchor)
+            iterations += it
+            rest_chi2 = _chi2(camera, setup, stage1, rest_pose)
+            score = float(sum(rest_chi2[i] for i in rest))
+            if best is None or score < best[0]:
+                best = (score, k, rest_pose)
+        used.remove(best[1])
+        start = best[2]
+    return pose, iterations, graph, used, {k: float(chi2[k]) for k in range(n)}
+
+
+def _check_scale(result: CalibrationResult, setup: _Setup, stage1: list[_Stage1], options: CalibrationOptions) -> None:
+    """Raise if the estimate implies features implausibly far from the wrist axis (metric scale check).
+
+    The stage-1 circles are known in units of the camera-to-axis distance; the estimate fixes that distance
+    (unless it is degenerate: then the report already says the position is not determined).
+    """
+    if not result.covariance_usable:
+        return
+    pose = result.arm_T_camera
+    radii = []
+    centre = pose.translation()
+    for axis, s in zip(setup.axes, stage1, strict=True):
+        distance = float(axis.distance_to(centre)[0])  # camera centre to the wrist axis
+        radii.extend(abs(c[1]) * distance for c in s.circles.values())
+    median = float(np.median(radii))
+    if median > options.max_feature_radius_m:
+        distance_to_wrist = np.median([np.linalg.norm(pose.transformTo(a.point)) for a in setup.axes])
+        raise CalibrationError(
+            f"the estimate ended in a poor minimum: it puts the camera {distance_to_wrist:.2f} m from the wrist, "
+            f"so the tracked features would lie {median:.2f} m from the wrist axis (median; limit "
+            f"{options.max_feature_radius_m} m); check the joint angles, the intrinsics and the wrist joint")
+
+
+def _finish(pose, covariance, info, method, converged, iterations, error, reports, sigma_px,
+            info_scale: float = 1.0, dof: int | None = None,
+            consistency: AxisConsistency | None = None) -> CalibrationResult:
+    """Result with the observability of ``info * info_scale`` (the scale makes it a real information); the
+    covariance (of the pose, or the observability's when it is undetermined) is multiplied by
+    ``consistency.scale``."""
+    if not np.all(np.isfinite(info)):
+        raise CalibrationError("the estimate ended in a poor minimum: the pose's information there is not finite "
+                               "(the FK axes' test points project at or behind the camera); check the joint angles, "
+                               "the intrinsics and the wrist joint")
+    observability = analyse_observability(info * info_scale, pose)
+    if covariance is None or not observability.is_observable:
+        covariance = observability.covariance(info)
+    if consistency is not None and observability.is_observable:
+        covariance = covariance * consistency.scale
+    return CalibrationResult(pose, covariance, method.value, bool(converged), int(iterations), float(error),
+                             reports, observability, float(sigma_px), dof, axis_consistency=consistency)
+
+
+def _reports(stage1: list[_Stage1], setup: _Setup, sigmas: dict[int, float], used: list[int], options,
+             chi2: dict[int, float] | None = None, tied: dict | None = None) -> list[MeasurementReport]:
+    median = float(np.median([sigmas[k] for k in used]))
+    reports = []
+    for k, s in enumerate(stage1):
+        rejected = {**s.keys.rejected, **s.outliers}
+        excluded = k not in used
+        sigma = sigmas.get(k, np.sqrt(s.sigma2))
+        reason = ""
+        span, weak = _evidence(setup, s, k, None if tied is None else tied.get(k))
+        weak = weak or k in setup.dropped
+        if excluded and k in setup.dropped:
+            reason = (f"left out: too little evidence for a reliable image axis ({setup.weak[k]}); the "
+                      f"{len(used)} stronger measurements determine the pose without it")
+        elif excluded:
+            reason = (f"left out: its image axis disagrees with the FK axis projected by the estimate (chi-square "
+                      f"{chi2[k]:.3g} > {options.outlier_measurement_chi2:g}, 2 dof); ")
+            if weak:
+                reason += ("its own evidence is thin (few tracks or short arcs): spin longer or add texture, and check "
+                           "its joint angles only if that does not help")
+            elif k in setup.short:
+                reason += "its tracks or its joint angles are off. " + _short_words(setup, [k])
+            else:
+                reason += "check its joint angles"
+        axis = setup.axes[k]
+        reports.append(MeasurementReport(
+            k, len(s.keys.tracks), s.n_points, float(sigma),
+            0.0 if excluded else median**2 / sigma**2, excluded, rejected, reason,
+            axis_point=[float(v) for v in axis.point], axis_direction=[float(v) for v in axis.direction],
+            image_axis=[float(v) for v in s.line / np.hypot(s.line[0], s.line[1])],
+            axis_chi2=None if chi2 is None else float(chi2[k]), arc_span_deg=span, weak=weak))
+    _flag_outlier_measurements(reports, options)
+    return reports
+
+
+def _flag_outlier_measurements(reports: list[MeasurementReport], options: CalibrationOptions) -> None:
+    median = np.median([r.residual_rms_px for r in reports])
+    for r in reports:
+        if not r.outlier and r.residual_rms_px > options.outlier_measurement_ratio * median:
+            r.outlier = True
+            r.outlier_reason = (f"residual RMS {r.residual_rms_px:.2f} px > {options.outlier_measurement_ratio:g}x "
+                                f"the median {median:.2f} px")
+
+
+def _paper(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
+    """The seed's stage 2: unweighted, random restarts, covariance (J^T J)^-1 at unit noise."""
+    rng = np.random.default_rng(options.seed)
+    noises = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(stage1)
+    graph = _stage2_graph(setup.axes, [s.line for s in stage1], camera.K, noises)
+    starts = [init_pose, *_random_restarts(init_pose, options.restarts, rng)]
+    # the unit line noise stands for the lines' real noise: the gauge prior is scaled to match (a prior of
+    # GAUGE_SIGMA against 1 px lines would drag a weakly determined direction to the anchor)
+    line_var = float(np.median([np.mean(np.diag(_axis_distances(camera, axis, s, init_pose)[1]))
+                                for axis, s in zip(setup.axes, stage1, strict=True)]))
+    minima = _stage2_minima(graph, starts, options, anchor=anchor, gauge_scale=line_var)
+    # Minima within TIE_PX2 of the lowest fit the lines equally well (three measurements: several exact
+    # solutions); the start was chosen by the circles, so the one nearest it is taken.
+    lowest = min(m[1] for m in minima)
+    pose, error, iterations, _ = min((m for m in minima if m[1] <= lowest + TIE_PX2),
+                                     key=lambda m: _turned(m[0], init_pose))
+    chi2 = _chi2(camera, setup, stage1, pose)
+    if np.median(chi2) > options.outlier_measurement_chi2:  # the unweighted fit is suboptimal: judge loosely
+        raise _poor_minimum(chi2, options.outlier_measurement_chi2, "most measurements disagree", setup)
+    values = gtsam.Values()
+    values.insert(POSE_KEY, pose)
+    sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
+    reports = _reports(stage1, setup, sigmas, list(range(len(stage1))), options)
+    for r in reports:
+        r.weight = 1.0
+    # The paper's covariance assumes 1 px line errors; judge what is determined with the residual scale.
+    dof = 2 * len(stage1) - 6
+    line_var = max(2.0 * error / dof, options.min_sigma_px**2) if dof > 0 else 1.0
+    return _finish(pose, None, pose_information(graph, values, POSE_KEY), Method.PAPER, True, iterations, error,
+                   reports, np.median(list(sigmas.values())), info_scale=1.0 / line_var, dof=_graph_dof(graph, values))

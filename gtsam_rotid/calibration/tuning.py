@@ -1,0 +1,91 @@
+"""The estimators' fixed thresholds and iteration counts, each with why it has its value.
+"""
+
+from __future__ import annotations
+
+import gtsam
+
+# ---------------------------------------------------------------------------------------------------
+# helpers
+
+POSE_KEY = gtsam.symbol("T", 0)
+#: Sigma (rad and m) of the weak prior that holds the pose at its start, in the joint graph, along
+#: directions the data leave undetermined (information 1 against >= 1e7 for a determined direction at
+#: pixel noise: no measurable pull otherwise). Stage 2 needs none: its LM damps isotropically.
+ANCHOR_SIGMA = 1.0
+#: LM stops once two iterations in a row move the stage-1 image axis (at the corners of the tracks'
+#: bounding box) by less than this (px), or the joint pose by less than WATCH_POSE (rad and m), both per
+#: pixel of residual RMS.
+WATCH_LINE_PX = 1e-4
+WATCH_POSE = 1e-7
+#: A twin pose (see :func:`twin_pose`) is kept as a second start when LM leaves it at least this far (deg)
+#: from the best start and its image-axis error is below this multiple of the best (+ 1 px^2).
+TWIN_MIN_ANGLE_DEG = 10.0
+TWIN_ERROR_RATIO = 4.0
+#: Paper method: restart minima whose error (unit-noise px^2) is within this of the lowest are tied.
+TIE_PX2 = 0.5
+#: Two results turned less than this (deg) from each other are the same solution when no covariance can say.
+SAME_ANGLE_DEG = 1.0
+#: 99.9 % point of chi-square with 6 dof.
+CHI2_6_999 = 22.457744484825326
+#: At most this many starts (the best, other minima of the image-axis fit, the twin) go on to the circle fits.
+MAX_STARTS = 4
+#: The image-axis (stage-2) graphs hold the pose near the start along directions whose information is below this
+#: fraction of the largest (reference scene: >= 8e-4; single crossing: ~3e-6), by a prior of sigma GAUGE_SIGMA
+#: (rad, m); see :func:`_gauge_prior`.
+WEAK_RELATIVE = 1e-4
+GAUGE_SIGMA = 0.1
+GAUGE_FLOOR = 1e-8
+#: Stage 1 redoes a measurement with circle variables when LM on the projected model lowers the error by less than
+#: this fraction (it stalled at its start).
+STALL_DECREASE = 1e-3
+#: LM iterations of one stage-1 round (the reference scene needs 10-40; far more only for hopeless starts, e.g.
+#: wrong joint angles, which the stage-2 checks then report).
+STAGE1_MAX_ITERATIONS = 60
+#: Stage 1's fits of one measurement, each after rejecting the tracks the one before flagged.
+STAGE1_ROUNDS = 4
+#: LM iterations allowed from the twin start.
+TWIN_ITERATIONS = 20
+#: A measurement with fewer kept tracks than WEAK_TRACKS, or fewer than WEAK_MANY_TRACKS and no arc of WEAK_ARC_DEG,
+#: is weak: its image axis need not be Gaussian (see :func:`_second_opinion`), so an inconsistency it takes part in
+#: is not scaled away. Many short arcs are not weak: their errors average (the rendered reference scene's end-on pose
+#: has 60 tracks of at most 50 degrees, and its covariance holds).
+WEAK_TRACKS = 4
+WEAK_MANY_TRACKS = 20
+WEAK_ARC_DEG = 90.0
+#: When the axes disagree, weak measurements are left out if at least this many strong ones remain (the pose with
+#: redundancy to test it).
+MIN_STRONG = 4
+#: An arc's span is taken between these quantiles of its points' angles (and the upper one's complement).
+ARC_TRIM = 0.05
+#: An axis-consistency scale (chi2/dof) above this is not a modest understatement of the noise but a wrong model.
+MAX_CONSISTENCY_SCALE = 100.0
+#: A 1-sigma camera position larger than this fraction of its distance to the wrist, or a 1-sigma rotation larger
+#: than MAX_SIGMA_DEG, is no calibration: an error of that size changes the geometry the covariance was linearised
+#: in (a rendered Panda scene: 1 sigma of 104 mm and 6 deg at 1.16 m, 102 mm off with a chi-square of 994 in 6 dof).
+MAX_RELATIVE_SIGMA = 0.05
+MAX_SIGMA_DEG = 2.0
+#: The cluster-robust covariance's leverage correction (CR2, :func:`_track_correlation`) takes no track's leverage
+#: above this (at most a sqrt(10) larger score).
+MAX_TRACK_LEVERAGE = 0.9
+#: The joint fit is restarted (:func:`_restarted`) when its axis-consistency test has a P value below this.
+RESTART_P = 1e-3
+#: Restarts leave out, in turn, this many of the measurements that disagree most with the estimate.
+RESTART_LEAVE_OUT = 3
+#: A restart's start within this (m) and SAME_ANGLE_DEG of the estimate is the same start.
+RESTART_SAME_M = 1e-3
+#: stage 1 is fitted again from the pose its lines give while that pose moves more than these (deg, m), in at
+#: most this many fits (:func:`_refined_stage1`), where some measurement has only short arcs
+REFINE_DEG = 0.5
+REFINE_M = 0.005
+REFINE_PASSES = 6
+#: the prior (rad) that holds a refit's start line while its circles settle (:func:`_stage1_round`, ``settle``)
+HOLD_SIGMA_RAD = 1e-4
+#: the default ``CalibrationOptions.axis_consistency_p`` with and without short arcs (see ``_calibrate``)
+SHORT_ARC_CONSISTENCY_P = 0.2
+LONG_ARC_CONSISTENCY_P = 0.01
+#: stage 1's jackknife (:func:`_jackknife`): groups of tracks, the fewest it needs, and the point of its scatter
+#: under the model beyond which it replaces the linearised line covariance
+JACKKNIFE_GROUPS = 12
+JACKKNIFE_MIN_GROUPS = 4
+JACKKNIFE_Z = 3.40  # the normal's 99.97 % point: 99.9 % Bonferroni over the 3 directions
