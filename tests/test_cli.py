@@ -166,7 +166,7 @@ class _StubResult:
 def test_calibrate_keeps_a_result_file_that_appears_while_it_runs(noise_free_dataset, tmp_path, monkeypatch,
                                                                     capsys):
     """The output is checked before calibrating, but a file written meanwhile must not be replaced either."""
-    import gtsam_rotid.estimate as estimate
+    import gtsam_rotid.calibration as calibration
 
     dataset = tmp_path / "without_truth"
     shutil.copytree(noise_free_dataset, dataset)
@@ -178,7 +178,7 @@ def test_calibrate_keeps_a_result_file_that_appears_while_it_runs(noise_free_dat
         out.write_bytes(theirs)
         return _StubResult()
 
-    monkeypatch.setattr(estimate, "calibrate", calibrate_while_someone_writes)
+    monkeypatch.setattr(calibration, "calibrate", calibrate_while_someone_writes)
     monkeypatch.setattr(cli, "summary", lambda result: "stub result")
     assert cli.main(["calibrate", str(dataset), "-o", str(out)]) == 1
     assert f"{out} exists; pass --overwrite" in capsys.readouterr().err

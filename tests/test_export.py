@@ -10,9 +10,8 @@ import gtsam
 import numpy as np
 import pytest
 
-from gtsam_rotid import InputError, OutputError, RotIdError, simulate
+from gtsam_rotid import InputError, OutputError, RotIdError
 from gtsam_rotid.cli import add_export_parser
-from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.export import (
     Transform,
     export_result,
@@ -25,9 +24,8 @@ YAML11_FLOAT = re.compile(r"^[-+]?([0-9][0-9_]*)?\.[0-9.]*([eE][-+][0-9]+)?$")
 
 
 @pytest.fixture(scope="module")
-def result():
-    dataset, _ = simulate.reference_scene(seed=0, duration=10.0)
-    return calibrate(dataset, method="weighted")
+def result(reference_weighted):
+    return reference_weighted[2]
 
 
 # ---------------------------------------------------------------------------------------------------

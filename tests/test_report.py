@@ -23,9 +23,8 @@ from gtsam_rotid.words import summary
 
 
 @pytest.fixture(scope="module")
-def reference():
-    dataset, truth = simulate.reference_scene(seed=0, duration=10.0)
-    return dataset, truth, calibrate(dataset, method="weighted")
+def reference(reference_weighted):
+    return reference_weighted
 
 
 @pytest.fixture(scope="module")

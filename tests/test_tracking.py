@@ -114,8 +114,7 @@ def test_every_visible_arc_is_covered(spin, spin_result):
 
 
 def test_rendered_reference_scene_to_a_tenth_of_a_pixel():
-    render = pytest.importorskip("gtsam_rotid.render")
-    from gtsam_rotid import simulate
+    from gtsam_rotid import render, simulate
 
     dataset, truth = simulate.reference_scene(seed=0, duration=3.0)
     spin = render.render_measurement(dataset, truth, 0)

@@ -110,9 +110,7 @@ def test_tracker_params_file(tmp_path):
 def test_track_command_takes_tracker_settings(tmp_path):
     from gtsam_rotid import cli
 
-    parser = cli.build_parser() if hasattr(cli, "build_parser") else None
-    if parser is None:
-        pytest.skip("cli has no build_parser")
+    parser = cli.build_parser()
     args = parser.parse_args(["track", "--video", "v.mp4", "--joints", "j.csv", "--camera", "c.yaml", "--robot",
                               "kinova", "-o", str(tmp_path / "d"), "--features", "corners", "--max-corners", "50",
                               "--min-track-length", "30", "--tracker-params", str(tmp_path / "t.yaml")])

@@ -4,6 +4,8 @@ sandwich covariance, restarts, and the rigid-spin model.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import gtsam
 import numpy as np
 
@@ -43,6 +45,7 @@ from .stage2 import (
     _reports,
     _robust_weighted,
     _second_opinion,
+    _Solved,
     _tied_circles,
     _weighted_stage2,
 )
@@ -62,8 +65,9 @@ def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anch
     tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
     reports = _reports(stage1, setup, sigmas, used, options, chi2, tied)
     consistency = _axis_consistency(camera, setup, stage1, used, pose, {k: stage1[k].sigma2 for k in used}, options)
-    return _finish(pose, None, pose_information(graph, values, POSE_KEY), Method.WEIGHTED, True, iterations,
-                   graph.error(values), reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(graph, values),
+    solved = _Solved(pose, None, pose_information(graph, values, POSE_KEY), Method.WEIGHTED, True, iterations,
+                     graph.error(values))
+    return _finish(solved, reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(graph, values),
                    consistency=consistency)
 
 
@@ -175,11 +179,12 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
     if options.spin_model is SpinModel.RIGID and builder.model is not Model.POSE:
         rigid = _rigid_spin(camera, measurements, setup, keys, result, sigmas, options)
         if rigid is not None:
-            pose, covariance, it, error, converged = rigid
             # the free-phase information is the one whose eigen-analysis names undetermined directions; the
             # rigid graph is too large for a dense Schur complement and has the same null directions
-            return _finish(pose, covariance, info, Method.JOINT, converged, iterations + it, error, reports,
-                           np.median(list(sigmas.values())),
+            solved = _Solved(rigid.pose, rigid.covariance, info, Method.JOINT, rigid.converged,
+                             iterations + rigid.iterations, rigid.error)
+            pose = rigid.pose
+            return _finish(solved, reports, np.median(list(sigmas.values())),
                            consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options))
     try:
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
@@ -192,12 +197,22 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
     if covariance is not None and correlated:  # errors shared along a track: the cluster-robust covariance
         robust = sandwich_marginal(graph, result, POSE_KEY, 6, correlated)
         covariance = covariance if robust is None else robust
-    return _finish(pose, covariance, info, Method.JOINT, converged, iterations, error, reports,
-                   np.median(list(sigmas.values())), dof=_graph_dof(graph, result),
+    solved = _Solved(pose, covariance, info, Method.JOINT, converged, iterations, error)
+    return _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result),
                    consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options))
 
 
-def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options):
+class _RigidFit(NamedTuple):
+    """The rigid-spin graph's solution."""
+
+    pose: gtsam.Pose3
+    covariance: np.ndarray
+    iterations: int
+    error: float
+    converged: bool
+
+
+def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options) -> _RigidFit | None:
     """The joint graph with the rigid spin (docs/design.md §4), started from the free-phase joint solution ``free``.
 
     Every track with frame indices gets a (d, r, phi0) variable and 2-D reprojection factors (one per
@@ -259,7 +274,7 @@ def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options):
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
     except RuntimeError:
         covariance = None
-    return result.atPose3(POSE_KEY), covariance, iterations, error, converged
+    return _RigidFit(result.atPose3(POSE_KEY), covariance, iterations, error, converged)
 
 
 def _common_chi2(arm, camera, measurements, setup, results: list[CalibrationResult],

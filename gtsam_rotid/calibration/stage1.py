@@ -5,6 +5,7 @@ the track-correlated (CR2) covariance of the line and, with short arcs, its jack
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import gtsam
 import numpy as np
@@ -234,8 +235,19 @@ def _axis_watch(builder: RotIdGraph, k: int, prepared):
     return image_axis_at_corners
 
 
+class _Round(NamedTuple):
+    """One LM round of a measurement's stage-1 graph."""
+
+    graph: gtsam.NonlinearFactorGraph
+    keys: MeasurementKeys
+    values: gtsam.Values          # the solution
+    iterations: int
+    start_error: float
+    error: float
+
+
 def _stage1_round(builder, measurement, k, pose, prepared, skip, line_start, circles_start, options,
-                  settle: bool = False):
+                  settle: bool = False) -> _Round:
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False,
                                    prepared=prepared, skip_tracks=skip, refine_circles=False,
@@ -253,7 +265,7 @@ def _stage1_round(builder, measurement, k, pose, prepared, skip, line_start, cir
     result, it, error, _ = _lm(graph, values, min(options.max_iterations, STAGE1_MAX_ITERATIONS),
                                relative_tolerance=options.stage1_tolerance, watch=_axis_watch(builder, k, prepared),
                                watch_tolerance=WATCH_LINE_PX)
-    return graph, keys, result, it + warm, start_error, error
+    return _Round(graph, keys, result, it + warm, start_error, error)
 
 
 def _stage1_result(builder, graph, keys, result, stats, skip, iterations, options) -> _Stage1:
@@ -294,8 +306,8 @@ def _jackknife(builder: RotIdGraph, measurement, k: int, pose: gtsam.Pose3, prep
     for g in range(groups):
         skip = {**s.outliers, **{j: "jackknife" for j in tracks[g::groups]}}
         try:
-            graph, keys, result, _, _, _ = _stage1_round(builder, measurement, k, pose, prepared, skip, s.rotation,
-                                                         dict(s.circles), options)
+            graph, keys, result = _stage1_round(builder, measurement, k, pose, prepared, skip, s.rotation,
+                                                dict(s.circles), options)[:3]
         except RotIdError:
             return s
         offsets.append(gtsam.Rot3.Logmap(s.rotation.between(result.atRot3(keys.line))))
@@ -334,9 +346,9 @@ def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepar
     line_start, circles_start = start_line, None
     rounds = 0
     while True:
-        graph, keys, result, it, start_error, error = _stage1_round(builder, measurement, k, pose, prepared, skip,
-                                                                    line_start, circles_start, options, settle)
-        iterations += it
+        r = _stage1_round(builder, measurement, k, pose, prepared, skip, line_start, circles_start, options, settle)
+        graph, keys, result, start_error, error = r.graph, r.keys, r.values, r.start_error, r.error
+        iterations += r.iterations
         # (a later round starts at the previous round's solution: a small decrease there is convergence)
         if fallbacks and rounds == 0 and error >= (1.0 - STALL_DECREASE) * start_error and start_error > 0.0:
             builder, *fallbacks = fallbacks  # stalled from the start: redo this round with the next model
@@ -419,9 +431,10 @@ def _readmit_tracks(builders, measurements, pose, setup: _Setup, stage1: list[_S
         skip = {j: why for j, why in s.outliers.items() if j not in back}
         line_start, circles_start, iterations = s.rotation, {**s.circles, **{j: circles[j] for j in back}}, s.iterations
         for rounds in range(1, 3):
-            graph, keys, result, it, _, _ = _stage1_round(builder, measurements[k], k, pose, setup.prepared[k], skip,
-                                                          line_start, circles_start, options)
-            iterations += it
+            r = _stage1_round(builder, measurements[k], k, pose, setup.prepared[k], skip, line_start, circles_start,
+                              options)
+            graph, keys, result = r.graph, r.keys, r.values
+            iterations += r.iterations
             stats = _track_stats(graph, keys, result)
             new = _outlier_tracks(stats, options, spread)
             if not new or len(stats) - len(new) < 2 or rounds == 2:

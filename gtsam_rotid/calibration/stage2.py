@@ -5,6 +5,8 @@ refits of stage 1 at the estimate (short arcs), the paper's and the weighted met
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import gtsam
 import numpy as np
 
@@ -268,8 +270,8 @@ def _second_opinion(arm, camera, measurements, setup: _Setup, stage1: list[_Stag
     if tied is None:
         return None, np.inf
     sse_tied, line, circles, tie = tied
-    graph, keys, result, it, _, _ = _stage1_round(builder, measurements[k], k, pose, setup.prepared[k], s.outliers,
-                                                  line, circles, options)
+    r = _stage1_round(builder, measurements[k], k, pose, setup.prepared[k], s.outliers, line, circles, options)
+    graph, keys, result, it = r.graph, r.keys, r.values, r.iterations
     stats = _track_stats(graph, keys, result)
     refit = None
     free = _sse(s)
@@ -375,12 +377,26 @@ def _check_scale(result: CalibrationResult, setup: _Setup, stage1: list[_Stage1]
             f"{options.max_feature_radius_m} m); check the joint angles, the intrinsics and the wrist joint")
 
 
-def _finish(pose, covariance, info, method, converged, iterations, error, reports, sigma_px,
-            info_scale: float = 1.0, dof: int | None = None,
+@dataclass(frozen=True)
+class _Solved:
+    """A method's solution, before its result is assembled (:func:`_finish`)."""
+
+    pose: gtsam.Pose3
+    covariance: np.ndarray | None     # None: from the observability analysis of ``info``
+    info: np.ndarray                  # the pose's information (6x6)
+    method: Method
+    converged: bool
+    iterations: int
+    error: float
+
+
+def _finish(solved: _Solved, reports, sigma_px, *, info_scale: float = 1.0, dof: int | None = None,
             consistency: AxisConsistency | None = None) -> CalibrationResult:
     """Result with the observability of ``info * info_scale`` (the scale makes it a real information); the
     covariance (of the pose, or the observability's when it is undetermined) is multiplied by
     ``consistency.scale``."""
+    pose, covariance, info, method = solved.pose, solved.covariance, solved.info, solved.method
+    converged, iterations, error = solved.converged, solved.iterations, solved.error
     if not np.all(np.isfinite(info)):
         raise CalibrationError("the estimate ended in a poor minimum: the pose's information there is not finite "
                                "(the FK axes' test points project at or behind the camera); check the joint angles, "
@@ -466,5 +482,6 @@ def _paper(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResu
     # The paper's covariance assumes 1 px line errors; judge what is determined with the residual scale.
     dof = 2 * len(stage1) - 6
     line_var = max(2.0 * error / dof, options.min_sigma_px**2) if dof > 0 else 1.0
-    return _finish(pose, None, pose_information(graph, values, POSE_KEY), Method.PAPER, True, iterations, error,
-                   reports, np.median(list(sigmas.values())), info_scale=1.0 / line_var, dof=_graph_dof(graph, values))
+    solved = _Solved(pose, None, pose_information(graph, values, POSE_KEY), Method.PAPER, True, iterations, error)
+    return _finish(solved, reports, np.median(list(sigmas.values())), info_scale=1.0 / line_var,
+                   dof=_graph_dof(graph, values))
