@@ -36,7 +36,7 @@ import numpy as np
 from .corners import CornerFollower, link_fragments, spin_filter, tracks_from_log
 from .dataset import Track
 from .errors import InputError
-from .files import IMAGE_SUFFIXES, image_files
+from .frames import frames_of, open_source
 
 #: File name endings read as images when ``frames`` is a folder.
 
@@ -529,28 +529,9 @@ def _as_grey(image, where: str) -> np.ndarray:
     return np.ascontiguousarray(grey)
 
 
-def _video_frames(path: Path) -> Iterator[tuple[np.ndarray, str]]:
-    capture = cv2.VideoCapture(str(path))
-    try:
-        if not capture.isOpened():
-            raise InputError(f"cannot open the video {path}: not a video file, or no codec for it")
-        index = 0
-        while True:
-            ok, image = capture.read()
-            if not ok:
-                break
-            yield image, f"frame {index} of {path}"
-            index += 1
-    finally:
-        capture.release()
-
-
-def _folder_frames(files: list[Path]) -> Iterator[tuple[np.ndarray, str]]:
-    for index, file in enumerate(files):
-        image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise InputError(f"frame {index}: cannot read the image {file}")
-        yield image, f"frame {index} ({file})"
+def _path_frames(frames: Iterator[np.ndarray], path: Path, first: int = 0) -> Iterator[tuple[np.ndarray, str]]:
+    for index, image in enumerate(frames, first):
+        yield image, f"frame {index} of {path}"
 
 
 def _array_frames(frames: Iterable) -> Iterator[tuple[np.ndarray, str]]:
@@ -565,18 +546,8 @@ def frame_source(frames) -> tuple[Iterator[tuple[np.ndarray, str]], int | None]:
         path = Path(frames)
         if not path.exists():
             raise InputError(f"{path} does not exist: expected a video file or a folder of images")
-        if path.is_dir():
-            files = image_files(path)
-            if not files:
-                raise InputError(f"the folder {path} holds no image files ({', '.join(IMAGE_SUFFIXES)})")
-            return _folder_frames(files), len(files)
-        capture = cv2.VideoCapture(str(path))
-        opened = capture.isOpened()
-        total = int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) if opened else 0
-        capture.release()
-        if not opened:
-            raise InputError(f"cannot open the video {path}: not a video file, or no codec for it")
-        return _video_frames(path), (total if total > 0 else None)
+        images, total, first = frames_of(open_source(path), None)   # the one frame reader
+        return _path_frames(images, path, first), total
     if isinstance(frames, np.ndarray):
         if frames.ndim == 3 and frames.shape[2] in (3, 4) and min(frames.shape[:2]) >= _MIN_IMAGE_SIDE:
             raise InputError(f"got one {frames.shape} image, not a sequence of frames: pass a list of images or an "

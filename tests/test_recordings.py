@@ -436,7 +436,7 @@ def test_frame_errors(tmp_path):
     empty = tmp_path / "empty"
     empty.mkdir()
     (empty / "readme.txt").write_text("no images here")
-    with pytest.raises(RecordingError, match="holds no images"):
+    with pytest.raises(RecordingError, match="holds no image files"):
         read_frames(empty)
     folder = write_folder(tmp_path / "images", 5)
     with pytest.raises(RecordingError, match=r"has 5 images \(frames 0 to 4\); the frame range 2:9 goes beyond"):
