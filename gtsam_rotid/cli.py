@@ -178,8 +178,18 @@ def _demo_simulated(args) -> int:
 # command line: ``gtsam-rotid export RESULT.json --to FORMAT [-o FILE]``
 
 
+def _emit(text: str, output, overwrite: bool) -> None:
+    """``text`` to standard output, or to the file ``output`` (staged) and "wrote FILE" on standard output."""
+    if output is None:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    else:
+        write_text(output, text, overwrite=overwrite)
+        print(f"wrote {output}")
+
+
 def add_export_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``export`` command to an ``argparse`` subparsers object ."""
+    """Add the ``export`` command to an ``argparse`` subparsers object."""
     p = subparsers.add_parser(
         "export", help="write arm_T_camera (and its covariance) as YAML, JSON, URDF, a ROS 2 command or a matrix",
         description="Export a calibration result. yaml/json: pose (position, quaternion x y z w) and the covariance "
@@ -215,11 +225,7 @@ def cmd_export(args) -> int:
         print("gtsam-rotid export: warning: the covariance is unusable (the arm poses do not determine the "
               "calibration; see `gtsam-rotid report`); it is exported with covariance_usable: false",
               file=sys.stderr)
-    if output is None:
-        sys.stdout.write(text if text.endswith("\n") else text + "\n")
-    else:
-        write_text(output, text, overwrite=args.overwrite)
-        print(f"wrote {output}")
+    _emit(text if text.endswith("\n") else text + "\n", output, args.overwrite)
     return 0
 
 
@@ -228,7 +234,7 @@ def cmd_export(args) -> int:
 
 
 def add_report_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``report`` command to an ``argparse`` subparsers object ."""
+    """Add the ``report`` command to an ``argparse`` subparsers object."""
     p = subparsers.add_parser(
         "report", help="print the estimate, its uncertainty, consistency and observability (and plots)",
         description="Report a calibration result: the estimate (mm, roll-pitch-yaw in degrees, quaternion), 1σ and "
@@ -269,12 +275,7 @@ def cmd_report(args) -> int:
     text = make_report(result, dataset).render(args.format)
     # with the report on standard output, progress lines go to standard error (the output stays parseable)
     progress = sys.stdout if output is not None else sys.stderr
-    if output is None:
-        sys.stdout.write(text)
-        sys.stdout.flush()
-    else:
-        write_text(output, text, overwrite=args.overwrite)
-        print(f"wrote {output}", file=progress)
+    _emit(text, output, args.overwrite)
     if plots_dir is not None:
         from .plots import save_plots
 
