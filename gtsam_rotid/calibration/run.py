@@ -61,21 +61,19 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
                          f"each, got {len(kept)} of {len(measurements)}" + (f" ({bad})" if bad else "")
                          + "; spin the wrist longer or give the hand more texture")
     result, setup = _calibrate(arm, camera, [measurements[k] for k in kept], method, options, kept)
-    for r in result.measurements:
-        r.index = kept[r.index]
+    reports = [replace(r, index=kept[r.index]) for r in result.measurements]
     for k, p in enumerate(prepared):
         if k in kept:
             continue
         axis = arm.wrist_axis(measurements[k].joint_angles)
         spans = [arc_span_deg(t.ideal, t.ellipse) for t in p.usable.values()]
-        result.measurements.append(MeasurementReport(
+        reports.append(MeasurementReport(
             k, len(p.usable), sum(len(t.ideal) for t in p.usable.values()), float("nan"), 0.0, True,
             dict(p.rejected), f"left out: only {len(p.usable)} usable track(s), need at least 2 for an image axis; "
             "spin longer or give the hand more texture", axis_point=[float(v) for v in axis.point],
             axis_direction=[float(v) for v in axis.direction], arc_span_deg=max(spans) if spans else None, weak=True))
-    result.measurements.sort(key=lambda r: r.index)
-    result.untrusted = _untrusted(result, setup)
-    return result
+    result = replace(result, measurements=sorted(reports, key=lambda r: r.index))
+    return replace(result, untrusted=_untrusted(result, setup))
 
 
 def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]:
@@ -131,16 +129,13 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
             raise failures[0]
         best, alternatives = _choose(arm, camera, measurements, setup, joints, options)
         if method is Method.JOINT:
-            joints[best].alternatives = alternatives
-            joints[best].joint_sigma_deg = options.joint_sigma_deg
-            return joints[best], setup
+            return replace(joints[best], alternatives=alternatives, joint_sigma_deg=options.joint_sigma_deg), setup
         runs, anchors = [runs[best]], [anchors[best]]
     init_pose, stage1 = runs[0]
     result = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
     _check_scale(result, setup, stage1, options)
-    result.alternatives = alternatives
-    result.joint_sigma_deg = 0.0 if method is Method.PAPER else options.joint_sigma_deg
-    return result, setup
+    return replace(result, alternatives=alternatives,
+                   joint_sigma_deg=0.0 if method is Method.PAPER else options.joint_sigma_deg), setup
 
 
 def _same_solution(result: CalibrationResult, pose: gtsam.Pose3) -> bool:
