@@ -15,7 +15,7 @@ LAYERS = {
     "camera": 2, "arm": 2, "dataset": 2, "frames": 2,
     "tracking": 3, "trackparams": 3, "centroids": 3, "trackfilter": 3, "corners": 3,
     "meshconfig": 3, "armmeshes": 3, "meshtextures": 3, "meshcast": 3, "patterns": 3, "render": 3, "meshrender": 3,
-    "simulate": 3, "recordings": 3,
+    "simulate": 3, "recordings": 3, "camerafiles": 2,
     "graph": 4, "initialise": 4, "uncertainty": 4,
     "calibration": 5, "estimate": 5, "fits": 5,
     "report": 6, "words": 6, "plots": 6, "export": 6, "pixels": 6,
