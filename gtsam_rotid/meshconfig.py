@@ -9,7 +9,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .errors import InputError
-from .render import check_integers
+from .renderconfig import check_integers
 
 COVERINGS = ("photo", "text", "fabric", "stickers", "dots", "plain")
 BACKGROUNDS = ("photo", "noise", "plain")

@@ -47,11 +47,8 @@ Entry points: :func:`render_measurement`, :func:`render_scene`, :func:`write_vid
 from __future__ import annotations
 
 import os
-import re
-import secrets
-import shutil
-from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, fields, replace
+from collections.abc import Iterator
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import cv2
@@ -60,6 +57,8 @@ import numpy as np
 from .camera import Camera
 from .errors import InputError, OutputExistsError, VideoWriteError
 from .files import staged
+from .renderconfig import RenderConfig, Section
+from .videos import VIDEO_FOURCC, _check_output_target, write_video  # noqa: F401 (VIDEO_FOURCC: re-export)
 
 __all__ = [
     "DotCovering",
@@ -74,128 +73,12 @@ __all__ = [
     "save_truth",
     "write_video",
 ]
-
-#: Video suffixes :func:`write_video` writes, with their OpenCV fourcc: MPEG-4 part 2 is lossy (about 3 grey
-#: levels mean error on a noise-free frame, and it smooths the image noise away); FFV1 is lossless.
-VIDEO_FOURCC = {".mp4": "mp4v", ".mkv": "FFV1", ".avi": "FFV1"}
-_FRAME_FILE = re.compile(r"^frame_\d{6,}\.png$")
 _BODY_SUPERSAMPLE = 4
 _OUTLINE_SAMPLES = 96  # points per end circle of a section outline
 _RIM_SAMPLES_FOR_OCCLUSION = 8
 _NOISE_PAD = 97  # the noise bank is this much larger than the image in each direction
 _TRUTH_CHUNK = 128  # frames per vectorised truth computation
 _DOT_LINE = cv2.LINE_AA  # anti-aliased edges on the fine grid: centroids ~1.5x closer than without
-
-
-# --------------------------------------------------------------------------------------------- configuration
-@dataclass(frozen=True)
-class Section:
-    """One coaxial cylinder of the end effector: ``radius`` (m) from the wrist axis, from ``start`` to
-    ``stop`` (m, offsets along the axis from the wrist joint origin), carrying ``n_dots`` dots."""
-
-    radius: float
-    start: float
-    stop: float
-    n_dots: int
-
-
-@dataclass(frozen=True)
-class RenderConfig:
-    """Everything the renderer draws besides the scene itself. Metres, grey levels (0-255), pixels."""
-
-    #: The end effector, coaxial sections that do not overlap along the axis.
-    sections: tuple[Section, ...] = (Section(0.035, 0.0, 0.05, 12), Section(0.055, 0.05, 0.10, 18))
-    #: Range of dot radii (mm): at 0.75 m and f = 570 px, 3-7 px.
-    dot_radius_mm: tuple[float, float] = (4.0, 9.0)
-    #: Least gap between two dots, and between a dot and the end of its section (mm).
-    dot_gap_mm: float = 3.0
-    #: Range of |dot grey - body grey|; a fraction ``bright_fraction`` of the dots is brighter than the body.
-    dot_contrast: tuple[float, float] = (50.0, 100.0)
-    bright_fraction: float = 0.5
-    body_grey: float = 128.0
-    cap_grey: float = 104.0
-    #: Each section's outline is drawn as a line of this grey and width (px; 0 for none), so that the edge
-    #: where a nearer section hides a farther one shows.
-    edge_grey: float = 84.0
-    edge_width_px: float = 1.0
-    #: Grey range of the static background texture and the size of its coarsest blobs (px).
-    background_grey: tuple[float, float] = (40.0, 210.0)
-    background_scale_px: float = 40.0
-    #: Standard deviation of the Gaussian image noise (grey levels); 0 for none.
-    noise_sigma: float = 2.0
-    #: A dot counts as visible while cos(normal, ray to camera) exceeds this (simulate's default).
-    visibility_cos: float = 0.1
-    dot_vertices: int = 32
-    #: Dots are filled on supersample x supersample sub-pixels per pixel.
-    supersample: int = 8
-    #: Seeds the covering, the background and the noise.
-    seed: int = 0
-
-    def __post_init__(self):
-        sections = tuple(self.sections)
-        if not sections:
-            raise InputError("RenderConfig.sections must hold at least one Section")
-        for i, s in enumerate(sections):
-            if not isinstance(s, Section):
-                raise InputError(f"RenderConfig.sections[{i}] must be a Section, got {type(s).__name__}")
-            values = np.array([s.radius, s.start, s.stop], dtype=float)
-            if not np.all(np.isfinite(values)) or s.radius <= 0 or s.stop <= s.start:
-                raise InputError(f"section {i}: need radius > 0 and start < stop (m), got radius={s.radius}, "
-                                 f"start={s.start}, stop={s.stop}")
-            if isinstance(s.n_dots, bool) or not isinstance(s.n_dots, (int, np.integer)) or s.n_dots < 0:
-                raise InputError(f"section {i}: n_dots must be a non-negative integer, got {s.n_dots!r}")
-        by_start = sorted(range(len(sections)), key=lambda i: sections[i].start)
-        for i, j in zip(by_start, by_start[1:], strict=False):
-            if sections[j].start < sections[i].stop - 1e-12:
-                raise InputError(f"sections {i} and {j} overlap along the axis ([{sections[i].start}, "
-                                 f"{sections[i].stop}] and [{sections[j].start}, {sections[j].stop}] m)")
-        object.__setattr__(self, "sections", sections)
-        _check_range("dot_radius_mm", self.dot_radius_mm, low=0.0, strict_low=True)
-        _check_range("dot_contrast", self.dot_contrast, low=0.0)
-        _check_range("background_grey", self.background_grey, low=0.0, high=255.0)
-        for name in ("dot_gap_mm", "noise_sigma", "edge_width_px"):
-            value = getattr(self, name)
-            if not np.isfinite(value) or value < 0:
-                raise InputError(f"RenderConfig.{name} must be a finite number >= 0, got {value!r}")
-        for name in ("body_grey", "cap_grey", "edge_grey"):
-            value = getattr(self, name)
-            if not np.isfinite(value) or not 0.0 <= value <= 255.0:
-                raise InputError(f"RenderConfig.{name} must be in [0, 255], got {value!r}")
-        if self.body_grey - self.dot_contrast[1] < 0.0 or self.body_grey + self.dot_contrast[1] > 255.0:
-            raise InputError(f"dots at body_grey {self.body_grey} +- dot_contrast up to {self.dot_contrast[1]} "
-                             f"leave the 8-bit range [0, 255]")
-        if not 0.0 <= self.bright_fraction <= 1.0:
-            raise InputError(f"RenderConfig.bright_fraction must be in [0, 1], got {self.bright_fraction!r}")
-        if not np.isfinite(self.background_scale_px) or self.background_scale_px < 2.0:
-            raise InputError(f"RenderConfig.background_scale_px must be >= 2 px, got {self.background_scale_px!r}")
-        if not -1.0 < self.visibility_cos < 1.0:
-            raise InputError(f"RenderConfig.visibility_cos must be in (-1, 1), got {self.visibility_cos!r}")
-        check_integers(self, (("dot_vertices", 8, 1024), ("supersample", 1, 32), ("seed", 0, None)))
-
-    def with_(self, **changes) -> RenderConfig:
-        return replace(self, **changes)
-
-
-def check_integers(config, bounds) -> None:
-    """Each ``(field, low, high)`` of a renderer config an integer in ``[low, high]`` (``high`` None: no upper bound),
-    else an :class:`InputError` naming the config class and the field."""
-    for name, low, high in bounds:
-        value = getattr(config, name)
-        if (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low
-                or (high is not None and value > high)):
-            bound = f"an integer >= {low}" if high is None else f"an integer in [{low}, {high}]"
-            raise InputError(f"{type(config).__name__}.{name} must be {bound}, got {value!r}")
-
-
-def _check_range(name: str, pair, *, low: float, high: float = np.inf, strict_low: bool = False) -> None:
-    try:
-        lo, hi = (float(v) for v in pair)
-    except (TypeError, ValueError):
-        raise InputError(f"RenderConfig.{name} must be a pair (low, high), got {pair!r}") from None
-    below = lo <= low if strict_low else lo < low
-    if not (np.isfinite(lo) and np.isfinite(hi)) or below or hi > high or hi < lo:
-        bound = f"({low}, {high}]" if strict_low else f"[{low}, {high}]"
-        raise InputError(f"RenderConfig.{name} must be a pair low <= high inside {bound}, got {pair!r}")
 
 
 # --------------------------------------------------------------------------------------------- the covering
@@ -670,135 +553,6 @@ def render_scene(dataset, truth, config: RenderConfig | None = None, *, frames=N
     """:func:`render_measurement` for every measurement of the scene (the same covering on each)."""
     _checked_scene(dataset, truth)
     return [render_measurement(dataset, truth, k, config, frames=frames) for k in range(len(dataset))]
-
-
-# --------------------------------------------------------------------------------------------- output
-def _sibling(target: Path, tag: str, suffix: str = "") -> Path:
-    return target.with_name(f".{target.name}.{tag}-{secrets.token_hex(4)}{suffix}")
-
-
-def _is_frame_folder(path: Path) -> bool:
-    return path.is_dir() and all(_FRAME_FILE.match(entry.name) for entry in path.iterdir())
-
-
-def _checked_frame(frame, index: int, shape: tuple | None) -> np.ndarray:
-    frame = np.asarray(frame)
-    if frame.dtype != np.uint8 or not (frame.ndim == 2 or (frame.ndim == 3 and frame.shape[2] == 3)):
-        raise InputError(f"frame {index}: expected a uint8 (H, W) grey or (H, W, 3) BGR image, got "
-                         f"{frame.dtype} {frame.shape}")
-    if shape is not None and frame.shape != shape:
-        raise InputError(f"frame {index}: shape {frame.shape} differs from the first frame's {shape}")
-    return frame
-
-
-def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: float, *,
-                overwrite: bool = False) -> Path:
-    """Write 8-bit frames to ``path``: a video when it ends in ``.mp4`` ('mp4v', lossy) or ``.mkv`` / ``.avi``
-    ('FFV1', lossless), otherwise (no suffix) a folder of lossless ``frame_000000.png`` ... files.
-    Returns the path.
-
-    Frames may be grey (H, W) or BGR (H, W, 3), all of one shape; grey frames are stored as BGR in a video.
-    The output is built next to the target and renamed into place. An existing target raises
-    :class:`OutputExistsError` unless ``overwrite`` is true, and even then only a file with the same video
-    suffix, an empty folder or a folder holding nothing but ``frame_*.png`` files is replaced, after the new
-    one is complete.
-    """
-    target = Path(os.path.abspath(os.fspath(path)))
-    suffix = target.suffix.lower()
-    if suffix and suffix not in VIDEO_FOURCC:
-        raise InputError(f"{target}: unknown video suffix {target.suffix!r}; use one of {sorted(VIDEO_FOURCC)} or "
-                         f"a path without a suffix for a folder of PNG images")
-    if isinstance(fps, bool) or not isinstance(fps, (int, float, np.number)) or not np.isfinite(fps) or fps <= 0:
-        raise InputError(f"fps must be a positive finite number, got {fps!r}")
-    _check_output_target(target, overwrite, folder=not suffix)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    if suffix:
-        with staged(target, overwrite) as staging:
-            _write_video_file(frames, staging, float(fps), VIDEO_FOURCC[suffix])
-        return target
-    staging = _sibling(target, "tmp")
-    staging.mkdir()
-    moved_in = False
-    try:
-        _write_png_folder(frames, staging)
-        _check_output_target(target, overwrite, folder=True)
-        aside = None
-        if target.exists():
-            aside = _sibling(target, "old")
-            os.rename(target, aside)
-        try:
-            os.rename(staging, target)
-        except BaseException:
-            if aside is not None:
-                os.rename(aside, target)
-            raise
-        moved_in = True
-        if aside is not None:
-            shutil.rmtree(aside, ignore_errors=True)
-    finally:
-        if not moved_in:
-            shutil.rmtree(staging, ignore_errors=True)
-    return target
-
-
-def _check_output_target(target: Path, overwrite: bool, *, folder: bool) -> None:
-    if not os.path.lexists(target):
-        return
-    if target.is_symlink():
-        raise OutputExistsError(f"{target} is a symbolic link; refusing to replace it")
-    if folder:
-        if not target.is_dir():
-            raise OutputExistsError(f"{target} exists and is not a folder; refusing to replace it, even with "
-                                    f"overwrite=True")
-        if not any(target.iterdir()):
-            return
-        if not _is_frame_folder(target):
-            raise OutputExistsError(f"{target} holds files other than frame_*.png; refusing to replace it, even "
-                                    f"with overwrite=True, so as not to delete unrelated files")
-        if not overwrite:
-            raise OutputExistsError(f"{target} already holds frames; pass overwrite=True to replace them")
-        return
-    if target.is_dir():
-        raise OutputExistsError(f"{target} is a directory; refusing to replace it with a video file")
-    if not overwrite:
-        raise OutputExistsError(f"{target} exists; pass overwrite=True to replace it")
-
-
-def _write_video_file(frames: Iterable[np.ndarray], path: Path, fps: float, fourcc: str) -> None:
-    writer = None
-    shape = None
-    count = 0
-    try:
-        for frame in frames:
-            frame = _checked_frame(frame, count, shape)
-            count += 1
-            if writer is None:
-                shape = frame.shape
-                writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps,
-                                         (frame.shape[1], frame.shape[0]), True)
-                if not writer.isOpened():
-                    raise VideoWriteError(f"OpenCV cannot open a {fourcc!r} video writer for {path} "
-                                          f"({frame.shape[1]}x{frame.shape[0]} at {fps:g} fps)")
-            writer.write(cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR) if frame.ndim == 2 else frame)
-    finally:
-        if writer is not None:
-            writer.release()
-    if writer is None:
-        raise InputError("no frames to write")
-    if not path.is_file() or path.stat().st_size == 0:
-        raise VideoWriteError(f"OpenCV wrote nothing to {path} ({count} frames given)")
-
-
-def _write_png_folder(frames: Iterable[np.ndarray], folder: Path) -> None:
-    shape = None
-    for index, frame in enumerate(frames):
-        frame = _checked_frame(frame, index, shape)
-        shape = frame.shape
-        name = folder / f"frame_{index:06d}.png"
-        if not cv2.imwrite(str(name), frame):
-            raise VideoWriteError(f"OpenCV could not write {name}")
-    if shape is None:
-        raise InputError("no frames to write")
 
 
 def save_truth(rendered: RenderedSpin, path: str | os.PathLike, *, overwrite: bool = False) -> Path:

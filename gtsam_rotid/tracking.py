@@ -34,10 +34,11 @@ import cv2
 import numpy as np
 
 from .centroids import Centres, refine_centres
-from .corners import CornerFollower, link_fragments, spin_filter, tracks_from_log
+from .corners import CornerFollower, tracks_from_log
 from .dataset import Track
 from .errors import InputError
 from .frames import frames_of, open_source
+from .spinfilter import link_fragments, spin_filter
 from .trackfilter import _blob_area, _filter, _inside, _kept_patches, filter_tracks, loo_residuals, split_at_jumps
 from .trackparams import FEATURES, RejectedTrack, RejectReason, TrackerParams, TrackingResult
 
