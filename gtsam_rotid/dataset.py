@@ -29,7 +29,6 @@ import zipfile
 from collections.abc import Iterator, Mapping, Sequence
 from functools import lru_cache
 from importlib import resources
-from numbers import Real
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +46,7 @@ from .errors import (
     RotIdError,
     ValidationError,
 )
+from .measurements import Measurement, Track, _located, _plural
 
 #: ``"format"`` marker of ``dataset.json``.
 FORMAT = "gtsam_rotid.dataset"
@@ -56,24 +56,10 @@ DATASET_FILE = "dataset.json"
 TRACKS_FILE = "tracks.npz"
 URDF_FILE = "arm.urdf"
 SCHEMA_FILE = "dataset-v1.schema.json"
-
-_INT64_MAX = np.iinfo(np.int64).max
 _TRACK_KEY = re.compile(r"^m(\d+)_t(\d+)_")
 _SHORT_REPR = reprlib.Repr()  # keyword arguments need Python 3.12
 _SHORT_REPR.maxlevel, _SHORT_REPR.maxdict, _SHORT_REPR.maxlist = 2, 4, 4
 _SHORT_REPR.maxstring = _SHORT_REPR.maxother = 40
-
-
-# ---------------------------------------------------------------------------------------------- helpers
-def _located(err: ValidationError, *, measurement: int | None = None, track: int | None = None) -> ValidationError:
-    """The same validation error, re-addressed to ``measurement`` / ``track`` (kept where not given)."""
-    prefix = str(ValidationError("", measurement=err.measurement, track=err.track))
-    message = str(err)[len(prefix):]
-    return ValidationError(
-        message,
-        measurement=err.measurement if measurement is None else measurement,
-        track=err.track if track is None else track,
-    )
 
 
 def _json_default(value: Any) -> Any:
@@ -200,222 +186,8 @@ def _check_save_target(target: Path, overwrite: bool) -> bool:
     return True
 
 
-def _plural(count: int, noun: str) -> str:
-    return f"{count} {noun}" if count == 1 else f"{count} {noun}s"
-
-
 def _sibling_name(target: Path, tag: str) -> Path:
     return target.with_name(f".{target.name}.{tag}-{secrets.token_hex(4)}")
-
-
-# ---------------------------------------------------------------------------------------------- Track
-class Track:
-    """One feature tracked through (part of) a wrist spin.
-
-    Args:
-        pixels: (N, 2) raw (distorted) pixel coordinates (u, v), N >= 1, all finite.
-        frames: optional (N,) integer frame indices of the pixels, strictly increasing and >= 0. When
-            given, the estimators tie the feature's phase to the shared per-frame wrist angle.
-
-    Attributes ``pixels`` (float64) and ``frames`` (int64 or ``None``) are read-only copies.
-    """
-
-    __slots__ = ("_pixels", "_frames")
-
-    def __init__(self, pixels, frames=None):
-        self._pixels = self._checked_pixels(pixels)
-        self._frames = None if frames is None else self._checked_frames(frames, len(self._pixels))
-
-    @staticmethod
-    def _checked_pixels(pixels) -> np.ndarray:
-        try:
-            array = np.asarray(pixels)
-        except (TypeError, ValueError):
-            raise ValidationError("pixels must be a numeric (N, 2) array (got a ragged or non-numeric "
-                                  f"{type(pixels).__name__})") from None
-        if array.dtype.kind not in "iuf":
-            raise ValidationError(f"pixels must be real numbers, got dtype {array.dtype}")
-        if array.ndim != 2 or array.shape[1] != 2:
-            raise ValidationError(f"pixels must have shape (N, 2), got shape {array.shape}")
-        if array.shape[0] == 0:
-            raise ValidationError("the track is empty (0 pixels); a track needs at least one pixel")
-        pixels_uv = np.array(array, dtype=np.float64)
-        bad = np.flatnonzero(~np.all(np.isfinite(pixels_uv), axis=1))
-        if bad.size:
-            raise ValidationError(f"{bad.size} of {len(pixels_uv)} pixels are NaN or infinite (first: pixel "
-                                  f"{bad[0]} = {pixels_uv[bad[0]].tolist()})")
-        pixels_uv.setflags(write=False)
-        return pixels_uv
-
-    @staticmethod
-    def _checked_frames(frames, n: int) -> np.ndarray:
-        try:
-            array = np.asarray(frames)
-        except (TypeError, ValueError):
-            raise ValidationError(f"frames must be a 1-D integer array, got {type(frames).__name__}") from None
-        if array.dtype.kind not in "iuf":
-            raise ValidationError(f"frames must be integers, got dtype {array.dtype}")
-        if array.shape != (n,):
-            raise ValidationError(f"frames must have shape ({n},), one per pixel, got shape {array.shape}")
-        if array.dtype.kind == "f":
-            bad = np.flatnonzero(~np.isfinite(array) | (array != np.round(array)) | (np.abs(array) >= 2.0**62))
-            if bad.size:
-                raise ValidationError(f"frames must be integers; frame {bad[0]} is {array[bad[0]].item()!r}")
-        elif array.dtype.kind == "u" and array.size and array.max() > _INT64_MAX:
-            raise ValidationError(f"frame index {array.max()} is too large")
-        frames_int = np.array(array, dtype=np.int64)
-        negative = np.flatnonzero(frames_int < 0)
-        if negative.size:
-            raise ValidationError(f"frames must be >= 0; frame {negative[0]} is {frames_int[negative[0]]}")
-        not_increasing = np.flatnonzero(np.diff(frames_int) <= 0)
-        if not_increasing.size:
-            i = not_increasing[0]
-            raise ValidationError(f"frames must be strictly increasing; frame {i + 1} is {frames_int[i + 1]} "
-                                  f"after frame {i} = {frames_int[i]}")
-        frames_int.setflags(write=False)
-        return frames_int
-
-    @classmethod
-    def from_any(cls, obj, *, measurement: int | None = None, track: int | None = None) -> Track:
-        """``obj`` if it is a Track, else ``Track(obj)``; errors name ``measurement`` and ``track``."""
-        if isinstance(obj, Track):
-            return obj
-        try:
-            return cls(obj)
-        except ValidationError as err:
-            raise _located(err, measurement=measurement, track=track) from None
-
-    @property
-    def pixels(self) -> np.ndarray:
-        """(N, 2) raw pixels (u, v), float64, read-only."""
-        return self._pixels
-
-    @property
-    def frames(self) -> np.ndarray | None:
-        """(N,) frame indices, int64, read-only, or ``None`` when unknown."""
-        return self._frames
-
-    @property
-    def has_frames(self) -> bool:
-        return self._frames is not None
-
-    def __len__(self) -> int:
-        return len(self._pixels)
-
-    def __eq__(self, other) -> bool:
-        if not isinstance(other, Track):
-            return NotImplemented
-        if (self._frames is None) != (other._frames is None):
-            return False
-        return np.array_equal(self._pixels, other._pixels) and (
-            self._frames is None or np.array_equal(self._frames, other._frames)
-        )
-
-    __hash__ = None
-
-    def __repr__(self) -> str:
-        frames = "no frames" if self._frames is None else f"frames {self._frames[0]}..{self._frames[-1]}"
-        return f"Track({_plural(len(self), 'pixel')}, {frames})"
-
-
-# ---------------------------------------------------------------------------------------------- Measurement
-def _checked_joint_angles(joint_angles) -> np.ndarray | dict[str, float]:
-    """A copy of the joint angles: a float64 vector, or a dict name -> float (arm-independent checks only)."""
-    if isinstance(joint_angles, Mapping):
-        if not joint_angles:
-            raise ValidationError("joint angles are empty")
-        checked = {}
-        for name, value in joint_angles.items():
-            if not isinstance(name, str):
-                raise ValidationError(f"joint names must be strings, got {name!r}")
-            if isinstance(value, bool) or not isinstance(value, Real):
-                raise ValidationError(f"joint angle of {name!r} must be a number, got {value!r}")
-            if not np.isfinite(float(value)):
-                raise ValidationError(f"joint angle of {name!r} is NaN or infinite")
-            checked[name] = float(value)
-        return checked
-    if isinstance(joint_angles, (str, bytes)) or not isinstance(joint_angles, (Sequence, np.ndarray)):
-        raise ValidationError("joint angles must be a sequence of numbers or a dict name -> angle, got "
-                              f"{type(joint_angles).__name__}")
-    try:
-        array = np.asarray(joint_angles)
-    except (TypeError, ValueError):
-        raise ValidationError("joint angles must be a flat sequence of numbers") from None
-    if array.dtype.kind not in "iuf" or array.ndim != 1:
-        raise ValidationError(f"joint angles must be a flat sequence of numbers, got shape {array.shape} "
-                              f"and dtype {array.dtype}")
-    if array.size == 0:
-        raise ValidationError("joint angles are empty")
-    angles = np.array(array, dtype=np.float64)
-    bad = np.flatnonzero(~np.isfinite(angles))
-    if bad.size:
-        raise ValidationError(f"joint angle {bad[0]} is NaN or infinite")
-    angles.setflags(write=False)
-    return angles
-
-
-class Measurement:
-    """One wrist spin at a fixed arm pose.
-
-    Args:
-        joint_angles: radians, one per revolute joint of the arm in model order (stored as a read-only
-            float64 vector), or a dict joint name -> angle (stored as a dict of floats). Checked against the
-            arm by :class:`Dataset`.
-        tracks: non-empty list of :class:`Track` or (N, 2) pixel arrays (converted with
-            :meth:`Track.from_any`; errors name the track index).
-        name: optional label.
-    """
-
-    __slots__ = ("joint_angles", "tracks", "name")
-
-    def __init__(self, joint_angles, tracks, *, name: str | None = None):
-        if name is not None and not isinstance(name, str):
-            raise ValidationError(f"measurement name must be a string or None, got {type(name).__name__}")
-        self.name = name
-        self.joint_angles = _checked_joint_angles(joint_angles)
-        if isinstance(tracks, (Track, str, bytes, Mapping)) or (isinstance(tracks, np.ndarray) and tracks.ndim < 3):
-            raise ValidationError(f"tracks must be a list of Track or (N, 2) arrays, got a single "
-                                  f"{type(tracks).__name__}; wrap it in a list")
-        try:
-            items = list(tracks)
-        except TypeError:
-            raise ValidationError(f"tracks must be a list of Track or (N, 2) arrays, got "
-                                  f"{type(tracks).__name__}") from None
-        if not items:
-            raise ValidationError("a measurement needs at least one track, got none")
-        self.tracks: tuple[Track, ...] = tuple(Track.from_any(t, track=j) for j, t in enumerate(items))
-
-    @property
-    def n_tracks(self) -> int:
-        return len(self.tracks)
-
-    @property
-    def n_observations(self) -> int:
-        """Total number of pixels over all tracks."""
-        return sum(len(t) for t in self.tracks)
-
-    def frame_span(self) -> tuple[int, int] | None:
-        """(first, last) frame index over the tracks that carry frames, or ``None`` if none does."""
-        spans = [(int(t.frames[0]), int(t.frames[-1])) for t in self.tracks if t.frames is not None]
-        if not spans:
-            return None
-        return min(s[0] for s in spans), max(s[1] for s in spans)
-
-    def __eq__(self, other) -> bool:
-        if not isinstance(other, Measurement):
-            return NotImplemented
-        a, b = self.joint_angles, other.joint_angles
-        if isinstance(a, dict) or isinstance(b, dict):
-            same_angles = isinstance(a, dict) and isinstance(b, dict) and a == b
-        else:
-            same_angles = np.array_equal(a, b)
-        return self.name == other.name and same_angles and self.tracks == other.tracks
-
-    __hash__ = None
-
-    def __repr__(self) -> str:
-        label = "" if self.name is None else f"{self.name!r}, "
-        return f"Measurement({label}{_plural(self.n_tracks, 'track')}, {_plural(self.n_observations, 'point')})"
 
 
 # ---------------------------------------------------------------------------------------------- Dataset

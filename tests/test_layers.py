@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: module -> layer (docs/design.md §8); every module of the package must be here
 LAYERS = {
     "errors": 1, "geometry": 1, "files": 1, "factors": 1,
-    "camera": 2, "arm": 2, "dataset": 2, "frames": 2,
+    "camera": 2, "arm": 2, "dataset": 2, "measurements": 2, "frames": 2,
     "tracking": 3, "trackparams": 3, "centroids": 3, "trackfilter": 3, "corners": 3, "spinmodel": 3, "spinfilter": 3,
     "meshconfig": 3, "armmeshes": 3, "meshtextures": 3, "meshcast": 3, "patterns": 3, "render": 3, "renderconfig": 3,
     "videos": 2, "meshrender": 3,
