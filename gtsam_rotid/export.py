@@ -40,6 +40,7 @@ import gtsam
 import numpy as np
 
 from .errors import InputError
+from .geometry import gtsam_covariance, quaternion_xyzw, ros_covariance, tangent_to_ros  # noqa: F401 (re-export)
 
 FORMAT_MARKER = "gtsam_rotid.transform"
 FORMAT_VERSION = 1
@@ -76,48 +77,6 @@ DEFAULT_CHILD = {CameraFrame.OPTICAL: "camera_optical_frame", CameraFrame.BODY: 
 
 # ---------------------------------------------------------------------------------------------------
 # covariance conversion
-
-
-def tangent_to_ros(arm_T_camera: gtsam.Pose3) -> np.ndarray:
-    """6x6 ``J`` with ``y_ros = J xi``: GTSAM Pose3 tangent (w, rho; camera frame) to (dt, dtheta; parent)."""
-    R = arm_T_camera.rotation().matrix()
-    J = np.zeros((6, 6))
-    J[:3, 3:] = R
-    J[3:, :3] = R
-    return J
-
-
-def ros_covariance(arm_T_camera: gtsam.Pose3, covariance) -> np.ndarray:
-    """The GTSAM-tangent covariance of ``arm_T_camera`` in the ROS PoseWithCovariance layout (module doc)."""
-    covariance = _checked_covariance(covariance)
-    J = tangent_to_ros(arm_T_camera)
-    out = J @ covariance @ J.T
-    return 0.5 * (out + out.T)
-
-
-def gtsam_covariance(arm_T_camera: gtsam.Pose3, covariance_ros) -> np.ndarray:
-    """Inverse of :func:`ros_covariance` (``J`` is orthogonal)."""
-    covariance_ros = _checked_covariance(covariance_ros)
-    J = tangent_to_ros(arm_T_camera)
-    out = J.T @ covariance_ros @ J
-    return 0.5 * (out + out.T)
-
-
-def _checked_covariance(covariance) -> np.ndarray:
-    covariance = np.asarray(covariance, dtype=float)
-    if covariance.shape == (36,):
-        covariance = covariance.reshape(6, 6)
-    if covariance.shape != (6, 6):
-        raise InputError(f"a pose covariance must be 6x6 (or 36 values), got shape {covariance.shape}")
-    return covariance
-
-
-def quaternion_xyzw(rotation: gtsam.Rot3) -> np.ndarray:
-    """Unit quaternion (x, y, z, w) of a rotation, with w >= 0 (ROS order)."""
-    q = rotation.toQuaternion()
-    out = np.array([q.x(), q.y(), q.z(), q.w()])
-    out /= np.linalg.norm(out)
-    return -out if out[3] < 0 else out
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -126,3 +126,79 @@ def circle_points(center, direction, radius, phases, e1=None, e2=None) -> np.nda
         + radius * np.cos(phases)[:, None] * np.asarray(e1)[None, :]
         + radius * np.sin(phases)[:, None] * np.asarray(e2)[None, :]
     )
+
+
+# ---------------------------------------------------------------------------------------------------
+# poses, covariances and lines: the maths the report, the exports and the estimator share
+
+
+def closest_point(axes) -> np.ndarray:
+    """The point with the least summed squared distance to all the (non-parallel) lines ``axes``."""
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    for axis in axes:
+        P = np.eye(3) - np.outer(axis.direction, axis.direction)
+        A += P
+        b += P @ axis.point
+    return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def correlation(covariance: np.ndarray) -> np.ndarray:
+    """Correlation matrix ``D^-1/2 Sigma D^-1/2`` of a covariance."""
+    s = np.sqrt(np.diag(covariance))
+    out = covariance / np.outer(s, s)
+    np.fill_diagonal(out, 1.0)
+    return np.clip(out, -1.0, 1.0)
+
+
+def rpy_jacobian(rotation: gtsam.Rot3, step: float = 1e-6) -> np.ndarray:
+    """3x3 derivative of (roll, pitch, yaw) wrt a small rotation about the fixed axes: ``Exp(d) R``."""
+    J = np.zeros((3, 3))
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = step
+        plus = np.asarray(gtsam.Rot3.Expmap(d).compose(rotation).rpy())
+        minus = np.asarray(gtsam.Rot3.Expmap(-d).compose(rotation).rpy())
+        J[:, i] = (np.mod(plus - minus + np.pi, 2 * np.pi) - np.pi) / (2 * step)
+    return J
+
+
+def tangent_to_ros(arm_T_camera: gtsam.Pose3) -> np.ndarray:
+    """6x6 ``J`` with ``y_ros = J xi``: GTSAM Pose3 tangent (w, rho; camera frame) to (dt, dtheta; parent)."""
+    R = arm_T_camera.rotation().matrix()
+    J = np.zeros((6, 6))
+    J[:3, 3:] = R
+    J[3:, :3] = R
+    return J
+
+
+def ros_covariance(arm_T_camera: gtsam.Pose3, covariance) -> np.ndarray:
+    """The GTSAM-tangent covariance of ``arm_T_camera`` in the ROS PoseWithCovariance layout (module doc)."""
+    covariance = _checked_covariance(covariance)
+    J = tangent_to_ros(arm_T_camera)
+    out = J @ covariance @ J.T
+    return 0.5 * (out + out.T)
+
+
+def gtsam_covariance(arm_T_camera: gtsam.Pose3, covariance_ros) -> np.ndarray:
+    """Inverse of :func:`ros_covariance` (``J`` is orthogonal)."""
+    covariance_ros = _checked_covariance(covariance_ros)
+    J = tangent_to_ros(arm_T_camera)
+    out = J.T @ covariance_ros @ J
+    return 0.5 * (out + out.T)
+
+
+def _checked_covariance(covariance) -> np.ndarray:
+    covariance = np.asarray(covariance, dtype=float)
+    if covariance.shape == (36,):
+        covariance = covariance.reshape(6, 6)
+    if covariance.shape != (6, 6):
+        raise InputError(f"a pose covariance must be 6x6 (or 36 values), got shape {covariance.shape}")
+    return covariance
+
+
+def quaternion_xyzw(rotation: gtsam.Rot3) -> np.ndarray:
+    """Unit quaternion (x, y, z, w) of a rotation, with w >= 0 (ROS order)."""
+    q = rotation.toQuaternion()
+    out = np.array([q.x(), q.y(), q.z(), q.w()])
+    out /= np.linalg.norm(out)
+    return -out if out[3] < 0 else out

@@ -33,10 +33,10 @@ from matplotlib.patches import Ellipse
 
 from .dataset import Track
 from .errors import InputError, OutputError
-from .export import ros_covariance
 from .factors import circle_points, line_points
 from .files import check_outputs, staged
 from .fits import TrackFit, fit_tracks  # noqa: F401 (re-export: plots draw what the calibration layer fits)
+from .geometry import ros_covariance
 from .report import CHI2_95_3DOF, Z95, axis_geometry, wrist_axes
 
 #: 95 % point of the χ² distribution with 2 dof (2-D confidence ellipses).

@@ -25,12 +25,10 @@ import math
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-import gtsam
 import numpy as np
 
 from .errors import InputError
-from .export import quaternion_xyzw, ros_covariance
-from .geometry import Line3
+from .geometry import Line3, closest_point, correlation, quaternion_xyzw, ros_covariance, rpy_jacobian
 from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  # noqa: F401 (re-export)
 from .words import ambiguity_words, axis_consistency_sentence, kinematics_words, untrusted_words
 
@@ -67,26 +65,6 @@ class ReportFormat(StrEnum):
 
 # ---------------------------------------------------------------------------------------------------
 # numbers
-
-
-def correlation(covariance: np.ndarray) -> np.ndarray:
-    """Correlation matrix ``D^-1/2 Sigma D^-1/2`` of a covariance."""
-    s = np.sqrt(np.diag(covariance))
-    out = covariance / np.outer(s, s)
-    np.fill_diagonal(out, 1.0)
-    return np.clip(out, -1.0, 1.0)
-
-
-def rpy_jacobian(rotation: gtsam.Rot3, step: float = 1e-6) -> np.ndarray:
-    """3x3 derivative of (roll, pitch, yaw) wrt a small rotation about the fixed axes: ``Exp(d) R``."""
-    J = np.zeros((3, 3))
-    for i in range(3):
-        d = np.zeros(3)
-        d[i] = step
-        plus = np.asarray(gtsam.Rot3.Expmap(d).compose(rotation).rpy())
-        minus = np.asarray(gtsam.Rot3.Expmap(-d).compose(rotation).rpy())
-        J[:, i] = (np.mod(plus - minus + np.pi, 2 * np.pi) - np.pi) / (2 * step)
-    return J
 
 
 @dataclass
@@ -188,8 +166,6 @@ def axis_geometry(axes: list[Line3], indices: list[int] | None = None) -> AxisGe
     """Common point (least squares), miss distances and angular spread of wrist axes; None for fewer than 2."""
     if len(axes) < 2:
         return None
-    from .calibration import closest_point
-
     point = closest_point(axes)
     miss = np.array([float(a.distance_to(point)[0]) for a in axes])
     directions = np.array([a.direction for a in axes])

@@ -13,6 +13,7 @@ from ..dataset import Measurement
 from ..factors import (
     make_axis_to_line_factor,
 )
+from ..geometry import closest_point
 from ..graph import (
     axis_test_points,
 )
@@ -108,16 +109,6 @@ def _random_restarts(pose: gtsam.Pose3, n: int, rng: np.random.Generator) -> lis
         xi = np.concatenate([rng.normal(scale=np.radians(10.0), size=3), rng.normal(scale=0.1, size=3)])
         out.append(pose.retract(xi))
     return out
-
-
-def closest_point(axes) -> np.ndarray:
-    """The point with the least summed squared distance to all the (non-parallel) lines ``axes``."""
-    A, b = np.zeros((3, 3)), np.zeros(3)
-    for axis in axes:
-        P = np.eye(3) - np.outer(axis.direction, axis.direction)
-        A += P
-        b += P @ axis.point
-    return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
 def twin_pose(arm_T_camera: gtsam.Pose3, point) -> gtsam.Pose3:
