@@ -58,83 +58,107 @@ def _hand_texture(covering: str, hand_color: tuple, texel_mm: float, seed: int) 
     height, width = _texture_shape(config)
     per_mm = 1.0 / texel_mm
     rng = np.random.default_rng([seed, 10, COVERINGS.index(covering)])
-    base = _bgr(hand_color)
     texture = np.empty((height, width, 3), np.float32)
-    texture[:] = base
+    texture[:] = _bgr(hand_color)
     if covering == "photo":
-        grace = _sample_photo("grace_hopper.jpg")
-        present = _sample_photo("Minduka_Present_Blue_Pack.png")
-        logo = _sample_photo("logo2.png")
-        w_grace = int(round(height * grace.shape[1] / grace.shape[0]))
-        column = max(width - w_grace, 8)
-        rows = [_fit(present, height // 2, column), _fit(logo, height - height // 2, column)]
-        strip = np.hstack([_fit(grace, height, w_grace), np.vstack(rows)])
-        texture = _fit(strip, height, width) if strip.shape[1] != width else strip
+        texture = _photo_texture(height, width)
     elif covering == "text":
-        label = np.full((height, width, 3), (222.0, 232.0, 238.0), np.float32)  # BGR of a cream label
-        words = ("GTSAM", "ROTID", "CALIBRATION", "LOT", "WRIST", "HAND", "EYE", "AXIS", "SERIAL", "KINOVA",
-                 "OBSERVE", "SPIN", "MADE IN", "REV", "CE", "WARNING", "PINCH POINT", "MAX", "LOAD", "2.6 kg")
-        inks = ((20, 20, 20), (110, 40, 10), (30, 30, 160), (60, 60, 60))
-        y = int(6 * per_mm)
-        while y < height - 2:
-            scale = float(rng.uniform(0.35, 0.9)) * per_mm / 2.0
-            thickness = 1 if scale < 0.6 else 2
-            ink = inks[int(rng.integers(len(inks)))]
-            line = " ".join(str(rng.choice(words)) if rng.uniform() < 0.7 else str(int(rng.integers(10, 99999)))
-                            for _ in range(12))
-            x = int(rng.integers(-width // 3, 0))
-            cv2.putText(label, line, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, ink, thickness, cv2.LINE_AA)
-            y += int(round(scale * 30.0 + rng.uniform(2, 6) * per_mm))
-        texture = label
+        texture = _text_texture(height, width, per_mm, rng)
     elif covering == "fabric":
-        yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
-        period = 3.0 * per_mm  # 3 mm threads
-        warp = 0.5 + 0.5 * np.cos(2 * np.pi * xx / period)
-        weft = 0.5 + 0.5 * np.cos(2 * np.pi * yy / period)
-        twill = ((np.floor(xx / period) + np.floor(yy / period)) % 4 < 2).astype(np.float32)
-        twill = cv2.GaussianBlur(twill, (0, 0), 0.3 * period)
-        weave = twill * warp + (1 - twill) * weft
-        fibre = cv2.GaussianBlur(rng.standard_normal((height, width)).astype(np.float32), (0, 0), 0.7)
-        blotch = _smooth_noise((height, width), 12.0 * per_mm, rng, octaves=3)
-        shade = 0.5 + 0.35 * weave + 0.10 * fibre / max(float(fibre.std()), 1e-6) + 0.12 * blotch
-        denim = np.array([120.0, 72.0, 40.0], np.float32)  # BGR
-        texture = np.clip(shade[..., None] * denim * 1.6, 0, 255).astype(np.float32)
+        texture = _fabric_texture(height, width, per_mm, rng)
     elif covering == "stickers":
-        palette = ((40, 40, 220), (30, 200, 240), (60, 180, 40), (200, 110, 20), (30, 130, 250), (180, 40, 190),
-                   (240, 240, 240), (20, 20, 20))
-        placed: list[tuple[float, float, float]] = []
-        for n in range(10):
-            if not _place_disc(rng, placed, (5.0 * per_mm, 12.0 * per_mm), width, height, 3 * per_mm, 200):
-                continue
-            cx, cy, size = placed[-1]
-            color = tuple(float(c) for c in palette[n % len(palette)])
-            shape = n % 3
-            centre = np.array([cx, cy])
-            if shape == 0:
-                cv2.circle(texture, (int(cx * 16), int(cy * 16)), int(size * 16), (245, 245, 245), -1, cv2.LINE_AA,
-                           4)
-                cv2.circle(texture, (int(cx * 16), int(cy * 16)), int(size * 0.85 * 16), color, -1, cv2.LINE_AA, 4)
-            else:
-                k = 4 if shape == 1 else 3
-                angle = float(rng.uniform(0, 2 * np.pi))
-                beta = angle + 2 * np.pi * np.arange(k) / k
-                corners = centre + size * np.column_stack([np.cos(beta), np.sin(beta)])
-                inner = centre + 0.8 * size * np.column_stack([np.cos(beta), np.sin(beta)])
-                cv2.fillPoly(texture, [np.round(corners * 16).astype(np.int32)], (245, 245, 245), cv2.LINE_AA, 4)
-                cv2.fillPoly(texture, [np.round(inner * 16).astype(np.int32)], color, cv2.LINE_AA, 4)
+        _draw_stickers(texture, per_mm, rng)
     elif covering == "dots":
-        grey = float(np.mean(hand_color))
-        placed = []
-        for _ in range(60):
-            _place_disc(rng, placed, (4.0 * per_mm, 9.0 * per_mm), width, height, 3 * per_mm, 300)
-        for cx, cy, radius in placed:
-            contrast = float(rng.uniform(50.0, 100.0)) * (1.0 if rng.uniform() < 0.5 else -1.0)
-            level = float(np.clip(grey + contrast, 0, 255))
-            cv2.circle(texture, (int(round(cx * 16)), int(round(cy * 16))), int(round(radius * 16)),
-                       (level, level, level), -1, cv2.LINE_AA, 4)
+        _draw_dots(texture, float(np.mean(hand_color)), per_mm, rng)
     texture = cv2.GaussianBlur(np.ascontiguousarray(texture, dtype=np.float32), (0, 0), 0.5)  # against aliasing
     texture.setflags(write=False)
     return texture
+
+
+def _photo_texture(height: int, width: int) -> np.ndarray:
+    """matplotlib's sample photographs side by side around the circumference."""
+    grace = _sample_photo("grace_hopper.jpg")
+    present = _sample_photo("Minduka_Present_Blue_Pack.png")
+    logo = _sample_photo("logo2.png")
+    w_grace = int(round(height * grace.shape[1] / grace.shape[0]))
+    column = max(width - w_grace, 8)
+    rows = [_fit(present, height // 2, column), _fit(logo, height - height // 2, column)]
+    strip = np.hstack([_fit(grace, height, w_grace), np.vstack(rows)])
+    return _fit(strip, height, width) if strip.shape[1] != width else strip
+
+
+def _text_texture(height: int, width: int, per_mm: float, rng: np.random.Generator) -> np.ndarray:
+    """Lines of printed words and numbers in a few inks on a cream label."""
+    label = np.full((height, width, 3), (222.0, 232.0, 238.0), np.float32)  # BGR of a cream label
+    words = ("GTSAM", "ROTID", "CALIBRATION", "LOT", "WRIST", "HAND", "EYE", "AXIS", "SERIAL", "KINOVA",
+             "OBSERVE", "SPIN", "MADE IN", "REV", "CE", "WARNING", "PINCH POINT", "MAX", "LOAD", "2.6 kg")
+    inks = ((20, 20, 20), (110, 40, 10), (30, 30, 160), (60, 60, 60))
+    y = int(6 * per_mm)
+    while y < height - 2:
+        scale = float(rng.uniform(0.35, 0.9)) * per_mm / 2.0
+        thickness = 1 if scale < 0.6 else 2
+        ink = inks[int(rng.integers(len(inks)))]
+        line = " ".join(str(rng.choice(words)) if rng.uniform() < 0.7 else str(int(rng.integers(10, 99999)))
+                        for _ in range(12))
+        x = int(rng.integers(-width // 3, 0))
+        cv2.putText(label, line, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, ink, thickness, cv2.LINE_AA)
+        y += int(round(scale * 30.0 + rng.uniform(2, 6) * per_mm))
+    return label
+
+
+def _fabric_texture(height: int, width: int, per_mm: float, rng: np.random.Generator) -> np.ndarray:
+    """A denim-like twill of 3 mm threads with fibre noise and blotches."""
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
+    period = 3.0 * per_mm  # 3 mm threads
+    warp = 0.5 + 0.5 * np.cos(2 * np.pi * xx / period)
+    weft = 0.5 + 0.5 * np.cos(2 * np.pi * yy / period)
+    twill = ((np.floor(xx / period) + np.floor(yy / period)) % 4 < 2).astype(np.float32)
+    twill = cv2.GaussianBlur(twill, (0, 0), 0.3 * period)
+    weave = twill * warp + (1 - twill) * weft
+    fibre = cv2.GaussianBlur(rng.standard_normal((height, width)).astype(np.float32), (0, 0), 0.7)
+    blotch = _smooth_noise((height, width), 12.0 * per_mm, rng, octaves=3)
+    shade = 0.5 + 0.35 * weave + 0.10 * fibre / max(float(fibre.std()), 1e-6) + 0.12 * blotch
+    denim = np.array([120.0, 72.0, 40.0], np.float32)  # BGR
+    return np.clip(shade[..., None] * denim * 1.6, 0, 255).astype(np.float32)
+
+
+def _draw_stickers(texture: np.ndarray, per_mm: float, rng: np.random.Generator) -> None:
+    """Up to ten white-rimmed coloured discs, squares and triangles, drawn into ``texture``."""
+    height, width = texture.shape[:2]
+    palette = ((40, 40, 220), (30, 200, 240), (60, 180, 40), (200, 110, 20), (30, 130, 250), (180, 40, 190),
+               (240, 240, 240), (20, 20, 20))
+    placed: list[tuple[float, float, float]] = []
+    for n in range(10):
+        if not _place_disc(rng, placed, (5.0 * per_mm, 12.0 * per_mm), width, height, 3 * per_mm, 200):
+            continue
+        cx, cy, size = placed[-1]
+        color = tuple(float(c) for c in palette[n % len(palette)])
+        shape = n % 3
+        centre = np.array([cx, cy])
+        if shape == 0:
+            cv2.circle(texture, (int(cx * 16), int(cy * 16)), int(size * 16), (245, 245, 245), -1, cv2.LINE_AA, 4)
+            cv2.circle(texture, (int(cx * 16), int(cy * 16)), int(size * 0.85 * 16), color, -1, cv2.LINE_AA, 4)
+        else:
+            k = 4 if shape == 1 else 3
+            angle = float(rng.uniform(0, 2 * np.pi))
+            beta = angle + 2 * np.pi * np.arange(k) / k
+            corners = centre + size * np.column_stack([np.cos(beta), np.sin(beta)])
+            inner = centre + 0.8 * size * np.column_stack([np.cos(beta), np.sin(beta)])
+            cv2.fillPoly(texture, [np.round(corners * 16).astype(np.int32)], (245, 245, 245), cv2.LINE_AA, 4)
+            cv2.fillPoly(texture, [np.round(inner * 16).astype(np.int32)], color, cv2.LINE_AA, 4)
+
+
+def _draw_dots(texture: np.ndarray, grey: float, per_mm: float, rng: np.random.Generator) -> None:
+    """About 60 dark and bright 4-9 mm dots on the plain hand (``grey``: its mean level), drawn into ``texture``."""
+    height, width = texture.shape[:2]
+    placed: list[tuple[float, float, float]] = []
+    for _ in range(60):
+        _place_disc(rng, placed, (4.0 * per_mm, 9.0 * per_mm), width, height, 3 * per_mm, 300)
+    for cx, cy, radius in placed:
+        contrast = float(rng.uniform(50.0, 100.0)) * (1.0 if rng.uniform() < 0.5 else -1.0)
+        level = float(np.clip(grey + contrast, 0, 255))
+        cv2.circle(texture, (int(round(cx * 16)), int(round(cy * 16))), int(round(radius * 16)),
+                   (level, level, level), -1, cv2.LINE_AA, 4)
 
 
 @functools.lru_cache(maxsize=8)
