@@ -410,6 +410,49 @@ def _tracker_description(tracker: Callable, params: Any) -> dict:
     return description
 
 
+def _joint_rows(joints, arm: Arm, labels: list[str], joint_options: Mapping | None) -> list[np.ndarray]:
+    """One joint-angle vector per video (``joints``: rows, or a joint-angle file read with ``joint_options``)."""
+    n = len(labels)
+    if isinstance(joints, (str, os.PathLike)):
+        joints = load_joints(joints, arm, n, labels=labels, **dict(joint_options or {}))
+    elif joint_options:
+        raise InputError("joint_options apply only when joints is the path of a joint-angle file")
+    if isinstance(joints, np.ndarray) and joints.ndim != 2:
+        raise InputError(f"joints must be (n, dof) joint angles, one row per video, got shape {joints.shape}")
+    joints = list(joints)
+    if len(joints) != n:
+        raise InputError(f"{len(joints)} row(s) of joint angles for {n} video(s); give one per video")
+    angles = []
+    for k, row in enumerate(joints):
+        try:
+            angles.append(arm.joint_angle_vector(row))
+        except ArmError as exc:
+            raise InputError(f"{_label(k, labels)}: {exc}") from None
+    return angles
+
+
+def _tracked(source, frame_range, camera: Camera, tracker: Callable, tracker_params, k: int, label: str,
+             progress: bool) -> list[Track]:
+    """The tracks of one video (frame indices the video's own), at least 2, or a RecordingError naming it."""
+    frames, expected, first = frames_of(source, frame_range)
+    frames = _checked_size(frames, camera, source.path)
+    with tqdm(total=expected, desc=source.path.name, unit="frame", leave=False, disable=not progress,
+              file=sys.stderr) as frame_bar:
+        found = tracker(_counted(frames, frame_bar), params=tracker_params)
+    if found is None or isinstance(found, (Track, np.ndarray)):
+        raise InputError(f"the tracker must return a list of Track for {source.path}, got {type(found).__name__}")
+    tracks = []
+    for j, item in enumerate(found):
+        track = Track.from_any(item, measurement=k, track=j)
+        if track.frames is not None and first:
+            track = Track(track.pixels, track.frames + first)
+        tracks.append(track)
+    if len(tracks) < 2:
+        raise RecordingError(f"{label}: the tracker found {len(tracks)} track(s) in {source.path}; a measurement "
+                             f"needs at least 2 (are features on the spinning end effector visible and in focus?)")
+    return tracks
+
+
 def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | str | os.PathLike, arm: Arm, *,
                  tracker: Callable | None = None, tracker_params: Any = None,
                  frame_ranges: Sequence[tuple[int | None, int | None] | None] | None = None,
@@ -455,24 +498,9 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
     if not isinstance(camera, Camera):
         camera_file = os.fspath(camera)
         camera = load_camera(camera)
-    joints_file = None
     labels = [v.name for v in videos]
-    if isinstance(joints, (str, os.PathLike)):
-        joints_file = os.fspath(joints)
-        joints = load_joints(joints, arm, n, labels=labels, **dict(joint_options or {}))
-    elif joint_options:
-        raise InputError("joint_options apply only when joints is the path of a joint-angle file")
-    if isinstance(joints, np.ndarray) and joints.ndim != 2:
-        raise InputError(f"joints must be (n, dof) joint angles, one row per video, got shape {joints.shape}")
-    joints = list(joints)
-    if len(joints) != n:
-        raise InputError(f"{len(joints)} row(s) of joint angles for {n} video(s); give one per video")
-    angles = []
-    for k, row in enumerate(joints):
-        try:
-            angles.append(arm.joint_angle_vector(row))
-        except ArmError as exc:
-            raise InputError(f"{_label(k, labels)}: {exc}") from None
+    joints_file = os.fspath(joints) if isinstance(joints, (str, os.PathLike)) else None
+    angles = _joint_rows(joints, arm, labels, joint_options)
     sources = [open_source(v) for v in videos]  # fail fast, before the slow tracking
     checked_ranges = [checked_range(r, v) for r, v in zip(frame_ranges, videos, strict=True)]
     if tracker is None:
@@ -480,24 +508,7 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
     measurements = []
     with tqdm(total=n, desc="videos", unit="video", disable=not progress, file=sys.stderr) as bar:
         for k, (source, frame_range) in enumerate(zip(sources, checked_ranges, strict=True)):
-            frames, expected, first = frames_of(source, frame_range)
-            frames = _checked_size(frames, camera, source.path)
-            with tqdm(total=expected, desc=source.path.name, unit="frame", leave=False, disable=not progress,
-                      file=sys.stderr) as frame_bar:
-                found = tracker(_counted(frames, frame_bar), params=tracker_params)
-            if found is None or isinstance(found, (Track, np.ndarray)):
-                raise InputError(f"the tracker must return a list of Track for {source.path}, got "
-                                 f"{type(found).__name__}")
-            tracks = []
-            for j, item in enumerate(found):
-                track = Track.from_any(item, measurement=k, track=j)
-                if track.frames is not None and first:
-                    track = Track(track.pixels, track.frames + first)
-                tracks.append(track)
-            if len(tracks) < 2:
-                raise RecordingError(f"{_label(k, labels)}: the tracker found {len(tracks)} track(s) in {source.path}; "
-                                     f"a measurement needs at least 2 (are features on the spinning end effector "
-                                     f"visible and in focus?)")
+            tracks = _tracked(source, frame_range, camera, tracker, tracker_params, k, _label(k, labels), progress)
             measurements.append(Measurement(angles[k], tracks, name=source.path.name))
             bar.update(1)
     recording = {
