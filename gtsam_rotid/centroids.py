@@ -91,18 +91,7 @@ def _refine_group(grey, start, radii, polarity, neighbours, half: int, iteration
     # offsets of the window's columns (x) and rows (y) from the start point
     x0 = (centre_px[:, 0] - start[:, 0])[:, None] + offsets[None, :]
     y0 = (centre_px[:, 1] - start[:, 1])[:, None] + offsets[None, :]
-    free = None
-    if neighbours is not None:
-        for k in range(neighbours.shape[1]):
-            other = neighbours[:, k]
-            valid = np.isfinite(other).all(axis=1)
-            if not valid.any():
-                continue
-            other = np.where(valid[:, None], other, [-1e6, -1e6, 0.0])   # far away: excludes nothing
-            ox = x0 + (start[:, 0] - other[:, 0])[:, None]
-            oy = y0 + (start[:, 1] - other[:, 1])[:, None]
-            away = ox[:, None, :] ** 2 + oy[:, :, None] ** 2 > ((other[:, 2] + 1.0) ** 2)[:, None, None]
-            free = away if free is None else free & away
+    free = None if neighbours is None else _away_from(neighbours, start, x0, y0)
     bound2 = ((_BOUND_SCALE * radii + _BOUND_PAD) ** 2)[:, None, None]
     shift = np.zeros((n, 2))
     region = None
@@ -145,6 +134,32 @@ def _refine_group(grey, start, radii, polarity, neighbours, half: int, iteration
         m = m / safe[:, None, None]
         mx, my = m[:, 0, 1], m[:, 1, 0]
         shift += np.where(total[:, None] > 0, np.column_stack([mx, my]), 0.0)
+    radius, inertia, skewness = _shape(m, mx, my)
+    ok = (inside & (total > 0) & (contrast >= min_contrast) & (count >= 8) & ~spill
+          & (np.hypot(shift[:, 0], shift[:, 1]) <= max_shift))
+    return start + shift, ok, contrast, polarity, radius, inertia, skewness
+
+
+def _away_from(neighbours: np.ndarray, start: np.ndarray, x0: np.ndarray, y0: np.ndarray) -> np.ndarray | None:
+    """(n, w, w) window pixels clear of every neighbouring blob (``neighbours``: (n, k, 3) u, v, radius; NaN none);
+    ``x0``, ``y0``: the windows' column and row offsets from the start points. None when no neighbour is given."""
+    free = None
+    for k in range(neighbours.shape[1]):
+        other = neighbours[:, k]
+        valid = np.isfinite(other).all(axis=1)
+        if not valid.any():
+            continue
+        other = np.where(valid[:, None], other, [-1e6, -1e6, 0.0])   # far away: excludes nothing
+        ox = x0 + (start[:, 0] - other[:, 0])[:, None]
+        oy = y0 + (start[:, 1] - other[:, 1])[:, None]
+        away = ox[:, None, :] ** 2 + oy[:, :, None] ** 2 > ((other[:, 2] + 1.0) ** 2)[:, None, None]
+        free = away if free is None else free & away
+    return free
+
+
+def _shape(m: np.ndarray, mx: np.ndarray, my: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(radius, inertia ratio, skewness) of blobs from their normalised raw moments ``m[q, p]`` up to order 3 and
+    centroids (``mx``, ``my``)."""
     cxx, cyy, cxy = m[:, 0, 2] - mx**2, m[:, 2, 0] - my**2, m[:, 1, 1] - mx * my
     half_trace, det = 0.5 * (cxx + cyy), cxx * cyy - cxy**2
     root = np.sqrt(np.maximum(half_trace**2 - det, 0.0))
@@ -162,9 +177,7 @@ def _refine_group(grey, start, radii, polarity, neighbours, half: int, iteration
     across = -(b**3) * c30 + 3 * b**2 * a * c21 - 3 * b * a**2 * c12 + a**3 * c03
     skewness = np.maximum(np.abs(along) / np.maximum(major, 1e-6) ** 1.5,
                           np.abs(across) / np.maximum(minor, 0.05) ** 1.5)
-    ok = (inside & (total > 0) & (contrast >= min_contrast) & (count >= 8) & ~spill
-          & (np.hypot(shift[:, 0], shift[:, 1]) <= max_shift))
-    return start + shift, ok, contrast, polarity, radius, inertia, skewness
+    return radius, inertia, skewness
 
 
 def _grow(seed: np.ndarray, allowed: np.ndarray) -> np.ndarray:
