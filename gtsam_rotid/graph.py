@@ -306,11 +306,7 @@ class RotIdGraph:
         camera_T_arm = arm_T_camera.inverse()
         point_cam = camera_T_arm.transformFrom(axis.point)
         direction_cam = camera_T_arm.rotation().matrix() @ axis.direction
-        line_cam, scale = rot3_from_line(point_cam, direction_cam)
-        if initial_line is not None and not tie:
-            line_cam = initial_line
-        elif initial_line is not None and not bound:
-            line_cam = align_line(initial_line, line_cam.matrix()[:, 2])
+        line_cam, scale = _start_line(point_cam, direction_cam, initial_line, tie, bound)
         foot_offset = point_cam @ direction_cam  # foot = point_cam - foot_offset * direction
         K = self.camera.K
         K_inv = np.linalg.inv(K)
@@ -330,10 +326,7 @@ class RotIdGraph:
             if initial_circles is not None and j in initial_circles:
                 circle = np.asarray(initial_circles[j], dtype=float).reshape(2)
             else:
-                centre_ray = K_inv @ np.append(track.ellipse.centre, 1.0)
-                rays = np.column_stack([track.ideal, np.ones(len(track.ideal))]) @ K_inv.T
-                offset, radius = initial_circle(point_cam, direction_cam, rays, centre_ray)
-                circle = np.array([(offset + foot_offset) / scale, radius / scale])
+                circle = _start_circle(track, K_inv, point_cam, direction_cam, foot_offset, scale)
             keys.tracks.append(j)
             if projected:
                 start_circles.append(circle)
@@ -351,11 +344,7 @@ class RotIdGraph:
             raise InputError(f"measurement {k}: only {len(keys.tracks)} usable track(s), need at least 2 "
                              f"(rejected: {keys.rejected})")
         if projected:
-            sigmas = [self.track_sigma_px if track_sigmas is None else track_sigmas.get(j, self.track_sigma_px)
-                      for j in keys.tracks]
-            keys.coaxial = make_coaxial_line_factor(line_key, [prepared.usable[j].ideal for j in keys.tracks], K,
-                                                    np.array(start_circles), sigma_px=float(np.median(sigmas)),
-                                                    robust=self.robust)
+            keys.coaxial = self._coaxial(line_key, prepared, keys.tracks, start_circles, track_sigmas)
             new_factors.append(keys.coaxial.factor)
         elif refine_circles:
             new_values = self._refined_circles(new_factors, new_values, keys, line_key, line_cam, arm_T_camera)
@@ -371,6 +360,15 @@ class RotIdGraph:
         graph.add(make_axis_to_line_variable_factor(tie_noise, self.pose_key, line_key, axis_test_points(axis), K))
         keys.tie_factor = graph.size() - 1
         return keys
+
+    def _coaxial(self, line_key, prepared: PreparedMeasurement, tracks: list[int], start_circles: list[np.ndarray],
+                 track_sigmas: dict[int, float] | None):
+        """The projected model's one factor of a measurement: its tracks' circles solved inside, at the median of
+        their pixel sigmas."""
+        sigmas = [self.track_sigma_px if track_sigmas is None else track_sigmas.get(j, self.track_sigma_px)
+                  for j in tracks]
+        return make_coaxial_line_factor(line_key, [prepared.usable[j].ideal for j in tracks], self.camera.K,
+                                        np.array(start_circles), sigma_px=float(np.median(sigmas)), robust=self.robust)
 
     def _refined_circles(self, factors, circles: gtsam.Values, keys: MeasurementKeys, line_key, line_cam,
                          arm_T_camera) -> gtsam.Values:
@@ -391,3 +389,25 @@ class RotIdGraph:
         for key in keys.circles:
             refined.insert(key, result.atVector(key))
         return refined
+
+
+def _start_circle(track, K_inv: np.ndarray, point_cam: np.ndarray, direction_cam: np.ndarray, foot_offset: float,
+                  scale: float) -> np.ndarray:
+    """A track's start ``(d, r)`` about the axis (camera frame, in units of the line's ``scale``) from its rays and
+    its ellipse centre."""
+    centre_ray = K_inv @ np.append(track.ellipse.centre, 1.0)
+    rays = np.column_stack([track.ideal, np.ones(len(track.ideal))]) @ K_inv.T
+    offset, radius = initial_circle(point_cam, direction_cam, rays, centre_ray)
+    return np.array([(offset + foot_offset) / scale, radius / scale])
+
+
+def _start_line(point_cam: np.ndarray, direction_cam: np.ndarray, initial_line: gtsam.Rot3 | None, tie: bool,
+                bound: bool) -> tuple[gtsam.Rot3, float]:
+    """The line variable's start and scale: the FK axis in the camera frame, or ``initial_line`` (free, untied
+    line), or ``initial_line`` turned minimally onto the FK axis' image (tied line model)."""
+    line_cam, scale = rot3_from_line(point_cam, direction_cam)
+    if initial_line is not None and not tie:
+        line_cam = initial_line
+    elif initial_line is not None and not bound:
+        line_cam = align_line(initial_line, line_cam.matrix()[:, 2])
+    return line_cam, scale
