@@ -65,6 +65,8 @@ def staged(path: str | os.PathLike, overwrite: bool = False, *, make_parent: boo
             path.parent.mkdir(parents=True, exist_ok=True)
         handle, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
         os.close(handle)
+        # mkstemp makes the file private (0600): give the output the mode a plain open() would (or the old file's)
+        os.chmod(name, path.stat().st_mode & 0o777 if path.exists() else 0o666 & ~_umask())
     except OSError as exc:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
     staging = Path(name)
@@ -80,6 +82,12 @@ def staged(path: str | os.PathLike, overwrite: bool = False, *, make_parent: boo
     finally:
         with contextlib.suppress(OSError):
             staging.unlink(missing_ok=True)
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def write_text(path: str | os.PathLike, text: str, overwrite: bool = False) -> Path:

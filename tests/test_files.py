@@ -83,3 +83,13 @@ def test_calibrate_refuses_to_write_its_result_over_its_own_dataset(tmp_path, ca
     assert "is a file of the dataset" in err and "write the result elsewhere" in err
     assert (root / "dataset.json").read_bytes() == before
     assert sorted(os.listdir(root)) == listing
+
+
+def test_a_staged_file_gets_the_permissions_a_plain_write_would(tmp_path):
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")
+    staged_file = write_text(tmp_path / "staged.txt", "x")
+    assert staged_file.stat().st_mode & 0o777 == plain.stat().st_mode & 0o777
+    os.chmod(staged_file, 0o640)                 # replacing a file keeps its mode
+    write_text(staged_file, "y", overwrite=True)
+    assert staged_file.stat().st_mode & 0o777 == 0o640
