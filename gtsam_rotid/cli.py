@@ -47,11 +47,10 @@ def _scene_changes(args) -> dict:
 
 def _check_not_input(output: Path, dataset_dir: Path) -> None:
     """Refuse a result path that is one of the dataset's own files (``calibrate`` reads them)."""
-    from .dataset import DATASET_FILE as OWN
     from .dataset import SCHEMA_FILE, TRACKS_FILE, URDF_FILE
 
-    if output.resolve().parent == dataset_dir.resolve() and output.name in (OWN, TRACKS_FILE, URDF_FILE, SCHEMA_FILE,
-                                                                           TRUTH_FILE):
+    own = (DATASET_FILE, TRACKS_FILE, URDF_FILE, SCHEMA_FILE, TRUTH_FILE)
+    if output.resolve().parent == dataset_dir.resolve() and output.name in own:
         raise OutputError(f"{output} is a file of the dataset {dataset_dir} that calibrate reads; write the result "
                           f"elsewhere (e.g. {dataset_dir.parent / RESULT_FILE})")
 
