@@ -91,6 +91,15 @@ def test_track_errors_of_exact_tracks_are_zero(spin):
     np.testing.assert_allclose(result.median_px[len(tracks):-1], 0.5, atol=1e-3)
     assert list(result.off_links) == [len(tracks) + 2]
     assert result.pooled_rms_px > 0 and np.isfinite(result.pooled_median_px)
+    # exact tracks are rigid points' tracks; the whole-track fit absorbs nothing more than it should
+    assert np.nanmax(result.rigid_rms_px[exact]) < 1e-3
+    # a track whose first points (which locate the truth) are off, the rest exact: the located point is wrong,
+    # so its error grows along the track, while the track itself is a rigid point's track but for those points
+    t = max(tracks, key=len)
+    early = Track(t.pixels + np.where(np.arange(len(t))[:, None] < 5, [0.6, -0.4], 0.0), t.frames)
+    located = mr.track_errors([early], spin)
+    assert located.rigid_rms_px[0] < 0.5 * located.rms_px[0], (located.rigid_rms_px, located.rms_px)
+    assert located.rigid_rms_px[0] <= np.sqrt(5 / len(t)) * 0.73 + 1e-3   # at most the 5 points' own offset
 
 
 def test_a_frame_renders_the_same_alone_or_in_sequence(scene):
