@@ -22,7 +22,6 @@ import json
 import os
 import re
 import reprlib
-import secrets
 import shutil
 import warnings
 import zipfile
@@ -46,6 +45,7 @@ from .errors import (
     RotIdError,
     ValidationError,
 )
+from .files import sibling_name
 from .measurements import Measurement, Track, _located, _plural
 
 #: ``"format"`` marker of ``dataset.json``.
@@ -184,10 +184,6 @@ def _check_save_target(target: Path, overwrite: bool) -> bool:
     if not overwrite:
         raise DatasetExistsError(f"a dataset already exists at {target}; pass overwrite=True to replace it")
     return True
-
-
-def _sibling_name(target: Path, tag: str) -> Path:
-    return target.with_name(f".{target.name}.{tag}-{secrets.token_hex(4)}")
 
 
 # ---------------------------------------------------------------------------------------------- Dataset
@@ -373,7 +369,7 @@ class Dataset:
     def _save_staged(target: Path, replace: bool, overwrite: bool, text: str, arrays, urdf_text) -> Path:
         target.parent.mkdir(parents=True, exist_ok=True)
         while True:
-            staging = _sibling_name(target, "tmp")
+            staging = sibling_name(target, "tmp")
             try:
                 staging.mkdir()
                 break
@@ -388,7 +384,7 @@ class Dataset:
             _fsync_directory(staging)
             if replace:
                 _check_save_target(target, overwrite)
-                aside = _sibling_name(target, "old")
+                aside = sibling_name(target, "old")
                 os.rename(target, aside)
                 try:
                     os.rename(staging, target)

@@ -18,6 +18,7 @@ import contextlib
 import json
 import os
 import re
+import secrets
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -88,6 +89,12 @@ def _umask() -> int:
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
+
+
+def sibling_name(target: Path, tag: str) -> Path:
+    """A hidden name next to ``target`` that no user file has: ``.NAME.TAG-random`` (a staging or set-aside
+    directory; files use :func:`staged`)."""
+    return target.with_name(f".{target.name}.{tag}-{secrets.token_hex(4)}")
 
 
 def write_text(path: str | os.PathLike, text: str, overwrite: bool = False) -> Path:

@@ -110,7 +110,7 @@ def open_source(path: str | os.PathLike) -> Source:
     """Check that ``path`` is a readable video with a frame, or a folder holding images."""
     path = Path(path)
     if not path.exists():
-        raise RecordingError(f"no video or image folder at {path}")
+        raise RecordingError(f"no video or image folder at {path}: it does not exist")
     if path.is_dir():
         files = image_files(path)
         if not files:

@@ -90,9 +90,7 @@ def frame_source(frames) -> tuple[Iterator[tuple[np.ndarray, str]], int | None]:
     an iterable of 8-bit images, an (F, H, W[, 3]) uint8 array, a video file or a folder of images."""
     if isinstance(frames, str | os.PathLike):
         path = Path(frames)
-        if not path.exists():
-            raise InputError(f"{path} does not exist: expected a video file or a folder of images")
-        images, total, first = frames_of(open_source(path), None)   # the one frame reader
+        images, total, first = frames_of(open_source(path), None)   # the one frame reader checks the path
         return _path_frames(images, path, first), total
     if isinstance(frames, np.ndarray):
         if frames.ndim == 3 and frames.shape[2] in (3, 4) and min(frames.shape[:2]) >= _MIN_IMAGE_SIDE:

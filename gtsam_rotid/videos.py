@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import os
 import re
-import secrets
 import shutil
 from collections.abc import Iterable
 from pathlib import Path
@@ -15,7 +14,7 @@ import cv2
 import numpy as np
 
 from .errors import InputError, OutputExistsError, VideoWriteError
-from .files import staged
+from .files import sibling_name, staged
 
 #: Video suffixes :func:`write_video` writes, with their OpenCV fourcc: MPEG-4 part 2 is lossy (about 3 grey
 #: levels mean error on a noise-free frame, and it smooths the image noise away); FFV1 is lossless.
@@ -24,10 +23,6 @@ _FRAME_FILE = re.compile(r"^frame_\d{6,}\.png$")
 
 
 # --------------------------------------------------------------------------------------------- output
-def _sibling(target: Path, tag: str, suffix: str = "") -> Path:
-    return target.with_name(f".{target.name}.{tag}-{secrets.token_hex(4)}{suffix}")
-
-
 def _is_frame_folder(path: Path) -> bool:
     return path.is_dir() and all(_FRAME_FILE.match(entry.name) for entry in path.iterdir())
 
@@ -67,7 +62,7 @@ def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: floa
         with staged(target, overwrite) as staging:
             _write_video_file(frames, staging, float(fps), VIDEO_FOURCC[suffix])
         return target
-    staging = _sibling(target, "tmp")
+    staging = sibling_name(target, "tmp")
     staging.mkdir()
     moved_in = False
     try:
@@ -75,7 +70,7 @@ def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: floa
         _check_output_target(target, overwrite, folder=True)
         aside = None
         if target.exists():
-            aside = _sibling(target, "old")
+            aside = sibling_name(target, "old")
             os.rename(target, aside)
         try:
             os.rename(staging, target)
