@@ -192,6 +192,22 @@ def analyse_observability(information: np.ndarray, arm_T_camera: gtsam.Pose3) ->
     return Observability(w, V, unobservable, R, condition, words)
 
 
+def loewner_max(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest covariance at least as large as both ``a`` (positive definite) and ``b`` (positive
+    semi-definite) in every direction that the two share eigen-directions of ``a^-1 b``: ``a^1/2 max(I, M) a^1/2``
+    with ``M = a^-1/2 b a^-1/2`` (its eigenvalues clipped below at 1). Where ``a`` is not positive definite it is
+    returned unchanged."""
+    a = 0.5 * (a + a.T)
+    try:
+        root = np.linalg.cholesky(a)
+    except np.linalg.LinAlgError:
+        return a
+    inverse = np.linalg.inv(root)
+    w, U = np.linalg.eigh(inverse @ (0.5 * (b + b.T)) @ inverse.T)
+    grown = root @ (U * np.maximum(w, 1.0)) @ U.T @ root.T
+    return 0.5 * (grown + grown.T)
+
+
 def chi2_sf(x: float, dof: int) -> float:
     """Upper-tail probability P(χ²_dof >= x): exact for dof <= 400 (half-integer incomplete gamma series,
     summed in log space), Wilson-Hilferty above."""

@@ -54,9 +54,12 @@ def axis_consistency_sentence(c: AxisConsistency) -> str:
             f"P(χ² ≥ this) = {c.p_value:.2g}")
     if c.scale == 1.0:
         return f"{head}: consistent with the pixel noise"
+    floor = ("" if c.floor_px <= 0.0 else
+             f", or, in the directions where that is larger, each axis is given a floor of {c.floor_px:.2g} px "
+             "(a bias the tracks of one pose share does not shrink with more tracks)")
     return (f"{head}: the axes disagree beyond their pixel noise (errors shared across tracks: a tracker "
             f"bias, joint angles, kinematics or intrinsics); the covariance is scaled by {c.scale:.3g} "
-            + ("(χ²/(dof − 2): the scale's mean given the scatter)" if c.dof > 2 else "(χ²/dof)"))
+            + ("(χ²/(dof − 2): the scale's mean given the scatter)" if c.dof > 2 else "(χ²/dof)") + floor)
 
 
 def evidence_words(m: MeasurementReport) -> str:

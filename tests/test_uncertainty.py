@@ -3,7 +3,7 @@
 import gtsam
 import numpy as np
 
-from gtsam_rotid.uncertainty import UNDETERMINED_VARIANCE, analyse_observability
+from gtsam_rotid.uncertainty import UNDETERMINED_VARIANCE, analyse_observability, loewner_max
 
 
 def information_with_null(null: np.ndarray, seed: int = 0) -> np.ndarray:
@@ -58,3 +58,26 @@ def test_a_coupled_null_direction_is_not_snapped():
     np.testing.assert_allclose(abs(obs.unobservable_directions[0] @ null), 1.0, atol=1e-9)
     cov = obs.covariance(info)
     assert np.sqrt(cov[0, 0]) > 1e3  # rotation about x undetermined
+
+
+def _random_covariance(rng, n=6, spread=3.0):
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    return (Q * 10.0 ** rng.uniform(-spread, 0.0, n)) @ Q.T
+
+
+def test_loewner_max_is_at_least_both_and_no_more_than_needed():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        a, b = _random_covariance(rng), _random_covariance(rng)
+        m = loewner_max(a, b)
+        np.testing.assert_allclose(m, m.T)
+        for c in (a, b):  # m - a and m - b are positive semi-definite
+            assert np.linalg.eigvalsh(m - c).min() > -1e-9 * np.abs(m).max()
+        # in a's whitened frame m is max(I, M): along each eigen-direction of M exactly the larger of the two
+        root = np.linalg.cholesky(a)
+        inverse = np.linalg.inv(root)
+        w, U = np.linalg.eigh(inverse @ b @ inverse.T)
+        np.testing.assert_allclose(np.diag(U.T @ inverse @ m @ inverse.T @ U), np.maximum(w, 1.0), rtol=1e-8)
+    a = _random_covariance(rng)
+    np.testing.assert_allclose(loewner_max(a, 0.5 * a), a, rtol=1e-10)   # b below a: a
+    np.testing.assert_allclose(loewner_max(a, 2.0 * a), 2.0 * a, rtol=1e-10)  # b above a: b

@@ -80,6 +80,15 @@ class AxisConsistency:
     and this is the Gaussian with its second moment (with six measurements, 6 dof, the Birge ratio alone leaves the
     error's chi-square 1.5x its dof on average). With 2 dof (four measurements) k's mean is unbounded: the scale is
     then the Birge ratio and the result is not trusted (``CalibrationResult.untrusted``: ``unmeasured_scatter``).
+
+    A common factor is one reading of the scatter; a common floor is the other: a bias that a measurement's tracks
+    share (a tracker's drift as the surface turns) does not shrink with more tracks, so the axis of
+    a pose with a hundred tracks is no better than that floor, and a factor on its tiny covariance leaves it far too
+    confident (a Jaco2 text scene: four axes 0.2-0.3 px off at their test points, 3-4x their 1 sigma; the scaled
+    covariance put the error at chi-square 29). ``floor_px`` is the ``tau`` (px) that, added in quadrature to every
+    projected test point's distance, brings the chi-square at the estimate to ``dof - 2`` (the same mean given the
+    scatter), and the covariance is the larger, direction by direction, of the scaled one and the one with that
+    floor (:func:`gtsam_rotid.uncertainty.loewner_max`).
     """
 
     chi2: float
@@ -87,17 +96,23 @@ class AxisConsistency:
     p_value: float
     #: the covariance was multiplied by this (1: consistent, or not scaled)
     scale: float
+    #: the axes' common floor (px at the test points; 0: none applied)
+    floor_px: float = 0.0
+    #: the pose covariance (6x6, Pose3 tangent) that floor adds; used when the result is assembled, not saved
+    floor_covariance: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def consistent(self) -> bool:
         return self.scale == 1.0
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        return {"chi2": self.chi2, "dof": self.dof, "p_value": self.p_value, "scale": self.scale,
+                "floor_px": self.floor_px}
 
     @classmethod
     def from_dict(cls, data: dict) -> AxisConsistency:
-        return cls(float(data["chi2"]), int(data["dof"]), float(data["p_value"]), float(data["scale"]))
+        return cls(float(data["chi2"]), int(data["dof"]), float(data["p_value"]), float(data["scale"]),
+                   float(data.get("floor_px", 0.0)))
 
 
 #: An alternative whose chi-square exceeds the estimate's by less than this (likelihood ratio 1000:1) makes the

@@ -25,6 +25,7 @@ from ..graph import (
 from ..uncertainty import (
     analyse_observability,
     chi2_sf,
+    loewner_max,
     pose_information,
 )
 from .initial import _best_stage2, _random_restarts, _stage2_graph, _stage2_minima
@@ -34,6 +35,7 @@ from .result import AxisConsistency, CalibrationResult, MeasurementReport
 from .setup import _Setup, circle_arc_span_deg, joint_tie_covariance
 from .stage1 import _circles, _jackknife, _Stage1, _stage1, _stage1_result, _stage1_round, _track_stats
 from .tuning import (
+    FLOOR_STEP,
     MIN_STRONG,
     POSE_KEY,
     REFINE_DEG,
@@ -124,10 +126,58 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
         return None
     chi2 = float(np.sum(_chi2(camera, setup, stage1, pose, {k: sigma2[k] for k in used})[used]))
     p = chi2_sf(chi2, dof)
-    scale = 1.0
-    if p < options.axis_consistency_p:  # see AxisConsistency: k's mean given the scatter, where it has one
-        scale = chi2 / (dof - 2) if dof > 2 else chi2 / dof
-    return AxisConsistency(chi2, dof, p, scale)
+    if p >= options.axis_consistency_p:
+        return AxisConsistency(chi2, dof, p, 1.0)
+    if dof <= 2:  # k's mean is unbounded with 2 dof: the Birge ratio (and the result is not trusted)
+        return AxisConsistency(chi2, dof, p, chi2 / dof)
+    floor, increment = _axis_floor(camera, setup, stage1, used, pose, sigma2, dof - 2)
+    return AxisConsistency(chi2, dof, p, chi2 / (dof - 2), floor, increment)
+
+
+def _axis_floor(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3, sigma2: dict[int, float],
+                target: float) -> tuple[float, np.ndarray | None]:
+    """The axes' common floor (see :class:`AxisConsistency`): ``tau`` (px) such that, with ``tau^2`` added to the
+    variance ``V_k`` of every projected test point's distance, the axes' chi-square falls to ``target`` at the pose
+    those weights fit best (linearised about ``pose``: distances ``e_k + J_k x``), and the pose covariance that
+    floor adds (6x6, the Pose3 tangent: ``(sum_k J_k^T (V_k + tau^2 I)^-1 J_k)^-1`` minus the same at ``tau = 0``;
+    None when the axes alone do not determine the pose)."""
+    rows = []
+    for k in used:
+        e, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup.noise(k))
+        J = np.column_stack([
+            (_axis_distances(camera, setup.axes[k], stage1[k], pose.retract(d), sigma2[k])[0]
+             - _axis_distances(camera, setup.axes[k], stage1[k], pose.retract(-d), sigma2[k])[0]) / (2 * FLOOR_STEP)
+            for d in np.eye(6) * FLOOR_STEP])
+        rows.append((e, cov, J))
+
+    def chi2(tau2: float) -> float:  # at the pose these weights fit best
+        weights = [np.linalg.inv(cov + tau2 * np.eye(len(e))) for e, cov, _ in rows]
+        H = sum(J.T @ W @ J for (_, _, J), W in zip(rows, weights, strict=True))
+        g = sum(J.T @ W @ e for (e, _, J), W in zip(rows, weights, strict=True))
+        return float(sum(e @ W @ e for (e, _, _), W in zip(rows, weights, strict=True))
+                     - g @ np.linalg.lstsq(H, g, rcond=None)[0])
+
+    if chi2(0.0) <= target:
+        return 0.0, None
+    low, high = 0.0, max(float(np.max([np.max(np.abs(e)) for e, _, _ in rows])) ** 2, 1e-12)
+    for _ in range(40):  # the chi-square falls in tau^2 (towards 0 as the floor swamps every V_k)
+        if chi2(high) <= target:
+            break
+        high *= 4.0
+    for _ in range(40):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if chi2(middle) > target else (low, middle)
+    tau2 = high
+
+    def information(t2: float) -> np.ndarray:
+        return sum(J.T @ np.linalg.solve(cov + t2 * np.eye(len(e)), J) for e, cov, J in rows)
+
+    try:
+        increment = np.linalg.inv(information(tau2)) - np.linalg.inv(information(0.0))
+    except np.linalg.LinAlgError:
+        return float(np.sqrt(tau2)), None
+    increment = 0.5 * (increment + increment.T)
+    return float(np.sqrt(tau2)), increment if np.all(np.isfinite(increment)) else None
 
 
 def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsam.Pose3, options, anchor):
@@ -405,7 +455,10 @@ def _finish(solved: _Solved, reports, sigma_px, *, info_scale: float = 1.0, dof:
     if covariance is None or not observability.is_observable:
         covariance = observability.covariance(info)
     if consistency is not None and observability.is_observable:
-        covariance = covariance * consistency.scale
+        scaled = covariance * consistency.scale
+        # the larger, direction by direction, of the two readings of the axes' scatter (AxisConsistency)
+        covariance = scaled if consistency.floor_covariance is None else loewner_max(
+            scaled, covariance + consistency.floor_covariance)
     return CalibrationResult(pose, covariance, method.value, bool(converged), int(iterations), float(error),
                              reports, observability, float(sigma_px), dof, axis_consistency=consistency)
 
