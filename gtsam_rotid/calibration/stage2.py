@@ -13,6 +13,7 @@ import numpy as np
 from ..camera import Camera
 from ..errors import RotIdError
 from ..factors import (
+    axis_point_residuals,
     line_distance_covariance,
     line_distances,
 )
@@ -35,7 +36,6 @@ from .result import AxisConsistency, CalibrationResult, MeasurementReport
 from .setup import _Setup, circle_arc_span_deg, joint_tie_covariance
 from .stage1 import _circles, _jackknife, _Stage1, _stage1, _stage1_result, _stage1_round, _track_stats
 from .tuning import (
-    FLOOR_STEP,
     MIN_STRONG,
     POSE_KEY,
     REFINE_DEG,
@@ -144,17 +144,20 @@ def _axis_floor(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose
     rows = []
     for k in used:
         e, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup.noise(k))
-        J = np.column_stack([
-            (_axis_distances(camera, setup.axes[k], stage1[k], pose.retract(d), sigma2[k])[0]
-             - _axis_distances(camera, setup.axes[k], stage1[k], pose.retract(-d), sigma2[k])[0]) / (2 * FLOOR_STEP)
-            for d in np.eye(6) * FLOOR_STEP])
+        J = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), stage1[k].line)[1]
         rows.append((e, cov, J))
 
+    def weights(tau2: float) -> list[np.ndarray]:
+        return [np.linalg.inv(cov + tau2 * np.eye(len(e))) for e, cov, _ in rows]
+
+    def information(tau2: float) -> np.ndarray:
+        return sum(J.T @ W @ J for (_, _, J), W in zip(rows, weights(tau2), strict=True))
+
     def chi2(tau2: float) -> float:  # at the pose these weights fit best
-        weights = [np.linalg.inv(cov + tau2 * np.eye(len(e))) for e, cov, _ in rows]
-        H = sum(J.T @ W @ J for (_, _, J), W in zip(rows, weights, strict=True))
-        g = sum(J.T @ W @ e for (e, _, J), W in zip(rows, weights, strict=True))
-        return float(sum(e @ W @ e for (e, _, _), W in zip(rows, weights, strict=True))
+        W_k = weights(tau2)
+        H = sum(J.T @ W @ J for (_, _, J), W in zip(rows, W_k, strict=True))
+        g = sum(J.T @ W @ e for (e, _, J), W in zip(rows, W_k, strict=True))
+        return float(sum(e @ W @ e for (e, _, _), W in zip(rows, W_k, strict=True))
                      - g @ np.linalg.lstsq(H, g, rcond=None)[0])
 
     if chi2(0.0) <= target:
@@ -168,9 +171,6 @@ def _axis_floor(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose
         middle = 0.5 * (low + high)
         low, high = (middle, high) if chi2(middle) > target else (low, middle)
     tau2 = high
-
-    def information(t2: float) -> np.ndarray:
-        return sum(J.T @ np.linalg.solve(cov + t2 * np.eye(len(e)), J) for e, cov, J in rows)
 
     try:
         increment = np.linalg.inv(information(tau2)) - np.linalg.inv(information(0.0))

@@ -89,5 +89,3 @@ LONG_ARC_CONSISTENCY_P = 0.01
 JACKKNIFE_GROUPS = 12
 JACKKNIFE_MIN_GROUPS = 4
 JACKKNIFE_Z = 3.40  # the normal's 99.97 % point: 99.9 % Bonferroni over the 3 directions
-#: the step (rad, m) of the central differences of the projected test points' distances in the axes' floor
-FLOOR_STEP = 1e-6
