@@ -64,7 +64,7 @@ from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.factors import line_distances
 from gtsam_rotid.graph import axis_test_points
 from gtsam_rotid.simulate import SceneConfig
-from gtsam_rotid.tracking import Tracker, TrackerParams
+from gtsam_rotid.tracking import Tracker, TrackerParams, tracker_metadata
 from gtsam_rotid.uncertainty import chi2_mean_interval
 from gtsam_rotid.words import untrusted_words
 
@@ -115,7 +115,7 @@ def run_scene(robot: str, covering: str, seed: int, variant: str, duration: floa
         meshes = mr.load_arm_meshes(dataset.arm)
         config = mr.MeshRenderConfig(covering=covering, seed=seed, **changes)
         measurements, kept, errors, track_time, frames, off, skipped = [], [], [], 0.0, 0, 0, []
-        hand_px, arcs = [], []
+        hand_px, arcs, corner_tracks = [], [], 0
         for k in range(len(dataset)):
             if len(kept) == POSES:
                 break
@@ -128,6 +128,7 @@ def run_scene(robot: str, covering: str, seed: int, variant: str, duration: floa
             images = list(spin.frames())
             start = time.perf_counter()
             result = Tracker(params).run(images)
+            corner_tracks += result.n_corner_tracks
             track_time += time.perf_counter() - start
             frames += len(images)
             tracks = result.tracks
@@ -161,7 +162,8 @@ def run_scene(robot: str, covering: str, seed: int, variant: str, duration: floa
     tracked = None
     try:
         tracked = Dataset(dataset.arm, dataset.camera, usable_measurements,
-                          metadata={**dataset.metadata, "scene": scene_name(robot, covering, variant, seed)})
+                          metadata={**dataset.metadata, "scene": scene_name(robot, covering, variant, seed),
+                                    "tracker": tracker_metadata(params, corner_tracks)})
     except RotIdError as error:
         out["refused"] = f"{type(error).__name__}: {error}"
     if save is not None:
@@ -196,6 +198,8 @@ def load_scene(root: str) -> dict:
     except RotIdError as error:
         row["refused"] = f"cannot load the saved dataset: {type(error).__name__}: {error}"
         return row
+    if "tracker" not in tracked.metadata:  # saved before datasets named their tracker: the default's
+        tracked.metadata["tracker"] = tracker_metadata(TrackerParams())
     return calibrate_scene(row, tracked, gtsam.Pose3(np.array(document["arm_T_camera"], dtype=float)))
 
 

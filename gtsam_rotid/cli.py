@@ -115,7 +115,8 @@ def cmd_calibrate(args) -> int:
     print(dataset.summary())
     from .calibration import CalibrationOptions
 
-    result = _calibrate_timed(dataset, args.method, CalibrationOptions(joint_sigma_deg=args.joint_sigma_deg))
+    result = _calibrate_timed(dataset, args.method, CalibrationOptions(joint_sigma_deg=args.joint_sigma_deg,
+                                                                           axis_floor_px=args.axis_floor_px))
     print(summary(result))
     if truth is not None:
         _print_lines(error_vs_truth_lines(result, truth.arm_T_camera))
@@ -417,6 +418,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--joint-sigma-deg", type=float, default=0.0, metavar="DEG",
                    help="standard deviation of each joint-angle reading in degrees, propagated into the "
                         "covariance (default 0: exact kinematics)")
+    p.add_argument("--axis-floor-px", type=float, default=None, metavar="PX",
+                   help="the image axes' floor: an error in px that all of a spin's tracks share (default: the "
+                        "value the tracker wrote into the dataset, 0 for tracks of unknown origin)")
     p.add_argument("-o", "--output", metavar="RESULT_JSON", help="write the result as JSON to this file")
     p.add_argument("--overwrite", action="store_true", help="replace an existing result file")
     p.set_defaults(func=cmd_calibrate)

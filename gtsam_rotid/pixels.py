@@ -28,7 +28,7 @@ from .dataset import Dataset, Measurement, Track
 from .errors import InputError
 from .meshrender import MeshRenderConfig, MeshSpin, load_arm_meshes, render_mesh_measurement, track_errors
 from .render import RenderConfig, RenderedSpin, render_measurement
-from .tracking import Tracker, TrackerParams, TrackingResult
+from .tracking import Tracker, TrackerParams, TrackingResult, tracker_metadata
 
 __all__ = [
     "TrackingAccuracy",
@@ -328,5 +328,7 @@ def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | Me
                          "noise_sigma_grey": render_config.noise_sigma,
                          "render_seed": render_config.seed, "tracker": "gtsam_rotid.tracking.Tracker",
                          "tracker_params": dataclasses.asdict(tracker_params)}
+    # the image axes' floor of its features
+    metadata["tracker"] = tracker_metadata(tracker_params, sum(r.n_corner_tracks for r in results))
     tracked = Dataset(dataset.arm, dataset.camera, measurements, metadata=metadata)
     return VideoScene(tracked, results, accuracies, spins, render_seconds, track_seconds)

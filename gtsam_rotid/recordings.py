@@ -503,8 +503,17 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
     angles = _joint_rows(joints, arm, labels, joint_options)
     sources = [open_source(v) for v in videos]  # fail fast, before the slow tracking
     checked_ranges = [checked_range(r, v) for r, v in zip(frame_ranges, videos, strict=True)]
-    if tracker is None:
-        from .tracking import track as tracker
+    from .tracking import Tracker, track
+    from .trackparams import TrackerParams, tracker_metadata
+    tracker = track if tracker is None else tracker
+    corner_tracks, described = None, tracker
+    if tracker is track and (tracker_params is None or isinstance(tracker_params, TrackerParams)):
+        corner_tracks = []  # the default tracker: the dataset states its features' image axes' floor
+
+        def tracker(frames, params=None):
+            result = Tracker(params).run(frames)
+            corner_tracks.append(result.n_corner_tracks)
+            return result.tracks
     measurements = []
     with tqdm(total=n, desc="videos", unit="video", disable=not progress, file=sys.stderr) as bar:
         for k, (source, frame_range) in enumerate(zip(sources, checked_ranges, strict=True)):
@@ -518,9 +527,12 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
         "joints_file": joints_file,
         "joint_options": dict(joint_options or {}),
         "camera_file": camera_file,
-        "tracker": _tracker_description(tracker, tracker_params),
+        "tracker": _tracker_description(described, tracker_params),
     }
-    return Dataset(arm, camera, measurements, metadata={"recording": recording, **dict(metadata or {})})
+    extra = {"recording": recording}
+    if corner_tracks is not None:
+        extra["tracker"] = tracker_metadata(tracker_params, sum(corner_tracks))
+    return Dataset(arm, camera, measurements, metadata={**extra, **dict(metadata or {})})
 
 
 # ---------------------------------------------------------------------------------------------- command line

@@ -30,7 +30,7 @@ import numpy as np
 from .errors import InputError
 from .geometry import Line3, closest_point, correlation, quaternion_xyzw, ros_covariance, rpy_jacobian
 from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  # noqa: F401 (re-export)
-from .words import ambiguity_words, axis_consistency_sentence, kinematics_words, untrusted_words
+from .words import ambiguity_words, axis_consistency_sentence, kinematics_words, tracking_words, untrusted_words
 
 #: Two-sided 95 % point of the normal distribution: the 95 % bound of one axis is Z95 σ.
 Z95 = 1.959963984540054
@@ -246,6 +246,8 @@ class CalibrationReport:
     axis_consistency: object | None = None
     #: the joint-angle sigma (deg) the covariance includes; 0: exact kinematics (``result.joint_sigma_deg``)
     joint_sigma_deg: float = 0.0
+    #: the image axes' prior floor (px) the covariance includes (``result.axis_floor_px``)
+    axis_floor_px: float = 0.0
     #: why a determined calibration's covariance is still not trusted (``result.untrusted``'s kinds)
     untrusted: list = field(default_factory=list)
 
@@ -300,7 +302,7 @@ class CalibrationReport:
         return [f"method {self.method}, {state} after {self.iterations} iterations, pixel noise {self.sigma_px:.3f} "
                 "px (estimated from the residuals)",
                 "arm_T_camera: the camera pose (OpenCV optical frame: x right, y down, z forward) in the arm-base "
-                "frame", kinematics_words(self.joint_sigma_deg)]
+                "frame", kinematics_words(self.joint_sigma_deg), tracking_words(self.axis_floor_px)]
 
     def _uncertainty_lines(self) -> list[str]:
         q = self.quaternion_xyzw
@@ -420,6 +422,7 @@ class CalibrationReport:
             "strong_correlations": [{"a": a, "b": b, "rho": f(rho)} for a, b, rho in self.strong_correlations],
             "chi2": {k: (f(v) if isinstance(v, float) else v) for k, v in self.chi2.to_dict().items()},
             "joint_sigma_deg": f(self.joint_sigma_deg),
+            "axis_floor_px": f(self.axis_floor_px),
             "untrusted": list(self.untrusted),
             "axis_consistency": None if self.axis_consistency is None
             else {k: (f(v) if isinstance(v, float) else v) for k, v in self.axis_consistency.to_dict().items()},
@@ -586,6 +589,7 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         crossing_miss_mm=1000.0 * float(np.max(geometry.miss)) if crossing else None, ambiguous=ambiguous,
         axis_consistency=getattr(result, "axis_consistency", None),
         joint_sigma_deg=float(getattr(result, "joint_sigma_deg", 0.0)), untrusted=untrusted,
+        axis_floor_px=float(getattr(result, "axis_floor_px", 0.0)),
     )
 
 

@@ -40,11 +40,20 @@ from .errors import InputError
 from .frames import frames_of, open_source
 from .spinfilter import link_fragments, spin_filter
 from .trackfilter import _blob_area, _filter, _inside, _kept_patches, filter_tracks, loo_residuals, split_at_jumps
-from .trackparams import FEATURES, RejectedTrack, RejectReason, TrackerParams, TrackingResult
+from .trackparams import (
+    AXIS_FLOOR_PX,
+    FEATURES,
+    RejectedTrack,
+    RejectReason,
+    TrackerParams,
+    TrackingResult,
+    tracker_metadata,
+)
 
 #: Also importable from here: the settings, results and track tests live in their own modules.
-__all__ = ["FEATURES", "Centres", "RejectReason", "RejectedTrack", "Tracker", "TrackerParams", "TrackingResult",
-           "filter_tracks", "frame_source", "loo_residuals", "refine_centres", "split_at_jumps", "track"]
+__all__ = ["AXIS_FLOOR_PX", "FEATURES", "Centres", "RejectReason", "RejectedTrack", "Tracker", "TrackerParams",
+           "TrackingResult", "filter_tracks", "frame_source", "loo_residuals", "refine_centres", "split_at_jumps",
+           "track", "tracker_metadata"]
 
 #: File name endings read as images when ``frames`` is a folder.
 
@@ -372,6 +381,7 @@ class Tracker:
                                                      f"points within {_BLOB_AREA_MARGIN:g} px of blob tracks"))
             else:
                 result.tracks.append(t)
+                result.n_corner_tracks += 1
 
     def run(self, frames, *, progress: bool = False) -> TrackingResult:
         """Track every frame of ``frames`` (see :func:`track`; after any frames already fed) and

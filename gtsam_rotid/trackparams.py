@@ -14,6 +14,15 @@ from .errors import InputError
 #: Values of ``TrackerParams.features``.
 FEATURES = ("auto", "blobs", "corners")
 
+#: The image axes' prior floor (px) of each feature kind: what a spin's tracks share and so no number of them
+#: averages out (``CalibrationOptions.axis_floor_px``: the axis shifted and turned by this much, 1 sigma each).
+#: Blob centroids on the reference scene's dots put the image axes within hundredths of a pixel (a floor would
+#: discard that precision; the mesh renderer's curved dots are tracked worse); corner tracks on rendered
+#: photo and text coverings drift smoothly as the surface turns, and a pose's image axis is off by what all its
+#: tracks share: 0.1-0.6 px on the ambient benchmark's poses (``benchmarks/ambient.py``, "the poses' image axes vs
+#: truth"), often many times its 1 sigma. "auto" takes the corners' floor when it kept corner tracks.
+AXIS_FLOOR_PX = {"blobs": 0.0, "corners": 0.1, "auto": 0.1}
+
 
 @dataclass(frozen=True)
 class TrackerParams:
@@ -275,6 +284,8 @@ class TrackingResult:
     n_off_ellipse_points: int = 0
     #: The spin's common rate (rad per frame, in the frame where its ellipses are circles), NaN if not fitted.
     spin_rate: float = float("nan")
+    #: Of the accepted tracks, how many the corner follower made (the rest are blob tracks).
+    n_corner_tracks: int = 0
 
     def summary(self) -> str:
         """Multi-line human-readable description."""
@@ -291,3 +302,16 @@ class TrackingResult:
             if count:
                 lines.append(f"  rejected, {reason.value}: {count}")
         return "\n".join(lines)
+
+
+def tracker_metadata(params: TrackerParams | None = None, corner_tracks: int | None = None) -> dict:
+    """What a dataset's ``metadata["tracker"]`` says of tracks made with ``params`` (default settings when None):
+    the feature kind, its image axes' prior floor (px, :data:`AXIS_FLOOR_PX`), which ``calibrate`` uses unless
+    ``CalibrationOptions.axis_floor_px`` is given, and, when known, how many corner tracks were kept
+    (``corner_tracks``: with ``features="auto"`` none means blob tracks only, and the blobs' floor)."""
+    features = (params or TrackerParams()).features
+    kind = features if features != "auto" or corner_tracks is None else ("corners" if corner_tracks else "blobs")
+    out = {"features": features, "axis_floor_px": AXIS_FLOOR_PX[kind]}
+    if corner_tracks is not None:
+        out["corner_tracks"] = int(corner_tracks)
+    return out

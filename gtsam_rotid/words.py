@@ -39,6 +39,7 @@ def summary(result: CalibrationResult) -> str:
     if result.axis_consistency is not None and not result.axis_consistency.consistent:
         lines.append("  " + axis_consistency_sentence(result.axis_consistency))
     lines.append("  " + kinematics_words(result.joint_sigma_deg))
+    lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
         flag = f"  OUTLIER ({m.outlier_reason})" if m.outlier else ""
         n_rejected = len(m.rejected_tracks)
@@ -115,6 +116,17 @@ def kinematics_words(joint_sigma_deg: float) -> str:
                 "pose), propagated into the covariance")
     return ("kinematics: joint readings taken as exact; their errors are not in this covariance (declare them "
             "with CalibrationOptions.joint_sigma_deg / --joint-sigma-deg)")
+
+
+def tracking_words(axis_floor_px: float) -> str:
+    """What a covariance with the image axes' prior floor ``axis_floor_px`` (px; 0: none) assumes, in words."""
+    if axis_floor_px > 0.0:
+        return (f"tracking: each image axis taken as uncertain by at least {axis_floor_px:g} px (an error all of a "
+                "spin's tracks share, the tracker's), in the covariance (CalibrationOptions.axis_floor_px / "
+                "--axis-floor-px)")
+    return ("tracking: the tracks' errors taken as independent, no floor on the image axes (tracks of unknown "
+            "origin or simulated; declare a tracker's shared error with CalibrationOptions.axis_floor_px / "
+            "--axis-floor-px)")
 
 
 def ambiguity_words(result: CalibrationResult) -> str:

@@ -16,7 +16,7 @@ from gtsam_rotid.calibration import stage2
 from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.meshrender import MeshRenderConfig
 from gtsam_rotid.pixels import dataset_from_video
-from gtsam_rotid.tracking import TrackerParams
+from gtsam_rotid.tracking import AXIS_FLOOR_PX, TrackerParams, tracker_metadata
 from gtsam_rotid.words import summary
 
 CHI2_999_6DOF = 22.458
@@ -27,11 +27,13 @@ def test_short_textured_scene_calibrates_within_its_covariance():
     scene = dataset_from_video(dataset, truth, MeshRenderConfig(covering="text", seed=0),
                                TrackerParams(features="corners"), progress=False)
     kept = [len(m.tracks) for m in scene.dataset]
-    assert sum(k >= 10 for k in kept) >= 5, kept  # measured: 40, 25, 61, 6, 54, 14 corner tracks
+    # measured: 35, 25, 51, 3, 35, 12 corner tracks (40, 25, 61, 6, 54, 14 on another machine: OpenCV builds differ)
+    assert sum(k >= 10 for k in kept) >= 5, kept
     result = calibrate(scene.dataset)
     error = result.error_to(truth.arm_T_camera)
     chi2 = float(error @ np.linalg.solve(result.covariance, error))
-    # measured: 0.47 mm and 0.046 deg off (worst axis), 1 sigma 3.1 mm and 0.28 deg, chi2 of the error 3.3
+    # measured: 0.5 mm and 0.094 deg off (worst axis), 1 sigma 4.6 mm and 0.49 deg, chi2 of the error 0.85 (the
+    # 3- and 12-track poses left out: the four others determine the pose without them)
     assert result.covariance_usable, summary(result)
     assert chi2 < CHI2_999_6DOF, (chi2, summary(result))
     assert np.max(np.abs(error[3:])) < 0.005  # and a calibration: mm, not cm
@@ -62,3 +64,32 @@ def test_a_textured_scene_whose_axes_share_a_bias_holds_its_covariance(monkeypat
     monkeypatch.setattr(stage2, "_axis_floor", lambda *args, **kwargs: (0.0, None))
     factor_only = calibrate(dataset)
     assert factor_only.covariance_usable and chi2(factor_only) > CHI2_999_6DOF
+
+
+UR5 = Path(__file__).parent / "data" / "ur5_photo_seed0"
+
+
+def test_a_precise_pose_that_no_other_checks_is_held_by_the_trackers_floor():
+    """The tracked UR5 photo scene of the ambient benchmark (seed 0, 20 s spins, the default tracker). Its sixth
+    pose (21 tracks, an arc of 272 deg) has an image axis 0.33 px off the truth, ten times its 1 sigma, and alone
+    determines two directions of the pose (leverage 1: the other poses' axes are 30x less precise there), so the
+    axes' test cannot see it. Without a floor that is a confident wrong number; with the default tracker's floor,
+    which the tracker now writes into its datasets, the covariance holds the error."""
+    dataset = Dataset.load(UR5 / "dataset")
+    truth = gtsam.Pose3(np.array(json.loads((UR5 / "truth.json").read_text(encoding="utf-8"))["arm_T_camera"]))
+
+    def chi2(result):
+        error = result.error_to(truth)
+        return float(error @ np.linalg.solve(result.covariance, error))
+
+    assert "tracker" not in dataset.metadata  # saved before datasets named their tracker
+    bare = calibrate(dataset)
+    assert bare.axis_floor_px == 0.0 and bare.axis_consistency.consistent
+    assert bare.covariance_usable and chi2(bare) > 10 * CHI2_999_6DOF  # measured: 757
+
+    dataset.metadata["tracker"] = tracker_metadata(TrackerParams())
+    result = calibrate(dataset)
+    assert result.axis_floor_px == AXIS_FLOOR_PX["auto"] > 0.0
+    assert f"at least {AXIS_FLOOR_PX['auto']:g} px" in summary(result)
+    assert not result.covariance_usable or chi2(result) < CHI2_999_6DOF, (chi2(result), summary(result))
+    assert np.max(np.abs(result.error_to(truth)[3:])) < 0.005

@@ -29,6 +29,7 @@ from gtsam_rotid.recordings import (
     read_frames,
     read_joint_file,
 )
+from gtsam_rotid.trackparams import AXIS_FLOOR_PX
 
 K = np.array([[520.5, 0.0, 31.25], [0.0, 522.0, 23.75], [0.0, 0.0, 1.0]])
 DIST = np.array([0.11, -0.21, 0.0012, -0.0008, 0.031])
@@ -492,6 +493,7 @@ def test_make_dataset_end_to_end(tmp_path, arm, camera):
     assert record["videos"] == [str(v) for v in videos]
     assert record["frame_ranges"] == [None, [1, 5], [2, None]]
     assert record["tracker"]["params"] == {"max_corners": 5}
+    assert "tracker" not in dataset.metadata  # another tracker's tracks: no image axes' floor is claimed for them
 
 
 def test_make_dataset_from_files_with_progress(tmp_path, arm, capsys):
@@ -542,9 +544,12 @@ def track_parser() -> argparse.ArgumentParser:
 
 @pytest.fixture
 def fake_tracking_module(monkeypatch):
-    """``gtsam_rotid.tracking`` replaced by a module whose ``track`` is a FakeTracker."""
+    """``gtsam_rotid.tracking`` replaced by a module whose ``track`` is a FakeTracker (and whose ``Tracker`` runs it
+    and says it kept one corner track)."""
     module = types.ModuleType("gtsam_rotid.tracking")
     module.track = FakeTracker()
+    module.Tracker = lambda params=None: types.SimpleNamespace(run=lambda frames: types.SimpleNamespace(
+        tracks=module.track(frames, params=params), n_corner_tracks=1))
     monkeypatch.setitem(sys.modules, "gtsam_rotid.tracking", module)
     return module
 
@@ -569,6 +574,9 @@ def test_cli_track_writes_a_dataset(tmp_path, arm, fake_tracking_module, capsys)
     np.testing.assert_allclose([loaded.joint_angles(k) for k in range(3)], expected, rtol=0, atol=1e-12)
     assert loaded[1].frame_span() == (1, 4)
     assert loaded.metadata["recording"]["joint_options"]["degrees"] is True
+    # the default tracker's tracks: the dataset states its features' image axes' floor for the calibration
+    assert loaded.metadata["tracker"] == {"features": "auto", "axis_floor_px": AXIS_FLOOR_PX["corners"],
+                                          "corner_tracks": 3}
     with pytest.raises(DatasetExistsError, match="--overwrite"):
         cmd_track(args)
     assert cmd_track(track_parser().parse_args([*argv, "--overwrite"])) == 0

@@ -37,11 +37,11 @@ from ..uncertainty import (
 from .lm import _builder, _graph_dof, _lm, _turned
 from .options import CalibrationError, Method, SpinModel
 from .result import CalibrationResult
-from .setup import joint_tie_covariance
 from .stage1 import _circles, _noise_variance, _track_correlation, _track_stats
 from .stage2 import (
     _axis_consistency,
     _finish,
+    _prior_floor_covariance,
     _reports,
     _robust_weighted,
     _second_opinion,
@@ -68,7 +68,8 @@ def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anch
     solved = _Solved(pose, None, pose_information(graph, values, POSE_KEY), Method.WEIGHTED, True, iterations,
                      graph.error(values))
     return _finish(solved, reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(graph, values),
-                   consistency=consistency)
+                   consistency=consistency, prior=_prior_floor_covariance(
+                       camera, setup, stage1, used, pose, {k: stage1[k].sigma2 for k in used}))
 
 
 def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
@@ -81,18 +82,27 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
     pose, iterations, _, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options, anchor,
                                                        _opinion(arm, camera, measurements, setup, stage1, options))
     result = _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used, chi2, options)
-    if result.axis_consistency is None or result.axis_consistency.p_value >= RESTART_P:
-        return result
+    c = result.axis_consistency
     weak_used = [k for k in used if k in setup.weak]
-    if weak_used and len([k for k in used if k not in setup.weak]) >= MIN_STRONG:
-        # the axes disagree and weak measurements take part: fit the strong ones alone (the weak are named)
-        pose, it, _, used, chi2 = _robust_weighted(camera, setup, stage1, pose, options, anchor,
-                                                   _opinion(arm, camera, measurements, setup, stage1, options),
-                                                   drop_weak=True)
-        result = _joint_fit(arm, camera, measurements, setup, stage1, pose, result.iterations + it, used, chi2,
-                            options)
-        if result.axis_consistency is None or result.axis_consistency.p_value >= RESTART_P:
+    strong_enough = bool(weak_used) and len([k for k in used if k not in setup.weak]) >= MIN_STRONG
+    if c is None or (c.p_value >= RESTART_P and (c.consistent or not strong_enough)):
+        return result
+    if strong_enough:
+        # the axes disagree and weak measurements take part: fit the strong ones alone (the weak are named). A
+        # weak axis far off its own wide 1 sigma would otherwise set the scale or the common floor of them all
+        # (one 3-track pose 70 px off made a floor of 21 px and a 1 sigma of 158 mm on a good estimate)
+        dropped = set(setup.dropped)
+        pose_s, it, _, used_s, chi2_s = _robust_weighted(camera, setup, stage1, pose, options, anchor,
+                                                         _opinion(arm, camera, measurements, setup, stage1, options),
+                                                         drop_weak=True)
+        strong = _joint_fit(arm, camera, measurements, setup, stage1, pose_s, result.iterations + it, used_s,
+                            chi2_s, options)
+        if strong.axis_consistency is None or strong.axis_consistency.p_value >= RESTART_P:
+            return strong
+        if result.axis_consistency.p_value >= RESTART_P:
+            setup.dropped = dropped  # the weak ones stay: the strong ones alone disagree no less
             return result
+        result, used, chi2 = strong, used_s, chi2_s
     return _restarted(arm, camera, measurements, setup, stage1, result, used, chi2, options, anchor)
 
 
@@ -152,8 +162,8 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
         keys = {k: builder.add_measurement(graph, values, k, measurements[k], track_sigmas=dict.fromkeys(
                     setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
                     prepared=setup.prepared[k], initial_circles=circles[k], initial_line=lines[k],
-                    refine_circles=circles[k] is None, tie_covariance=joint_tie_covariance(
-                        camera, setup.axes[k], stage1[k].line, pose, setup.noise(k))) for k in used}
+                    refine_circles=circles[k] is None, tie_covariance=setup.tie_covariance(
+                        camera, k, stage1[k].line, pose)) for k in used}
         start_pose = pose
         result, it, error, converged = _lm(
             graph, values, options.max_iterations, anchor=True, watch_tolerance=WATCH_POSE,
@@ -185,7 +195,8 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
                              iterations + rigid.iterations, rigid.error)
             pose = rigid.pose
             return _finish(solved, reports, np.median(list(sigmas.values())),
-                           consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options))
+                           consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options),
+                           prior=_prior_floor_covariance(camera, setup, stage1, used, pose, variances))
     try:
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
     except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
@@ -199,7 +210,8 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
         covariance = covariance if robust is None else robust
     solved = _Solved(pose, covariance, info, Method.JOINT, converged, iterations, error)
     return _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result),
-                   consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options))
+                   consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options),
+                   prior=_prior_floor_covariance(camera, setup, stage1, used, pose, variances))
 
 
 class _RigidFit(NamedTuple):
@@ -228,8 +240,7 @@ def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options) -> _Ri
     for k, keys_k in keys.items():
         R = free.atRot3(keys_k.line)
         values.insert(keys_k.line, R)
-        tie_cov = joint_tie_covariance(camera, setup.axes[k], image_line_from_rot3(K, R)[0], free.atPose3(POSE_KEY),
-                                       setup.noise(k))
+        tie_cov = setup.tie_covariance(camera, k, image_line_from_rot3(K, R)[0], free.atPose3(POSE_KEY))
         graph.add(make_axis_to_line_variable_factor(tie_noise_model(options.tie_sigma_px, tie_cov),
                                                     POSE_KEY, keys_k.line, axis_test_points(setup.axes[k]), K))
         spun = []
@@ -293,8 +304,8 @@ def _common_chi2(arm, camera, measurements, setup, results: list[CalibrationResu
             for k in used:
                 builder.add_measurement(graph, values, k, measurements[k], skip_tracks=skip[k],
                                         track_sigmas=dict.fromkeys(setup.prepared[k].usable, sigmas[k]),
-                                        prepared=setup.prepared[k], tie_covariance=joint_tie_covariance(
-                                            camera, setup.axes[k], None, r.arm_T_camera, setup.noise(k)))
+                                        prepared=setup.prepared[k], tie_covariance=setup.tie_covariance(
+                                            camera, k, None, r.arm_T_camera))
         except RotIdError:  # this pose cannot carry those tracks (e.g. an ellipse behind the camera)
             chi2.append(np.inf)
             poses.append(r.arm_T_camera)

@@ -100,6 +100,14 @@ class CalibrationOptions:
     #: pose (encoder noise, backlash). It moves the FK wrist axis; the projected-axis ties and the stage-2 weights
     #: include that uncertainty (propagated through the kinematics). 0: the kinematics are taken as exact.
     joint_sigma_deg: float = 0.0
+    #: weighted, joint: the image axes' prior floor (px). Each projected test point's distance to a measurement's
+    #: image axis is taken to have at least this error (added in quadrature), shared by all its tracks: a tracker's
+    #: bias that no number of tracks averages out. The axes' own test (:class:`AxisConsistency`) cannot see it on
+    #: a measurement that alone determines some direction of the pose (with few poses, the precise ones do), so a
+    #: prior is the only guard there. None (default): the value the tracker wrote into the dataset's metadata
+    #: (``metadata["tracker"]["axis_floor_px"]``, :func:`gtsam_rotid.tracking.tracker_metadata`), else 0 (tracks of
+    #: unknown origin and simulated ones, whose noise is independent by construction).
+    axis_floor_px: float | None = None
 
     def __post_init__(self):
         # a misspelt choice ("rigd") must not silently run the default
@@ -122,6 +130,11 @@ class CalibrationOptions:
                 raise InputError(f"CalibrationOptions.{name} must be a finite number >= 0, got {value!r}")
         if self.axis_consistency_p is not None and not 0.0 <= self.axis_consistency_p < 1.0:
             raise InputError(f"CalibrationOptions.axis_consistency_p must be in [0, 1), got {self.axis_consistency_p}")
+        if self.axis_floor_px is not None and (isinstance(self.axis_floor_px, bool) or not isinstance(
+                self.axis_floor_px, int | float | np.number) or not np.isfinite(self.axis_floor_px)
+                or self.axis_floor_px < 0):
+            raise InputError(f"CalibrationOptions.axis_floor_px must be None or a finite number >= 0, "
+                             f"got {self.axis_floor_px!r}")
         if not (np.isfinite(self.joint_sigma_deg) and self.joint_sigma_deg >= 0.0):
             raise InputError(f"CalibrationOptions.joint_sigma_deg must be a finite value >= 0 (deg), got "
                              f"{self.joint_sigma_deg}")

@@ -143,6 +143,8 @@ class CalibrationResult:
     #: the joint-angle sigma (deg) propagated into the covariance (CalibrationOptions.joint_sigma_deg); 0: the
     #: kinematics were taken as exact (always so for ``paper``)
     joint_sigma_deg: float = 0.0
+    #: the image axes' prior floor (px) the covariance includes (CalibrationOptions.axis_floor_px, resolved)
+    axis_floor_px: float = 0.0
     #: why the covariance cannot be trusted although the poses determine the calibration (kind -> measurement
     #: indices involved); see :data:`UNTRUSTED_KINDS` and :func:`gtsam_rotid.words.untrusted_words`
     untrusted: dict[str, list[int]] = field(default_factory=dict)
@@ -202,6 +204,7 @@ class CalibrationResult:
             "alternatives": [a.to_dict() for a in self.alternatives],
             "axis_consistency": None if self.axis_consistency is None else self.axis_consistency.to_dict(),
             "joint_sigma_deg": self.joint_sigma_deg,
+            "axis_floor_px": self.axis_floor_px,
             "untrusted": self.untrusted,
         }
 
@@ -229,6 +232,7 @@ class CalibrationResult:
             axis_consistency=None if data.get("axis_consistency") is None
             else AxisConsistency.from_dict(data["axis_consistency"]),
             joint_sigma_deg=float(data.get("joint_sigma_deg", 0.0)),
+            axis_floor_px=float(data.get("axis_floor_px", 0.0)),
             untrusted={str(k): [int(i) for i in v] for k, v in data.get("untrusted", {}).items()},
         )
 

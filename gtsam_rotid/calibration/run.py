@@ -38,9 +38,10 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
 
     Call as ``calibrate(dataset)`` or ``calibrate(arm, camera, measurements)``.
     """
+    metadata = {}
     if isinstance(arm, Dataset):
         dataset = arm
-        arm, camera, measurements = dataset.arm, dataset.camera, list(dataset)
+        arm, camera, measurements, metadata = dataset.arm, dataset.camera, list(dataset), dataset.metadata
     if camera is None or measurements is None:
         raise InputError("calibrate needs a Dataset, or an Arm, a Camera and a list of Measurements")
     try:
@@ -48,6 +49,8 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
     except ValueError:
         raise InputError(f"unknown method {method!r}; choose one of {[m.value for m in Method]}") from None
     options = CalibrationOptions() if options is None else options
+    if options.axis_floor_px is None:
+        options = replace(options, axis_floor_px=_tracker_floor_px(metadata))
     measurements = [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements]
     # a measurement with fewer than two usable tracks has no image axis: it is left out and named, not fatal
     builder = _builder(arm, camera, options)
@@ -74,6 +77,19 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
             axis_direction=[float(v) for v in axis.direction], arc_span_deg=max(spans) if spans else None, weak=True))
     result = replace(result, measurements=sorted(reports, key=lambda r: r.index))
     return replace(result, untrusted=_untrusted(result, setup))
+
+
+def _tracker_floor_px(metadata: dict) -> float:
+    """The image axes' prior floor (px) the dataset's tracker wrote (``metadata["tracker"]["axis_floor_px"]``);
+    0 when it names none."""
+    tracker = metadata.get("tracker")
+    value = tracker.get("axis_floor_px") if isinstance(tracker, dict) else None
+    if value is None:
+        return 0.0
+    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
+        raise InputError(f"the dataset's metadata[\"tracker\"][\"axis_floor_px\"] must be a finite number >= 0 "
+                         f"(px), got {value!r}")
+    return float(value)
 
 
 def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]:
@@ -129,13 +145,15 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
             raise failures[0]
         best, alternatives = _choose(arm, camera, measurements, setup, joints, options)
         if method is Method.JOINT:
-            return replace(joints[best], alternatives=alternatives, joint_sigma_deg=options.joint_sigma_deg), setup
+            return replace(joints[best], alternatives=alternatives, joint_sigma_deg=options.joint_sigma_deg,
+                           axis_floor_px=setup.floor_px), setup
         runs, anchors = [runs[best]], [anchors[best]]
     init_pose, stage1 = runs[0]
     result = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
     _check_scale(result, setup, stage1, options)
     return replace(result, alternatives=alternatives,
-                   joint_sigma_deg=0.0 if method is Method.PAPER else options.joint_sigma_deg), setup
+                   joint_sigma_deg=0.0 if method is Method.PAPER else options.joint_sigma_deg,
+                   axis_floor_px=0.0 if method is Method.PAPER else setup.floor_px), setup
 
 
 def _same_solution(result: CalibrationResult, pose: gtsam.Pose3) -> bool:

@@ -46,9 +46,26 @@ class _Setup:
     short: dict[int, float] = field(default_factory=dict)
     #: per measurement, the longest turn of a usable track's direction of motion (deg, :func:`_turning_deg`)
     turning: list[float] = field(default_factory=list)
+    #: the image axes' prior floor (px, ``CalibrationOptions.axis_floor_px`` resolved by ``calibrate``)
+    floor_px: float = 0.0
 
     def noise(self, k: int) -> np.ndarray | None:
         return self.axis_noise[k] if self.axis_noise else None
+
+    def tie_covariance(self, camera: Camera, k: int, line: np.ndarray | None, pose: gtsam.Pose3) -> np.ndarray | None:
+        """(2, 2) covariance (px²) that the joint-angle noise gives measurement ``k``'s image axis (the
+        distances of its test points, :func:`joint_tie_covariance`); None with exact kinematics."""
+        return joint_tie_covariance(camera, self.axes[k], line, pose, self.noise(k))
+
+    @property
+    def floor_covariance(self) -> np.ndarray | None:
+        """(2, 2) covariance (px²) of the prior floor on every image axis' test-point distances (a bias all of a
+        measurement's tracks share): the axis shifted by ``floor_px`` and turned by ``floor_px`` at its test points,
+        independent 1 sigma each (distances ``s + t`` and ``s - t``: ``2 floor_px² I``); None without a floor.
+        Neither in the fit's weights (the estimate keeps its precise axes' information) nor in the axes' test
+        (which reads the scatter beyond it the same way with or without it); what it passes into the estimate is
+        added to the covariance (:func:`stage2._prior_floor_covariance`)."""
+        return 2.0 * self.floor_px**2 * np.eye(2) if self.floor_px > 0.0 else None
 
     @property
     def short_arcs(self) -> bool:
@@ -77,7 +94,8 @@ def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: C
         sigma = np.radians(options.joint_sigma_deg)
         noise = [sigma * test_point_jacobian(arm, m.joint_angles) for m in measurements]
     turning = [max((_turning_deg(t.ideal) for t in p.usable.values()), default=0.0) for p in prepared]
-    return _Setup(axes, prepared, lines, noise, list(range(len(measurements))), camera.K, turning=turning)
+    return _Setup(axes, prepared, lines, noise, list(range(len(measurements))), camera.K, turning=turning,
+                  floor_px=float(options.axis_floor_px or 0.0))
 
 
 def test_point_jacobian(arm: Arm, joint_angles, step: float = 1e-6) -> np.ndarray:

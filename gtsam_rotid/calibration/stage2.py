@@ -33,7 +33,7 @@ from .initial import _best_stage2, _random_restarts, _stage2_graph, _stage2_mini
 from .lm import _builder, _graph_dof, _lm, _turned
 from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method
 from .result import AxisConsistency, CalibrationResult, MeasurementReport
-from .setup import _Setup, circle_arc_span_deg, joint_tie_covariance
+from .setup import _Setup, circle_arc_span_deg
 from .stage1 import _circles, _jackknife, _Stage1, _stage1, _stage1_result, _stage1_round, _track_stats
 from .tuning import (
     MIN_STRONG,
@@ -82,18 +82,19 @@ def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup
 # stage 2 and the estimators
 
 
-def _axis_distances(camera: Camera, axis, stage1: _Stage1, pose: gtsam.Pose3,
-                    sigma2: float | None = None, noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _axis_distances(camera: Camera, axis, stage1: _Stage1, pose: gtsam.Pose3, sigma2: float | None = None,
+                    setup: _Setup | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Distances of the projected FK test points to the stage-1 image axis, and their covariance (at the
-    measurement's own pixel noise variance unless ``sigma2`` is given; plus the joint-angle noise's, ``noise`` as
-    in :func:`joint_tie_covariance`)."""
+    measurement's own pixel noise variance unless ``sigma2`` is given; with ``setup`` plus the joint-angle noise'
+    of measurement ``k``, :meth:`_Setup.tie_covariance`)."""
     points = np.array([pose.transformTo(p) for p in axis_test_points(axis)])
     pixels = camera.project(points, distort=False)
     e = line_distances(stage1.line, pixels)
     sigma2 = stage1.sigma2 if sigma2 is None else sigma2
     cov = line_distance_covariance(stage1.line_cov * sigma2, pixels) + 1e-12 * np.eye(len(e))
-    if noise is not None:
-        cov = cov + joint_tie_covariance(camera, axis, stage1.line, pose, noise)
+    extra = None if setup is None else setup.tie_covariance(camera, k, stage1.line, pose)
+    if extra is not None:
+        cov = cov + extra
     return e, cov
 
 
@@ -112,7 +113,7 @@ def _chi2(camera, setup: _Setup, stage1, pose, sigma2: dict[int, float] | None =
             out.append(np.nan)
             continue
         variance = max(s.sigma2, median) if sigma2 is None else sigma2[k]
-        e, cov = _axis_distances(camera, axis, s, pose, variance, setup.noise(k))
+        e, cov = _axis_distances(camera, axis, s, pose, variance, setup, k)
         out.append(float(e @ np.linalg.pinv(cov, hermitian=True) @ e))  # pinv: test points may project badly
     return np.array(out)
 
@@ -143,7 +144,7 @@ def _axis_floor(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose
     None when the axes alone do not determine the pose)."""
     rows = []
     for k in used:
-        e, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup.noise(k))
+        e, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup, k)
         J = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), stage1[k].line)[1]
         rows.append((e, cov, J))
 
@@ -180,13 +181,39 @@ def _axis_floor(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose
     return float(np.sqrt(tau2)), increment if np.all(np.isfinite(increment)) else None
 
 
+def _prior_floor_covariance(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3,
+                            sigma2: dict[int, float]) -> np.ndarray | None:
+    """The pose covariance (6x6, Pose3 tangent) that the prior floor's errors (:attr:`_Setup.floor_covariance`,
+    ``F`` on every used axis' test-point distances) pass into an estimate fitted without them, to first order:
+    ``H^-1 (sum_k J_k^T W_k F W_k J_k) H^-1`` with the fit's own weights ``W_k = V_k^-1`` (the pixel noise at
+    ``sigma2[k]`` and the joint-angle noise) and ``H = sum_k J_k^T W_k J_k``: the sandwich's part that the floor
+    adds. None without a floor or when the axes alone do not determine the pose."""
+    F = setup.floor_covariance
+    if F is None:
+        return None
+    H, meat = np.zeros((6, 6)), np.zeros((6, 6))
+    for k in used:
+        _, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup, k)
+        J = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), stage1[k].line)[1]
+        WJ = np.linalg.solve(cov, J)
+        H += J.T @ WJ
+        meat += WJ.T @ F @ WJ
+    try:
+        H_inv = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return None
+    out = H_inv @ meat @ H_inv
+    out = 0.5 * (out + out.T)
+    return out if np.all(np.isfinite(out)) else None
+
+
 def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsam.Pose3, options, anchor):
     """Stage 2 weighted by the stage-1 line covariances, Huber on whole measurements; returns (pose, its, graph)."""
     pose, iterations, graph = start, 0, None
     for _round in range(3):  # the distance covariance depends on where the test points project
         noises = []
         for k in used:
-            _, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, noise=setup.noise(k))
+            _, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, setup=setup, k=k)
             base = gtsam.noiseModel.Gaussian.Covariance(cov)
             noises.append(gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(3.0), base))
         graph = _stage2_graph([setup.axes[k] for k in used], [stage1[k].line for k in used], camera.K, noises)
@@ -281,8 +308,7 @@ def _tied_fit(builder: RotIdGraph, measurement, k: int, prepared, s: _Stage1, po
                                        initial_line=None if fresh else s.rotation,
                                        initial_circles=None if fresh else dict(s.circles),
                                        refine_circles=fresh, track_sigmas=dict.fromkeys(prepared.usable, 1.0),
-                                       tie_covariance=joint_tie_covariance(builder.camera, setup.axes[k], s.line,
-                                                                           pose, setup.noise(k)))
+                                       tie_covariance=setup.tie_covariance(builder.camera, k, s.line, pose))
     except RotIdError:
         return None
     graph.add(gtsam.NonlinearEqualityPose3(POSE_KEY, pose))
@@ -441,10 +467,11 @@ class _Solved:
 
 
 def _finish(solved: _Solved, reports, sigma_px, *, info_scale: float = 1.0, dof: int | None = None,
-            consistency: AxisConsistency | None = None) -> CalibrationResult:
+            consistency: AxisConsistency | None = None, prior: np.ndarray | None = None) -> CalibrationResult:
     """Result with the observability of ``info * info_scale`` (the scale makes it a real information); the
     covariance (of the pose, or the observability's when it is undetermined) is multiplied by
-    ``consistency.scale``."""
+    ``consistency.scale`` or floored, whichever is larger, and ``prior`` (the prior floor's,
+    :func:`_prior_floor_covariance`) added."""
     pose, covariance, info, method = solved.pose, solved.covariance, solved.info, solved.method
     converged, iterations, error = solved.converged, solved.iterations, solved.error
     if not np.all(np.isfinite(info)):
@@ -459,6 +486,8 @@ def _finish(solved: _Solved, reports, sigma_px, *, info_scale: float = 1.0, dof:
         # the larger, direction by direction, of the two readings of the axes' scatter (AxisConsistency)
         covariance = scaled if consistency.floor_covariance is None else loewner_max(
             scaled, covariance + consistency.floor_covariance)
+    if prior is not None and observability.is_observable:  # what the axes' test cannot see, on top
+        covariance = covariance + prior
     return CalibrationResult(pose, covariance, method.value, bool(converged), int(iterations), float(error),
                              reports, observability, float(sigma_px), dof, axis_consistency=consistency)
 
