@@ -100,9 +100,10 @@ class CalibrationOptions:
     #: pose (encoder noise, backlash). It moves the FK wrist axis; the projected-axis ties and the stage-2 weights
     #: include that uncertainty (propagated through the kinematics). 0: the kinematics are taken as exact.
     joint_sigma_deg: float = 0.0
-    #: weighted, joint: the image axes' prior floor (px). Each projected test point's distance to a measurement's
-    #: image axis is taken to have at least this error (added in quadrature), shared by all its tracks: a tracker's
-    #: bias that no number of tracks averages out. The axes' own test (:class:`AxisConsistency`) cannot see it on
+    #: weighted, joint: the image axes' prior floor (px). Every measurement's image axis is taken to be shifted and
+    #: turned by this much (1 sigma each, at its test points), an error shared by all its tracks: a tracker's bias
+    #: that no number of tracks averages out; what it passes into the estimate is added to the covariance. The
+    #: axes' own test (:class:`AxisConsistency`) cannot see it on
     #: a measurement that alone determines some direction of the pose (with few poses, the precise ones do), so a
     #: prior is the only guard there. None (default): the value the tracker wrote into the dataset's metadata
     #: (``metadata["tracker"]["axis_floor_px"]``, :func:`gtsam_rotid.tracking.tracker_metadata`), else 0 (tracks of
