@@ -135,6 +135,18 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
     return AxisConsistency(chi2, dof, p, chi2 / (dof - 2), floor, increment)
 
 
+def _axis_rows(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3,
+               sigma2: dict[int, float]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per used measurement: its test points' distances to its image axis, their covariance (pixel noise at
+    ``sigma2[k]`` and joint-angle noise, :func:`_axis_distances`) and their (2, 6) Jacobian by the pose."""
+    rows = []
+    for k in used:
+        e, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup, k)
+        J = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), stage1[k].line)[1]
+        rows.append((e, cov, J))
+    return rows
+
+
 def _axis_floor(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3, sigma2: dict[int, float],
                 target: float) -> tuple[float, np.ndarray | None]:
     """The axes' common floor (see :class:`AxisConsistency`): ``tau`` (px) such that, with ``tau^2`` added to the
@@ -142,11 +154,7 @@ def _axis_floor(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose
     those weights fit best (linearised about ``pose``: distances ``e_k + J_k x``), and the pose covariance that
     floor adds (6x6, the Pose3 tangent: ``(sum_k J_k^T (V_k + tau^2 I)^-1 J_k)^-1`` minus the same at ``tau = 0``;
     None when the axes alone do not determine the pose)."""
-    rows = []
-    for k in used:
-        e, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup, k)
-        J = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), stage1[k].line)[1]
-        rows.append((e, cov, J))
+    rows = _axis_rows(camera, setup, stage1, used, pose, sigma2)
 
     def weights(tau2: float) -> list[np.ndarray]:
         return [np.linalg.inv(cov + tau2 * np.eye(len(e))) for e, cov, _ in rows]
@@ -192,9 +200,7 @@ def _prior_floor_covariance(camera, setup: _Setup, stage1, used: list[int], pose
     if F is None:
         return None
     H, meat = np.zeros((6, 6)), np.zeros((6, 6))
-    for k in used:
-        _, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup, k)
-        J = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), stage1[k].line)[1]
+    for _, cov, J in _axis_rows(camera, setup, stage1, used, pose, sigma2):
         WJ = np.linalg.solve(cov, J)
         H += J.T @ WJ
         meat += WJ.T @ F @ WJ
