@@ -57,6 +57,15 @@ def test_too_few_measurements_is_an_error(noise_free_scene):
         calibrate(dataset.arm, dataset.camera, list(dataset)[:2])
 
 
+def test_options_passed_by_position_with_a_dataset_are_refused_not_ignored(noise_free_scene):
+    dataset, _ = noise_free_scene
+    # calibrate(dataset, options) once ran the default options silently (the options landed in ``camera``)
+    with pytest.raises(InputError, match="pass options and method as keywords"):
+        calibrate(dataset, CalibrationOptions(spin_model="rigid"))
+    with pytest.raises(TypeError):
+        calibrate(dataset.arm, dataset.camera, list(dataset), "joint")  # method is a keyword
+
+
 def test_unknown_method(noise_free_scene):
     dataset, _ = noise_free_scene
     with pytest.raises(InputError, match="unknown method 'best'"):

@@ -32,14 +32,20 @@ from .tuning import (
 )
 
 
-def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: list[Measurement] | None = None,
+def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: list[Measurement] | None = None, *,
               method: str | Method = Method.JOINT, options: CalibrationOptions | None = None) -> CalibrationResult:
     """Estimate ``arm_T_camera`` from wrist spins.
 
-    Call as ``calibrate(dataset)`` or ``calibrate(arm, camera, measurements)``.
+    Call as ``calibrate(dataset)`` or ``calibrate(arm, camera, measurements)``; ``method`` and ``options`` are
+    keywords (``calibrate(dataset, options=CalibrationOptions(...))``).
     """
     metadata = {}
     if isinstance(arm, Dataset):
+        if camera is not None or measurements is not None:
+            given = type(camera if camera is not None else measurements).__name__
+            raise InputError(f"calibrate(dataset, ...) takes its camera and measurements from the dataset, but a "
+                             f"{given} was also passed by position; pass options and method as keywords: "
+                             "calibrate(dataset, options=CalibrationOptions(...), method='joint')")
         dataset = arm
         arm, camera, measurements, metadata = dataset.arm, dataset.camera, list(dataset), dataset.metadata
     if camera is None or measurements is None:
