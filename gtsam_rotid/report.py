@@ -30,7 +30,14 @@ import numpy as np
 from .errors import InputError
 from .geometry import Line3, closest_point, correlation, quaternion_xyzw, ros_covariance, rpy_jacobian
 from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  # noqa: F401 (re-export)
-from .words import ambiguity_words, axis_consistency_sentence, kinematics_words, tracking_words, untrusted_words
+from .words import (
+    ambiguity_words,
+    axis_consistency_sentence,
+    kinematics_words,
+    observability_words,
+    tracking_words,
+    untrusted_words,
+)
 
 #: Two-sided 95 % point of the normal distribution: the 95 % bound of one axis is Z95 σ.
 Z95 = 1.959963984540054
@@ -502,7 +509,7 @@ def _observability(result, cov: np.ndarray, geometry: AxisGeometry | None) -> tu
                      "direction is not determined")
         suggestion = f"add a pose whose wrist axis is tilted at least {SUGGESTED_TILT_DEG:.0f}° from the others"
     if undetermined:
-        details = [w for w in obs.describe() if not w.startswith("DEGENERATE")]
+        details = [w for w in observability_words(obs) if not w.startswith("DEGENERATE")]
         if not found_cause:
             pure = [d for d in obs.unobservable_directions if np.linalg.norm(d[:3]) < 0.1]
             if len(obs.unobservable_directions) == 1 and pure and geometry is None:

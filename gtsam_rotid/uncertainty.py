@@ -99,21 +99,26 @@ def pose_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, po
 
 @dataclass
 class Observability:
-    """Eigen-analysis of the pose information. ``unobservable_directions`` is empty when all is determined."""
+    """Eigen-analysis of the pose information. ``unobservable_directions`` is empty when all is determined; the
+    sentences that say it are :func:`gtsam_rotid.words.observability_words`."""
 
     eigenvalues: np.ndarray  # ascending
     eigenvectors: np.ndarray  # columns, Pose3 tangent
     unobservable_directions: list[np.ndarray]
     arm_R_camera: np.ndarray
     condition_number: float
-    words: list[str] = field(default_factory=list)
+    #: the eigenvector (column of ``eigenvectors``) each of ``unobservable_directions`` comes from
+    unobservable_indices: list[int] = field(default_factory=list)
 
     @property
     def is_observable(self) -> bool:
         return not self.unobservable_directions
 
-    def describe(self) -> list[str]:
-        return list(self.words)
+    @property
+    def unobservable_sigmas(self) -> list[float]:
+        """The 1σ along each of ``unobservable_directions`` (inf where the information is numerically zero)."""
+        w_max = max(self.eigenvalues.max(), 1e-300)
+        return [_sigma(self.eigenvalues[i], w_max) for i in self.unobservable_indices]
 
     def covariance(self, information: np.ndarray) -> np.ndarray:
         """Inverse of the information on the determined directions; each undetermined direction gets a variance of
@@ -146,50 +151,49 @@ class Observability:
             "unobservable_directions": [d.tolist() for d in self.unobservable_directions],
             "arm_R_camera": self.arm_R_camera.tolist(),
             "condition_number": self.condition_number,
-            "words": self.words,
+            "unobservable_indices": list(self.unobservable_indices),
+            "words": [],  # the sentences are gtsam_rotid.words.observability_words; older readers require the key
         }
 
     @classmethod
     def from_dict(cls, data: dict) -> Observability:
-        return cls(np.array(data["eigenvalues"]), np.array(data["eigenvectors"]),
-                   [np.array(d) for d in data["unobservable_directions"]], np.array(data["arm_R_camera"]),
-                   float(data["condition_number"]), list(data["words"]))
+        """Also reads files written before ``unobservable_indices`` (each direction's eigenvector is the one it is
+        closest to) and ignores their ``words``."""
+        V = np.array(data["eigenvectors"])
+        directions = [np.array(d) for d in data["unobservable_directions"]]
+        indices = data.get("unobservable_indices")
+        if indices is None:
+            indices = [int(np.argmax(np.abs(V.T @ d))) for d in directions]
+        return cls(np.array(data["eigenvalues"]), V, directions, np.array(data["arm_R_camera"]),
+                   float(data["condition_number"]), [int(i) for i in indices])
+
+
+def _sigma(value: float, w_max: float) -> float:
+    """1σ of an eigen-direction of the information (eigenvalue ``value``, largest ``w_max``); inf if null."""
+    return np.inf if value <= RELATIVE_ZERO * w_max else 1.0 / np.sqrt(value)
 
 
 def analyse_observability(information: np.ndarray, arm_T_camera: gtsam.Pose3) -> Observability:
-    """Find the pose directions the information does not determine and say so in words."""
+    """Find the pose directions the information does not determine (1σ beyond ``UNOBSERVABLE_SIGMA_RAD`` or
+    ``UNOBSERVABLE_SIGMA_M``)."""
     w, V = np.linalg.eigh(0.5 * (information + information.T))
     w_max = max(w.max(), 1e-300)
     R = arm_T_camera.rotation().matrix()
-    unobservable, words = [], []
+    unobservable, indices = [], []
     for i, (value, v) in enumerate(zip(w, V.T, strict=True)):
         rotation_part = np.linalg.norm(v[:3])
         limit = UNOBSERVABLE_SIGMA_RAD if rotation_part >= np.linalg.norm(v[3:]) else UNOBSERVABLE_SIGMA_M
-        sigma = np.inf if value <= RELATIVE_ZERO * w_max else 1.0 / np.sqrt(value)
+        sigma = _sigma(value, w_max)
         if sigma <= limit:
             continue
         v = v if v[np.argmax(np.abs(v))] > 0 else -v
         if not np.isfinite(sigma) and rotation_part < PURE_TRANSLATION_ROTATION * np.linalg.norm(v[3:]):
             v = np.concatenate([np.zeros(3), v[3:] / np.linalg.norm(v[3:])])
-            rotation_part = 0.0
         unobservable.append(v)
-        t_arm = R @ v[3:]
-        r_arm = R @ v[:3]
-        what = "not determined at all" if not np.isfinite(sigma) else f"poorly determined (1-sigma {sigma:.3g})"
-        if rotation_part < 0.1:
-            direction = np.round(t_arm / np.linalg.norm(t_arm), 3)
-            words.append(f"the camera position along the arm-frame direction {direction} is {what}")
-        else:
-            words.append(f"a combined rotation (arm-frame axis {np.round(r_arm, 3)}) and translation "
-                         f"({np.round(t_arm, 3)}) of the camera is {what} (eigenvector {i})")
+        indices.append(i)
     positive = w[w > RELATIVE_ZERO * w_max]
     condition = float(w_max / positive.min()) if len(positive) == 6 else float("inf")
-    if not unobservable:
-        words.append(f"all six degrees of freedom of arm_T_camera are determined (condition number {condition:.3g})")
-    else:
-        words.insert(0, "DEGENERATE: the chosen arm poses do not determine the calibration; add a pose whose "
-                        "wrist axis is not like the others (e.g. one that misses their common point)")
-    return Observability(w, V, unobservable, R, condition, words)
+    return Observability(w, V, unobservable, R, condition, indices)
 
 
 def loewner_max(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -1,6 +1,7 @@
 """A calibration result in words (the report layer): the summary, why a covariance is not trusted, what an
-ambiguity means, what the covariance assumes of the kinematics. :class:`~gtsam_rotid.estimate.CalibrationResult`
-holds the numbers; everything that turns them into sentences is here.
+ambiguity means, which directions the data do not determine, what the covariance assumes of the kinematics.
+:class:`~gtsam_rotid.estimate.CalibrationResult` (and its :class:`~gtsam_rotid.uncertainty.Observability`) holds
+the numbers; everything that turns them into sentences is here.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import numpy as np
 from .calibration.options import MIN_MEASUREMENTS
 from .calibration.result import AMBIGUITY_CHI2, AxisConsistency, CalibrationResult, MeasurementReport
 from .calibration.tuning import MAX_CONSISTENCY_SCALE, MAX_RELATIVE_SIGMA, MAX_SIGMA_DEG, RESTART_P
+from .uncertainty import Observability
 
 
 def summary(result: CalibrationResult) -> str:
@@ -35,7 +37,7 @@ def summary(result: CalibrationResult) -> str:
         lines.extend("  COVARIANCE UNUSABLE: " + w for w in untrusted_words(result))
     else:
         lines.append("  COVARIANCE UNUSABLE: the arm poses do not determine the calibration")
-    lines.extend("  " + line for line in result.observability.describe())
+    lines.extend("  " + line for line in observability_words(result.observability))
     if result.axis_consistency is not None and not result.axis_consistency.consistent:
         lines.append("  " + axis_consistency_sentence(result.axis_consistency))
     lines.append("  " + kinematics_words(result.joint_sigma_deg))
@@ -47,6 +49,28 @@ def summary(result: CalibrationResult) -> str:
                      f"{m.residual_rms_px:.3f} px, weight {m.weight:.2f}, {n_rejected} "
                      f"track{'' if n_rejected == 1 else 's'} rejected{flag}")
     return "\n".join(lines)
+
+
+def observability_words(obs: Observability) -> list[str]:
+    """The observability verdict in sentences: each direction the data do not determine (in the arm frame), or
+    that all six are determined, with the condition number."""
+    words = []
+    for i, v, sigma in zip(obs.unobservable_indices, obs.unobservable_directions, obs.unobservable_sigmas,
+                           strict=True):
+        t_arm = obs.arm_R_camera @ v[3:]
+        r_arm = obs.arm_R_camera @ v[:3]
+        what = "not determined at all" if not np.isfinite(sigma) else f"poorly determined (1-sigma {sigma:.3g})"
+        if np.linalg.norm(v[:3]) < 0.1:
+            direction = np.round(t_arm / np.linalg.norm(t_arm), 3)
+            words.append(f"the camera position along the arm-frame direction {direction} is {what}")
+        else:
+            words.append(f"a combined rotation (arm-frame axis {np.round(r_arm, 3)}) and translation "
+                         f"({np.round(t_arm, 3)}) of the camera is {what} (eigenvector {i})")
+    if obs.is_observable:
+        return [f"all six degrees of freedom of arm_T_camera are determined (condition number "
+                f"{obs.condition_number:.3g})"]
+    return ["DEGENERATE: the chosen arm poses do not determine the calibration; add a pose whose wrist axis is not "
+            "like the others (e.g. one that misses their common point)"] + words
 
 
 def axis_consistency_sentence(c: AxisConsistency) -> str:

@@ -1,9 +1,12 @@
 """Observability analysis and the covariance it hands to the report (gtsam_rotid.uncertainty)."""
 
+import json
+
 import gtsam
 import numpy as np
 
-from gtsam_rotid.uncertainty import UNDETERMINED_VARIANCE, analyse_observability, loewner_max
+from gtsam_rotid.uncertainty import UNDETERMINED_VARIANCE, Observability, analyse_observability, loewner_max
+from gtsam_rotid.words import observability_words
 
 
 def information_with_null(null: np.ndarray, seed: int = 0) -> np.ndarray:
@@ -81,3 +84,23 @@ def test_loewner_max_is_at_least_both_and_no_more_than_needed():
     a = _random_covariance(rng)
     np.testing.assert_allclose(loewner_max(a, 0.5 * a), a, rtol=1e-10)   # b below a: a
     np.testing.assert_allclose(loewner_max(a, 2.0 * a), 2.0 * a, rtol=1e-10)  # b above a: b
+
+
+def test_observability_in_words_and_a_file_written_before_the_indices():
+    """The words are the report layer's (gtsam_rotid.words); the data they need survive JSON, also in a file
+    written when the words were stored (``words``, no ``unobservable_indices``)."""
+    null = np.array([0.3, 0.0, 0.0, 0.0, 0.5, 0.2])
+    null /= np.linalg.norm(null)
+    pose = gtsam.Pose3(gtsam.Rot3.Rz(0.3), np.array([0.1, 0.0, 0.2]))
+    obs = analyse_observability(information_with_null(null), pose)
+    words = observability_words(obs)
+    assert words[0].startswith("DEGENERATE") and "not determined at all (eigenvector 0)" in words[1]
+    assert obs.unobservable_indices == [0] and obs.unobservable_sigmas == [np.inf]
+    old = {k: v for k, v in obs.to_dict().items() if k != "unobservable_indices"} | {"words": ["old words"]}
+    for data in (obs.to_dict(), old):
+        again = Observability.from_dict(json.loads(json.dumps(data)))
+        assert again.unobservable_indices == [0] and observability_words(again) == words
+    determined = analyse_observability(information_with_null(null) + 1e8 * np.outer(null, null), pose)
+    assert observability_words(determined) == [
+        f"all six degrees of freedom of arm_T_camera are determined (condition number "
+        f"{determined.condition_number:.3g})"]
