@@ -32,12 +32,13 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Ellipse
 
 from .dataset import Track
+from .diagnosis import axis_geometry, wrist_axes
 from .errors import InputError, OutputError
 from .factors import circle_points, line_points
 from .files import check_outputs, staged
 from .fits import TrackFit, fit_tracks  # noqa: F401 (re-export: plots draw what the calibration layer fits)
 from .geometry import ros_covariance
-from .report import CHI2_95_3DOF, Z95, axis_geometry, wrist_axes
+from .report import CHI2_95_3DOF, Z95
 
 #: 95 % point of the χ² distribution with 2 dof (2-D confidence ellipses).
 CHI2_95_2DOF = 5.991464547107979

@@ -27,8 +27,19 @@ from enum import StrEnum
 
 import numpy as np
 
+from .diagnosis import (  # noqa: F401 (the constants are re-exported)
+    CROSSING_TOLERANCE_M,
+    JOINT_REDUCED_TOLERANCE,
+    P_LOW,
+    PARALLEL_TOLERANCE_DEG,
+    AxisGeometry,
+    Chi2Check,
+    axis_geometry,
+    chi2_check,
+    wrist_axes,
+)
 from .errors import InputError
-from .geometry import Line3, closest_point, correlation, quaternion_xyzw, ros_covariance, rpy_jacobian
+from .geometry import correlation, quaternion_xyzw, ros_covariance, rpy_jacobian
 from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  # noqa: F401 (re-export)
 from .words import (
     ambiguity_words,
@@ -45,20 +56,10 @@ Z95 = 1.959963984540054
 CHI2_95_3DOF = 7.814727903251178
 #: Correlations with |ρ| above this are called out.
 STRONG_CORRELATION = 0.8
-#: Wrist axes that all pass within this distance (m) of one point make a single crossing.
-CROSSING_TOLERANCE_M = 0.01
 #: The suggested pose's wrist axis should miss the crossing point by at least this (m).
 SUGGESTED_MISS_M = 0.05
-#: Wrist axes whose directions all lie within this angle (deg) of each other are parallel.
-PARALLEL_TOLERANCE_DEG = 5.0
 #: The suggested pose's wrist axis should be tilted from parallel ones by at least this (deg).
 SUGGESTED_TILT_DEG = 20.0
-#: The χ² test calls the fit consistent when the upper-tail probability lies in [P_LOW, 1 - P_LOW].
-P_LOW = 0.005
-#: Joint: the pixel noise is estimated from the same residuals, so the test is whether the solve ended where its
-#: noise estimate did: χ²/dof within this of 1 (the noise is re-estimated until it changes by less than 5 %, and
-#: the Huber kernels shrink χ² a little). A P value over ~1e5 residuals would flag a 1 % difference.
-JOINT_REDUCED_TOLERANCE = 0.1
 LABELS = ("x", "y", "z", "rX", "rY", "rZ")
 COVARIANCE_ORDER = ("x, y, z: camera position in the arm-base frame (m); rX, rY, rZ: small rotation about the "
                     "arm-base axes X, Y, Z (rad), R_true = Exp(r) R (ROS PoseWithCovariance layout)")
@@ -68,136 +69,6 @@ class ReportFormat(StrEnum):
     TEXT = "text"
     MARKDOWN = "markdown"
     JSON = "json"
-
-
-# ---------------------------------------------------------------------------------------------------
-# numbers
-
-
-@dataclass
-class Chi2Check:
-    """χ² of the final fit against its degrees of freedom."""
-
-    chi2: float
-    dof: int
-    #: upper-tail probability P(χ²_dof >= chi2)
-    p_value: float
-    #: None when the test does not apply (no redundancy, or the paper's unit-noise fit)
-    consistent: bool | None
-    what: str
-    note: str = ""
-    dof_exact: bool = True
-
-    @property
-    def reduced(self) -> float:
-        return self.chi2 / self.dof if self.dof > 0 else math.nan
-
-    def sentence(self) -> str:
-        dof = f"{self.dof} dof" + ("" if self.dof_exact else " (approximate)")
-        head = f"χ² = {self.chi2:.4g} for {dof}, χ²/dof = {self.reduced:.3g}, P(χ² ≥ this) = {self.p_value:.3g}"
-        if self.consistent is None:
-            verdict = "no consistency test"
-        elif self.consistent:
-            verdict = "consistent with the estimated noise"
-        elif self.p_value < P_LOW:
-            verdict = "INCONSISTENT: the residuals are larger than the noise model allows"
-        else:
-            verdict = "INCONSISTENT: the residuals are smaller than the noise model expects"
-        return f"{head}: {verdict}"
-
-    def to_dict(self) -> dict:
-        return {"chi2": self.chi2, "dof": self.dof, "dof_exact": self.dof_exact, "reduced": self.reduced,
-                "p_value": self.p_value, "consistent": self.consistent, "what": self.what, "note": self.note}
-
-
-def chi2_check(result) -> Chi2Check:
-    """The χ² consistency of the fit from ``result.final_error`` (= χ²/2 of the final graph).
-
-    The degrees of freedom are ``result.dof`` when the result carries it; otherwise they are counted from the
-    measurement reports (weighted/paper: 2 axis distances per measurement used, minus 6; joint: one residual per
-    point and 2 tie residuals per measurement, minus 6 pose, 3 line and 2 circle parameters per track).
-    """
-    used = [m for m in result.measurements if m.weight > 0]
-    chi2 = 2.0 * float(result.final_error)
-    dof = result.dof
-    exact = dof is not None
-    method = result.method
-    if method == "joint":
-        if dof is None:
-            dof = sum(m.n_points for m in used) - 2 * sum(m.n_tracks for m in used) - len(used) - 6
-        what = "pixel residuals of every track against its circle about the wrist axis (joint graph)"
-        note = ("the pixel noise of each measurement was estimated from these residuals, so χ²/dof ≈ 1 by "
-                "construction: this checks the solve, not the noise model")
-    else:
-        if dof is None:
-            dof = 2 * len(used) - 6
-        what = ("each measurement's image axis against the wrist axis projected by the estimate (2 distances per "
-                "measurement)")
-        note = ("weighted by each image axis' covariance at its measurement's pixel noise; whole measurements "
-                "under a Huber kernel, so χ² is the robust cost") if method == "weighted" else ""
-    p = chi2_sf(chi2, dof) if dof > 0 else math.nan
-    if method == "paper":
-        consistent = None
-        note = ("the paper's fit assumes 1 px line errors (unit noise): χ²/dof is the mean squared axis distance "
-                "in px², not a consistency test, and its (JᵀJ)⁻¹ covariance is not calibrated")
-    elif dof <= 0:
-        consistent = None
-        note = "no redundancy: as many equations as unknowns"
-    elif method == "joint":
-        consistent = bool(abs(chi2 / dof - 1.0) <= JOINT_REDUCED_TOLERANCE)
-    else:
-        consistent = bool(P_LOW <= p <= 1.0 - P_LOW)
-    return Chi2Check(chi2, int(dof), float(p), consistent, what, note, exact)
-
-
-@dataclass
-class AxisGeometry:
-    """Where the wrist axes of the measurements used lie (arm frame, metres)."""
-
-    point: np.ndarray  # the point closest to all axes
-    miss: np.ndarray  # distance of each axis from it
-    spread_deg: float  # largest angle between two axis directions (lines, so at most 90)
-    mean_direction: np.ndarray
-    indices: list[int]
-
-    @property
-    def is_crossing(self) -> bool:
-        return bool(np.max(self.miss) <= CROSSING_TOLERANCE_M)
-
-    @property
-    def is_parallel(self) -> bool:
-        return self.spread_deg <= PARALLEL_TOLERANCE_DEG
-
-
-def axis_geometry(axes: list[Line3], indices: list[int] | None = None) -> AxisGeometry | None:
-    """Common point (least squares), miss distances and angular spread of wrist axes; None for fewer than 2."""
-    if len(axes) < 2:
-        return None
-    point = closest_point(axes)
-    miss = np.array([float(a.distance_to(point)[0]) for a in axes])
-    directions = np.array([a.direction for a in axes])
-    cosines = np.clip(np.abs(directions @ directions.T), 0.0, 1.0)
-    spread = float(np.degrees(np.arccos(cosines.min())))
-    scatter = directions.T @ directions
-    mean_direction = np.linalg.eigh(scatter)[1][:, -1]
-    return AxisGeometry(point, miss, spread, mean_direction, list(range(len(axes))) if indices is None else indices)
-
-
-def wrist_axes(result, dataset=None) -> dict[int, Line3] | None:
-    """The FK wrist axis (arm frame) of each measurement, from the dataset or from the result when it carries
-    them (``MeasurementReport.axis_point`` / ``axis_direction``); None when neither has them."""
-    if dataset is not None:
-        if len(dataset) != len(result.measurements):
-            raise InputError(f"the dataset has {len(dataset)} measurements but the result {len(result.measurements)}: "
-                             "it is not the dataset this result was calibrated from")
-        return {k: dataset.arm.wrist_axis(dataset.joint_angles(k)) for k in range(len(dataset))}
-    axes = {}
-    for m in result.measurements:
-        point, direction = m.axis_point, m.axis_direction
-        if point is None or direction is None:
-            return None
-        axes[m.index] = Line3(point, direction)
-    return axes
 
 
 def _vec(v, fmt: str = "{:.1f}") -> str:
