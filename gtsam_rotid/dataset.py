@@ -22,8 +22,6 @@ import json
 import os
 import re
 import reprlib
-import shutil
-import warnings
 import zipfile
 from collections.abc import Iterator, Mapping, Sequence
 from functools import lru_cache
@@ -45,7 +43,7 @@ from .errors import (
     RotIdError,
     ValidationError,
 )
-from .files import sibling_name
+from .files import staged_directory
 from .measurements import Measurement, Track, _located, _plural
 
 #: ``"format"`` marker of ``dataset.json``.
@@ -124,20 +122,6 @@ def _validate_document(document: Any) -> None:
     message = message if len(message) <= 300 else message[:300] + "..."
     raise ValidationError(f"{DATASET_FILE} does not match the format-{FORMAT_VERSION} schema at "
                           f"{error.json_path}: {message}", measurement=measurement, track=track)
-
-
-def _fsync_directory(path: Path) -> None:
-    """Flush a directory entry to disk where the platform allows it (best effort)."""
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def _write_file(path: Path, data: bytes | None = None, *, arrays: dict[str, np.ndarray] | None = None) -> None:
@@ -367,47 +351,17 @@ class Dataset:
 
     @staticmethod
     def _save_staged(target: Path, replace: bool, overwrite: bool, text: str, arrays, urdf_text) -> Path:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        while True:
-            staging = sibling_name(target, "tmp")
-            try:
-                staging.mkdir()
-                break
-            except FileExistsError:
-                continue
-        moved_in = False
-        try:
+        def check() -> None:  # the target may have changed while the files were written
+            if replace:
+                _check_save_target(target, overwrite)
+            elif os.path.lexists(target):
+                raise DatasetExistsError(f"{target} appeared while the dataset was being written; not replacing it")
+
+        with staged_directory(target, check, what="dataset") as staging:
             _write_file(staging / TRACKS_FILE, arrays=arrays)
             if urdf_text is not None:
                 _write_file(staging / URDF_FILE, urdf_text.encode("utf-8"))
             _write_file(staging / DATASET_FILE, text.encode("utf-8"))
-            _fsync_directory(staging)
-            if replace:
-                _check_save_target(target, overwrite)
-                aside = sibling_name(target, "old")
-                os.rename(target, aside)
-                try:
-                    os.rename(staging, target)
-                except BaseException:
-                    os.rename(aside, target)
-                    raise
-                moved_in = True
-                _fsync_directory(target.parent)
-                try:
-                    shutil.rmtree(aside)
-                except OSError as exc:
-                    warnings.warn(f"the new dataset is in place at {target}, but the old one could not be "
-                                  f"deleted from {aside}: {exc}", RuntimeWarning, stacklevel=2)
-            else:
-                if os.path.lexists(target):
-                    raise DatasetExistsError(f"{target} appeared while the dataset was being written; "
-                                             f"not replacing it")
-                os.rename(staging, target)
-                moved_in = True
-                _fsync_directory(target.parent)
-        finally:
-            if not moved_in:
-                shutil.rmtree(staging, ignore_errors=True)
         return target
 
     @classmethod

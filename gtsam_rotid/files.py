@@ -3,8 +3,10 @@
 Writing: every output goes through :func:`staged`, a staging file next to the target with a name of its own
 (``.<name>.<random>.<ext>``, never a name the user may own, such as ``<name>.tmp``) that replaces the target by
 one rename once complete. An existing target stays intact when writing fails or is interrupted, and the staging
-file is removed. :func:`check_output` refuses, before any slow work, a target that exists (unless ``overwrite``),
-is a directory, or lies in a missing directory: :class:`~gtsam_rotid.errors.OutputExistsError` /
+file is removed. A directory output (a dataset, a folder of frames) goes through :func:`staged_directory` alike:
+built in a hidden sibling, the old one set aside, the new one renamed in, and only then the old one deleted.
+:func:`check_output` refuses, before any slow work, a target that exists (unless ``overwrite``), is a directory,
+or lies in a missing directory: :class:`~gtsam_rotid.errors.OutputExistsError` /
 :class:`~gtsam_rotid.errors.OutputError`, naming the path. An OS error while writing (a full disk, no
 permission) becomes an :class:`OutputError` naming the path too.
 
@@ -19,8 +21,10 @@ import json
 import os
 import re
 import secrets
+import shutil
 import tempfile
-from collections.abc import Iterator
+import warnings
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from .errors import OutputError, OutputExistsError, RotIdError
@@ -95,6 +99,71 @@ def sibling_name(target: Path, tag: str) -> Path:
     """A hidden name next to ``target`` that no user file has: ``.NAME.TAG-random`` (a staging or set-aside
     directory; files use :func:`staged`)."""
     return target.with_name(f".{target.name}.{tag}-{secrets.token_hex(4)}")
+
+
+@contextlib.contextmanager
+def staged_directory(target: str | os.PathLike, check: Callable[[], object] | None = None, *,
+                     what: str = "directory") -> Iterator[Path]:
+    """Context manager: a new hidden sibling directory of ``target`` (:func:`sibling_name`) to fill; on a clean
+    exit it replaces ``target`` (if any) by it.
+
+    The caller decides beforehand whether ``target`` may be replaced; ``check``, called again on a clean exit
+    before anything is moved, raises if the target (which may have changed while the block ran) must not be. Then
+    the staging directory is flushed, the old ``target`` renamed aside, the new one renamed in (the old one renamed
+    back if that fails), the parent flushed, and only then the old one deleted (a warning naming where it is left
+    if it cannot be). On an error or an interrupt in the block or in ``check`` the staging directory is removed
+    and ``target`` is left as it was. OS errors propagate unchanged (the caller names them).
+    """
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        staging = sibling_name(target, "tmp")
+        try:
+            staging.mkdir()
+            break
+        except FileExistsError:
+            continue
+    moved_in = False
+    try:
+        yield staging
+        _fsync_directory(staging)
+        if check is not None:
+            check()
+        aside = None
+        if os.path.lexists(target):
+            aside = sibling_name(target, "old")
+            os.rename(target, aside)
+        try:
+            os.rename(staging, target)
+        except BaseException:
+            if aside is not None:
+                os.rename(aside, target)
+            raise
+        moved_in = True
+        _fsync_directory(target.parent)
+        if aside is not None:
+            try:
+                shutil.rmtree(aside)
+            except OSError as exc:
+                warnings.warn(f"the new {what} is in place at {target}, but the old one could not be deleted "
+                              f"from {aside}: {exc}", RuntimeWarning, stacklevel=3)
+    finally:
+        if not moved_in:
+            shutil.rmtree(staging, ignore_errors=True)
+
+
+def _fsync_directory(path: Path) -> None:
+    """Flush a directory entry to disk where the platform allows it (best effort)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def write_text(path: str | os.PathLike, text: str, overwrite: bool = False) -> Path:

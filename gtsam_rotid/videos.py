@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -14,7 +13,7 @@ import cv2
 import numpy as np
 
 from .errors import InputError, OutputExistsError, VideoWriteError
-from .files import sibling_name, staged
+from .files import staged, staged_directory
 
 #: Video suffixes :func:`write_video` writes, with their OpenCV fourcc: MPEG-4 part 2 is lossy (about 3 grey
 #: levels mean error on a noise-free frame, and it smooths the image noise away); FFV1 is lossless.
@@ -62,28 +61,9 @@ def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: floa
         with staged(target, overwrite) as staging:
             _write_video_file(frames, staging, float(fps), VIDEO_FOURCC[suffix])
         return target
-    staging = sibling_name(target, "tmp")
-    staging.mkdir()
-    moved_in = False
-    try:
+    with staged_directory(target, lambda: _check_output_target(target, overwrite, folder=True),
+                          what="frame folder") as staging:
         _write_png_folder(frames, staging)
-        _check_output_target(target, overwrite, folder=True)
-        aside = None
-        if target.exists():
-            aside = sibling_name(target, "old")
-            os.rename(target, aside)
-        try:
-            os.rename(staging, target)
-        except BaseException:
-            if aside is not None:
-                os.rename(aside, target)
-            raise
-        moved_in = True
-        if aside is not None:
-            shutil.rmtree(aside, ignore_errors=True)
-    finally:
-        if not moved_in:
-            shutil.rmtree(staging, ignore_errors=True)
     return target
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from gtsam_rotid import cli, simulate
 from gtsam_rotid.errors import DatasetExistsError, OutputError, OutputExistsError
-from gtsam_rotid.files import check_output, image_files, staged, write_json, write_text
+from gtsam_rotid.files import check_output, image_files, staged, staged_directory, write_json, write_text
 from gtsam_rotid.recordings import read_frames
 from gtsam_rotid.tracking import frame_source
 
@@ -93,3 +93,50 @@ def test_a_staged_file_gets_the_permissions_a_plain_write_would(tmp_path):
     os.chmod(staged_file, 0o640)                 # replacing a file keeps its mode
     write_text(staged_file, "y", overwrite=True)
     assert staged_file.stat().st_mode & 0o777 == 0o640
+
+
+def _tree(root) -> dict:
+    return {str(p.relative_to(root)): p.read_text() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_a_staged_directory_replaces_the_old_one_and_leaves_nothing_beside_it(tmp_path):
+    target = tmp_path / "out"
+    with staged_directory(target) as staging:           # a new directory, its parent made
+        assert staging.parent == tmp_path and staging.name.startswith(".out.tmp-")
+        (staging / "a.txt").write_text("new")
+    assert _tree(target) == {"a.txt": "new"} and os.listdir(tmp_path) == ["out"]
+    (target / "b.txt").write_text("old")
+    with staged_directory(target) as staging:
+        (staging / "c.txt").write_text("newer")
+    assert _tree(target) == {"c.txt": "newer"} and os.listdir(tmp_path) == ["out"]
+
+
+def test_a_failed_or_interrupted_or_refused_staged_directory_keeps_the_old_one(tmp_path, monkeypatch):
+    target = tmp_path / "out"
+    target.mkdir()
+    (target / "old.txt").write_text("old")
+
+    def refuse():
+        raise OutputExistsError("changed while writing")
+
+    for error, check in ((OSError(28, "No space left on device"), None), (KeyboardInterrupt(), None),
+                         (None, refuse)):
+        with pytest.raises(type(error) if error is not None else OutputExistsError):
+            with staged_directory(target, check) as staging:
+                (staging / "half.txt").write_text("half")
+                if error is not None:
+                    raise error
+        assert _tree(target) == {"old.txt": "old"}
+        assert os.listdir(tmp_path) == ["out"], "no hidden sibling left behind"
+    rename = os.rename
+
+    def no_rename_in(source, destination):              # the new one cannot be moved in: the old one comes back
+        if ".out.tmp-" in str(source):
+            raise OSError(18, "Invalid cross-device link")
+        rename(source, destination)
+
+    monkeypatch.setattr(os, "rename", no_rename_in)
+    with pytest.raises(OSError, match="cross-device"):
+        with staged_directory(target) as staging:
+            (staging / "new.txt").write_text("new")
+    assert _tree(target) == {"old.txt": "old"} and os.listdir(tmp_path) == ["out"]
