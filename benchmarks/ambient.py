@@ -35,6 +35,8 @@ scenes outside their 99.9 % region (the "confident wrong numbers"; the target is
 dataset the calibration saw, :meth:`Dataset.save`) and ``scene.json`` (the true ``arm_T_camera`` as a 4x4 matrix
 and the tracker's numbers). ``--load DIR`` re-runs only the calibration on every saved scene and prints the same
 table (tracker columns as saved), in seconds: for re-evaluating an estimator change without rendering.
+``--spin-model free|rigid`` calibrates with that ``CalibrationOptions.spin_model``; ``--json FILE`` also writes
+every row's numbers.
 
 Run: ``python benchmarks/ambient.py [--robots kinova,ur5,panda] [--coverings photo,text,dots] [--seeds 0,1]
 [--variants nominal,short,half,blur] [--duration 20] [--features blobs|corners|auto] [--jobs 2] [--save DIR]``,
@@ -60,7 +62,7 @@ from gtsam_rotid import simulate
 from gtsam_rotid.camera import Camera
 from gtsam_rotid.dataset import Dataset, Measurement
 from gtsam_rotid.errors import InputError, RotIdError
-from gtsam_rotid.estimate import calibrate
+from gtsam_rotid.estimate import CalibrationOptions, calibrate
 from gtsam_rotid.factors import line_distances
 from gtsam_rotid.graph import axis_test_points
 from gtsam_rotid.simulate import SceneConfig
@@ -99,7 +101,7 @@ def scene_name(robot: str, covering: str, variant: str, seed: int) -> str:
 
 
 def run_scene(robot: str, covering: str, seed: int, variant: str, duration: float, params: TrackerParams,
-              save: str | None = None) -> dict:
+              save: str | None = None, options: CalibrationOptions | None = None) -> dict:
     """Render, track and calibrate one scene; a dict of the measured numbers (or why it could not run). With
     ``save``, the tracked dataset and the scene's numbers are written under that directory first."""
     cv2.setNumThreads(1)
@@ -170,7 +172,7 @@ def run_scene(robot: str, covering: str, seed: int, variant: str, duration: floa
         _save_scene(save, out, tracked, truth)
     if tracked is None:
         return out
-    return calibrate_scene(out, tracked, truth.arm_T_camera)
+    return calibrate_scene(out, tracked, truth.arm_T_camera, options)
 
 
 def _save_scene(directory: str, row: dict, tracked: Dataset | None, truth) -> None:
@@ -184,7 +186,7 @@ def _save_scene(directory: str, row: dict, tracked: Dataset | None, truth) -> No
     os.replace(staging, root / SCENE_FILE)
 
 
-def load_scene(root: str) -> dict:
+def load_scene(root: str, options: CalibrationOptions | None = None) -> dict:
     """Re-run the calibration of one scene written by ``--save``: the row as :func:`run_scene` gives it."""
     root = Path(root)
     document = json.loads((root / SCENE_FILE).read_text(encoding="utf-8"))
@@ -200,14 +202,14 @@ def load_scene(root: str) -> dict:
         return row
     if "tracker" not in tracked.metadata:  # saved before datasets named their tracker: the default's
         tracked.metadata["tracker"] = tracker_metadata(TrackerParams())
-    return calibrate_scene(row, tracked, gtsam.Pose3(np.array(document["arm_T_camera"], dtype=float)))
+    return calibrate_scene(row, tracked, gtsam.Pose3(np.array(document["arm_T_camera"], dtype=float)), options)
 
 
-def calibrate_scene(out: dict, tracked: Dataset, arm_T_camera) -> dict:
+def calibrate_scene(out: dict, tracked: Dataset, arm_T_camera, options: CalibrationOptions | None = None) -> dict:
     """Calibrate a tracked dataset and add to ``out`` its error against the true ``arm_T_camera``."""
     out = dict(out)
     try:
-        result = calibrate(tracked)
+        result = calibrate(tracked, options=options)
     except RotIdError as error:
         out["refused"] = f"{type(error).__name__}: {error}"
         return out
@@ -291,6 +293,13 @@ def print_table(rows: list[dict]) -> None:
         print("\nno scene's covariance is called usable")
 
 
+def _report(rows: list[dict], json_path: str | None, started: float) -> None:
+    print_table(rows)
+    if json_path is not None:
+        Path(json_path).write_text(json.dumps(rows, indent=1, allow_nan=True) + "\n", encoding="utf-8")
+    print(f"{time.perf_counter() - started:.0f} s")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--robots", default="kinova,ur5,panda")
@@ -304,7 +313,11 @@ def main(argv=None) -> int:
     parser.add_argument("--load", default=None, metavar="DIR",
                         help="re-run only the calibration on the scenes saved under DIR (no rendering, no tracking)")
     parser.add_argument("--quick", action="store_true", help="one 3 s scene: checks that it runs")
+    parser.add_argument("--spin-model", default=None, choices=("free", "rigid"),
+                        help="CalibrationOptions.spin_model (default: the calibration's default)")
+    parser.add_argument("--json", default=None, metavar="FILE", help="also write the rows (every number) to FILE")
     args = parser.parse_args(argv)
+    options = CalibrationOptions() if args.spin_model is None else CalibrationOptions(spin_model=args.spin_model)
     started = time.perf_counter()
     if args.load is not None:
         roots = sorted(p.parent for p in Path(args.load).glob(f"*/{SCENE_FILE}"))
@@ -313,11 +326,10 @@ def main(argv=None) -> int:
         print(f"{len(roots)} saved scenes from {args.load}: calibration only", flush=True)
         if args.jobs > 1:
             from joblib import Parallel, delayed
-            rows = Parallel(n_jobs=args.jobs)(delayed(load_scene)(str(r)) for r in roots)
+            rows = Parallel(n_jobs=args.jobs)(delayed(load_scene)(str(r), options) for r in roots)
         else:
-            rows = [load_scene(str(r)) for r in roots]
-        print_table(rows)
-        print(f"{time.perf_counter() - started:.0f} s")
+            rows = [load_scene(str(r), options) for r in roots]
+        _report(rows, args.json, started)
         return 0
     if args.quick:
         args.robots, args.coverings, args.seeds, args.duration = "kinova", "photo", "0", 3.0
@@ -332,12 +344,11 @@ def main(argv=None) -> int:
           f"features={params.features!r}", flush=True)
     if args.jobs > 1:
         from joblib import Parallel, delayed
-        rows = Parallel(n_jobs=args.jobs)(delayed(run_scene)(r, c, s, v, args.duration, params, args.save)
+        rows = Parallel(n_jobs=args.jobs)(delayed(run_scene)(r, c, s, v, args.duration, params, args.save, options)
                                           for r, c, v, s in scenes)
     else:
-        rows = [run_scene(r, c, s, v, args.duration, params, args.save) for r, c, v, s in scenes]
-    print_table(rows)
-    print(f"{time.perf_counter() - started:.0f} s")
+        rows = [run_scene(r, c, s, v, args.duration, params, args.save, options) for r, c, v, s in scenes]
+    _report(rows, args.json, started)
     return 0
 
 
