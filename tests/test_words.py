@@ -1,0 +1,497 @@
+"""The report layer's sentences (gtsam_rotid.words), on results and observability analyses built by hand: the
+numbers a user reads, the reason named and the advice given, not the sentences verbatim."""
+
+import re
+
+import gtsam
+import numpy as np
+import pytest
+
+from gtsam_rotid.calibration.options import MIN_MEASUREMENTS
+from gtsam_rotid.calibration.result import (
+    AMBIGUITY_CHI2,
+    UNTRUSTED_KINDS,
+    Alternative,
+    AxisConsistency,
+    CalibrationResult,
+    MeasurementReport,
+)
+from gtsam_rotid.calibration.tuning import MAX_CONSISTENCY_SCALE, MAX_RELATIVE_SIGMA, MAX_SIGMA_DEG, RESTART_P
+from gtsam_rotid.uncertainty import analyse_observability
+from gtsam_rotid.words import (
+    ambiguity_words,
+    axis_consistency_sentence,
+    evidence_words,
+    kinematics_words,
+    observability_words,
+    summary,
+    tracking_words,
+    untrusted_words,
+)
+
+#: the camera, turned well away from the arm frame so that a camera-frame vector printed as an arm-frame one shows
+POSE = gtsam.Pose3(gtsam.Rot3.Ypr(0.4, -0.3, 2.0), np.array([-0.4497, 0.2485, 0.9506]))
+#: 1σ about the camera axes (deg) and along them (mm)
+SIGMA_DEG = np.array([0.07, 0.05, 0.06])
+SIGMA_MM = np.array([0.7, 0.9, 0.5])
+COVARIANCE = np.diag(np.concatenate([np.radians(SIGMA_DEG), SIGMA_MM / 1000.0]) ** 2)
+
+NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?"
+
+
+def floats(text: str) -> list[float]:
+    return [float(x) for x in re.findall(NUMBER, text)]
+
+
+def after(text: str, label: str) -> float:
+    """The number that follows ``label`` in ``text``."""
+    match = re.search(re.escape(label) + r"\s*(" + NUMBER + ")", text)
+    assert match, f"{label!r} not followed by a number in: {text}"
+    return float(match.group(1))
+
+
+def line_starting(text: str, head: str) -> str:
+    return next(line for line in text.splitlines() if line.strip().startswith(head))
+
+
+def measurement(index: int, n_tracks: int = 12, *, weak=False, outlier=False, **kw) -> MeasurementReport:
+    defaults = {"n_points": 100 * n_tracks + index, "residual_rms_px": 1.2 + 0.01 * index, "weight": 1.0,
+                "arc_span_deg": 140.0}
+    defaults.update(kw)
+    return MeasurementReport(index=index, n_tracks=n_tracks, outlier=outlier, weak=weak, **defaults)
+
+
+def measurements(n: int = 6) -> list[MeasurementReport]:
+    return [measurement(k) for k in range(n)]
+
+
+def result(covariance: np.ndarray = COVARIANCE, information: np.ndarray | None = None, **kw) -> CalibrationResult:
+    """A weighted result at POSE whose observability comes from ``information`` (default: the covariance's)."""
+    information = np.linalg.inv(covariance) if information is None else information
+    fields = {"arm_T_camera": POSE, "covariance": covariance, "method": "weighted", "converged": True,
+              "iterations": 9, "final_error": 3.0, "measurements": measurements(),
+              "observability": analyse_observability(information, POSE), "sigma_px": 1.2214}
+    fields.update(kw)
+    return CalibrationResult(**fields)
+
+
+def information(eigenvalues, rotation_basis=None, translation_basis=None) -> np.ndarray:
+    """A 6x6 information whose eigenvectors are pure rotations (columns of ``rotation_basis``, first three
+    eigenvalues) and pure translations (camera frame; the last three); the bases default to the axes."""
+    V = np.zeros((6, 6))
+    V[:3, :3] = np.eye(3) if rotation_basis is None else rotation_basis
+    V[3:, 3:] = np.eye(3) if translation_basis is None else translation_basis
+    return V @ np.diag(eigenvalues) @ V.T
+
+
+def with_null(null: np.ndarray, others=(1e6, 2e6, 5e6, 1e7, 3e7)) -> np.ndarray:
+    """A 6x6 information with the unit vector ``null`` as its only exact null direction."""
+    basis, _, _ = np.linalg.svd(null.reshape(6, 1), full_matrices=True)  # first column: ±null
+    return basis @ np.diag([0.0, *others]) @ basis.T
+
+
+def arm_rpy_deg(pose: gtsam.Pose3) -> np.ndarray:
+    R = pose.rotation().matrix()
+    return np.degrees([np.arctan2(R[2, 1], R[2, 2]), -np.arcsin(R[2, 0]), np.arctan2(R[1, 0], R[0, 0])])
+
+
+def bracketed(text: str, label: str) -> np.ndarray:
+    """The numbers in the first [...] after ``label``."""
+    match = re.search(re.escape(label) + r"\s*\[([^\]]*)\]", text)
+    assert match, f"no [...] after {label!r} in: {text}"
+    return np.array(floats(match.group(1)))
+
+
+# ---------------------------------------------------------------------------------------------------
+# observability_words
+
+
+def test_a_determined_pose_is_one_sentence_with_its_condition_number():
+    obs = analyse_observability(information([1e8 / 1234.0, 3e5, 2e6, 4e6, 7e7, 1e8]), POSE)
+    words = observability_words(obs)
+    assert len(words) == 1
+    assert "all six degrees of freedom" in words[0] and "DEGENERATE" not in words[0]
+    assert after(words[0], "condition number") == pytest.approx(1234.0, rel=5e-3)  # three significant digits
+
+
+def test_a_null_translation_is_named_by_its_direction_in_the_arm_frame():
+    t = np.array([0.6, -0.2, -0.7]) / np.linalg.norm([0.6, -0.2, -0.7])
+    obs = analyse_observability(with_null(np.concatenate([np.zeros(3), t])), POSE)
+    words = observability_words(obs)
+    assert len(words) == 2
+    # the verdict first, with the advice: a pose whose axis is unlike the others
+    assert words[0].startswith("DEGENERATE") and "add a pose" in words[0] and "misses their common point" in words[0]
+    assert "camera position" in words[1] and "not determined at all" in words[1] and "combined" not in words[1]
+    printed = bracketed(words[1], "direction")
+    in_arm = POSE.rotation().matrix() @ t
+    assert abs(printed @ in_arm) == pytest.approx(1.0, abs=2e-3)  # the arm-frame direction, up to its sign
+    assert abs(printed @ t) < 0.9  # ... not the camera-frame one
+
+
+def test_a_null_rotation_with_translation_is_named_as_both_in_the_arm_frame_with_its_eigenvector():
+    null = np.array([0.3, 0.0, 0.0, 0.0, 0.5, 0.2])
+    null /= np.linalg.norm(null)
+    obs = analyse_observability(with_null(null), POSE)
+    words = observability_words(obs)
+    assert words[0].startswith("DEGENERATE") and len(words) == 2
+    assert "combined rotation" in words[1] and "not determined at all" in words[1]
+    assert after(words[1], "eigenvector") == obs.unobservable_indices[0] == 0
+    R = POSE.rotation().matrix()
+    axis, shift = bracketed(words[1], "axis"), bracketed(words[1], "translation (")
+    sign = np.sign(axis @ (R @ null[:3]))
+    np.testing.assert_allclose(axis, sign * R @ null[:3], atol=1e-3)
+    np.testing.assert_allclose(shift, sign * R @ null[3:], atol=1e-3)  # the same sign: one direction
+
+
+def test_a_poorly_determined_direction_gives_its_sigma_and_one_within_the_limit_is_not_named():
+    # translation with 1σ 0.1 m (beyond UNOBSERVABLE_SIGMA_M = 0.05 m); rotation with 1σ 0.08 rad (under 5°)
+    rotations = gtsam.Rot3.Rz(0.5).matrix()
+    translations = gtsam.Rot3.Rx(0.7).matrix()
+    obs = analyse_observability(information([1 / 0.08**2, 1e8, 1e8, 100.0, 1e8, 1e8], rotations, translations),
+                                POSE)
+    words = observability_words(obs)
+    assert len(words) == 2 and words[0].startswith("DEGENERATE")
+    assert "poorly determined" in words[1] and "not determined at all" not in words[1]
+    assert after(words[1], "1-sigma") == pytest.approx(0.1, rel=1e-3)
+    printed = bracketed(words[1], "direction")
+    assert abs(printed @ (POSE.rotation().matrix() @ translations[:, 0])) == pytest.approx(1.0, abs=2e-3)
+
+
+def test_each_undetermined_direction_has_its_own_sentence():
+    obs = analyse_observability(information([1e6, 2e6, 3e6, 0.0, 0.0, 1e7]), POSE)
+    words = observability_words(obs)
+    assert len(words) == 3 and words[0].startswith("DEGENERATE")
+    assert all("camera position" in w and "not determined at all" in w for w in words[1:])
+    directions = [bracketed(w, "direction") for w in words[1:]]
+    assert abs(directions[0] @ directions[1]) < 1e-2  # two different directions, not one twice
+
+
+# ---------------------------------------------------------------------------------------------------
+# axis_consistency_sentence
+
+
+def test_consistent_axes_are_said_to_agree_with_their_pixel_noise():
+    words = axis_consistency_sentence(AxisConsistency(5.7, 6, 0.457, 1.0))
+    assert after(words, "χ² =") == 5.7 and after(words, "for") == 6 and after(words, "P(χ² ≥ this) =") == 0.46
+    assert "consistent with the pixel noise" in words
+    assert "scaled" not in words and "disagree" not in words and "floor" not in words
+
+
+def test_scaled_axes_give_the_scale_and_its_rule_without_a_floor():
+    words = axis_consistency_sentence(AxisConsistency(30.0, 8, 2.1e-4, 5.0))
+    assert after(words, "χ² =") == 30 and after(words, "for") == 8
+    assert after(words, "P(χ² ≥ this) =") == pytest.approx(2.1e-4)
+    assert "disagree beyond their pixel noise" in words and "consistent with" not in words
+    assert after(words, "scaled by") == 5.0 and "χ²/(dof − 2)" in words
+    # the causes a user can check: errors shared across tracks
+    assert "tracker" in words and "joint angles" in words and "intrinsics" in words
+    assert "floor" not in words
+
+
+def test_a_floor_on_the_axes_is_given_in_pixels_with_why():
+    words = axis_consistency_sentence(AxisConsistency(30.0, 8, 2.1e-4, 5.0, floor_px=0.27))
+    assert after(words, "scaled by") == 5.0
+    assert after(words, "a floor of") == 0.27 and "0.27 px" in words
+    assert "does not shrink with more tracks" in words
+
+
+def test_with_two_dof_the_scale_is_the_birge_ratio():
+    words = axis_consistency_sentence(AxisConsistency(14.0, 2, 9.1e-4, 7.0))
+    assert after(words, "for") == 2 and after(words, "scaled by") == 7.0
+    assert "(χ²/dof)" in words and "dof − 2" not in words
+
+
+# ---------------------------------------------------------------------------------------------------
+# evidence_words, untrusted_words
+
+
+def test_evidence_counts_tracks_and_points_and_rounds_the_longest_arc():
+    one = evidence_words(measurement(3, 1, n_points=80, arc_span_deg=None))
+    assert re.search(r"\b1 track\b", one) and "1 tracks" not in one and after(one, "track,") == 80
+    assert "arc" not in one  # an unknown arc is not invented
+    weak = evidence_words(measurement(2, 3, n_points=240, arc_span_deg=41.4))
+    assert "3 tracks" in weak and after(weak, "tracks,") == 240 and after(weak, "longest arc") == 41
+
+
+def thin(c: AxisConsistency | None, ms=None) -> CalibrationResult:
+    ms = ms or [measurement(0), measurement(1), measurement(2, 3, n_points=240, arc_span_deg=41.0, weak=True),
+                measurement(3), measurement(4), measurement(5)]
+    return result(measurements=ms, axis_consistency=c,
+                  untrusted={"thin_evidence": [m.index for m in ms if m.weak]})
+
+
+def assert_names_the_weak_and_blames_the_tracking(words: str, weak: list[int], strong: list[int]) -> None:
+    for k in weak:
+        assert f"measurement {k} (" in words
+    for k in strong:
+        assert f"measurement {k} " not in words
+    assert "not the joint angles" in words and "tracking" in words
+    assert "Spin the wrist longer" in words and "more texture" in words and "add arm poses" in words
+
+
+def test_thin_evidence_with_axes_that_disagree_gives_the_test_and_blames_the_tracking():
+    c = AxisConsistency(40.0, 6, 1e-5, 10.0)
+    assert c.p_value < RESTART_P
+    words = untrusted_words(thin(c))
+    assert len(words) == 1
+    assert after(words[0], "χ² =") == 40 and after(words[0], "for") == 6 and after(words[0], "P =") == 1e-5
+    assert "(3 tracks, 240 points, longest arc 41°)" in words[0]  # the weak measurement's evidence
+    assert_names_the_weak_and_blames_the_tracking(words[0], [2], [0, 1, 3, 4, 5])
+    assert "too few measurements" not in words[0] and "strong evidence" not in words[0]
+
+
+def test_thin_evidence_with_nothing_to_test_the_axes_says_so():
+    ms = [measurement(0), measurement(1), measurement(2, 2, arc_span_deg=30.0, weak=True)]
+    words = untrusted_words(thin(None, ms))
+    assert len(words) == 1
+    assert "nothing tests the image axes" in words[0] and "too few measurements" in words[0]
+    assert "χ²" not in words[0]
+    assert_names_the_weak_and_blames_the_tracking(words[0], [2], [0, 1])
+
+
+def test_thin_evidence_with_too_few_strong_measurements_counts_them():
+    ms = [measurement(0), measurement(1), measurement(2, 3, weak=True), measurement(3, 5, arc_span_deg=60.0, weak=True),
+          measurement(4, outlier=True, weight=0.0, outlier_reason="far from the others")]
+    c = AxisConsistency(2.0, 4, 0.74, 1.0)
+    assert c.p_value >= RESTART_P
+    words = untrusted_words(thin(c, ms))
+    assert len(words) == 1
+    # two strong (the outlier does not count), and MIN_MEASUREMENTS are needed without the weak ones
+    assert after(words[0], "only") == 2 and after(words[0], "evidence;") == MIN_MEASUREMENTS
+    assert "χ²" not in words[0]
+    assert_names_the_weak_and_blames_the_tracking(words[0], [2, 3], [0, 1, 4])
+
+
+@pytest.mark.parametrize("factor", [0.5, 2.0])
+def test_thin_evidence_blames_disagreeing_axes_only_below_the_restart_level(factor):
+    words = untrusted_words(thin(AxisConsistency(20.0, 6, factor * RESTART_P, 5.0)))[0]
+    assert ("disagree with the estimate" in words) is (factor < 1.0)
+    assert ("strong evidence" in words) is (factor > 1.0)
+
+
+def test_thin_evidence_names_only_measurements_of_the_result():
+    r = thin(AxisConsistency(40.0, 6, 1e-5, 10.0))
+    r.untrusted = {"thin_evidence": [2, 99]}
+    words = untrusted_words(r)
+    assert "measurement 2 (" in words[0] and "measurement 99" not in words[0]
+
+
+def test_inconsistent_axes_give_their_reduced_chi2_and_the_model_errors_to_check():
+    r = result(axis_consistency=AxisConsistency(1200.0, 6, 0.0, 300.0), untrusted={"inconsistent": [0, 1, 2]})
+    words = untrusted_words(r)
+    assert len(words) == 1
+    assert after(words[0], "χ²/dof =") == pytest.approx(200.0) and f"{MAX_CONSISTENCY_SCALE:g}x" in words[0]
+    assert "the model does not describe the data" in words[0]
+    for cause in ("intrinsics", "joint angles", "moved camera", "not on the hand"):
+        assert cause in words[0]
+
+
+def test_unmeasured_scatter_counts_the_measurements_and_asks_for_more_poses():
+    r = result(measurements=measurements(4), axis_consistency=AxisConsistency(14.0, 2, 9.1e-4, 7.0),
+               untrusted={"unmeasured_scatter": [0, 1, 2, 3]})
+    words = untrusted_words(r)
+    assert len(words) == 1
+    assert after(words[0], "χ² =") == 14 and after(words[0], "for") == 2 and after(words[0], "P =") == 9.1e-4
+    assert after(words[0], "only") == 4 and "measurements are used" in words[0]
+    assert "no covariance can be given" in words[0] and "add arm poses" in words[0]
+
+
+def test_too_uncertain_gives_the_largest_sigmas_and_the_limits():
+    # 80 mm along the camera's x and 3° about its y; the position's 1σ is given in the arm frame
+    covariance = np.diag(np.concatenate([np.radians([1.0, 3.0, 0.5]), [0.08, 0.01, 0.02]]) ** 2)
+    R = POSE.rotation().matrix()
+    arm_mm = 1000 * np.sqrt(np.diag(R @ covariance[3:, 3:] @ R.T))
+    assert abs(arm_mm.max() - 80.0) > 5.0
+    r = result(covariance, untrusted={"too_uncertain": []})
+    words = untrusted_words(r)
+    assert len(words) == 1
+    assert after(words[0], "1σ (") == pytest.approx(arm_mm.max(), rel=5e-3)
+    assert after(words[0], "mm,") == pytest.approx(3.0)
+    assert f"{100 * MAX_RELATIVE_SIGMA:g} %" in words[0] and f"{MAX_SIGMA_DEG:g}°" in words[0]
+    assert "add arm poses" in words[0]
+
+
+def test_every_kind_of_distrust_has_words_one_sentence_each_in_order():
+    c = AxisConsistency(1200.0, 6, 0.0, 300.0)
+    ms = measurements()
+    ms[2].weak = True
+    r = result(measurements=ms, axis_consistency=c)
+    for kind in UNTRUSTED_KINDS:
+        r.untrusted = {kind: [2]}
+        assert len(untrusted_words(r)) == 1, kind
+    r.untrusted = {"inconsistent": [0, 1, 2, 3, 4, 5], "thin_evidence": [2]}
+    first, second = untrusted_words(r)
+    assert "χ²/dof" in first and "not the joint angles" in second
+    r.untrusted = {}
+    assert untrusted_words(r) == []
+
+
+# ---------------------------------------------------------------------------------------------------
+# kinematics_words, tracking_words
+
+
+@pytest.mark.parametrize("sigma", [0.05, 0.25, 1.5])
+def test_kinematics_with_joint_noise_give_its_sigma(sigma):
+    words = kinematics_words(sigma)
+    assert after(words, "uncertain by") == sigma and "propagated into the covariance" in words
+    assert "exact" not in words
+
+
+def test_kinematics_without_joint_noise_say_they_are_taken_as_exact_and_how_to_declare_it():
+    words = kinematics_words(0.0)
+    assert "taken as exact" in words and "not in this covariance" in words
+    assert "joint_sigma_deg" in words and "--joint-sigma-deg" in words
+    assert not floats(words)
+
+
+@pytest.mark.parametrize("floor", [0.1, 0.3, 2.0])
+def test_tracking_with_a_floor_gives_it_in_pixels(floor):
+    words = tracking_words(floor)
+    assert after(words, "at least") == floor and f"{floor:g} px" in words
+    assert "independent" not in words
+
+
+def test_tracking_without_a_floor_says_the_errors_are_taken_as_independent_and_how_to_declare_one():
+    words = tracking_words(0.0)
+    assert "independent" in words and "no floor" in words
+    assert "axis_floor_px" in words and "--axis-floor-px" in words
+    assert not floats(words)
+
+
+# ---------------------------------------------------------------------------------------------------
+# ambiguity_words
+
+
+def moved(angle_deg: float, shift_m) -> gtsam.Pose3:
+    return POSE.compose(gtsam.Pose3(gtsam.Rot3.Rz(np.radians(angle_deg)), np.asarray(shift_m, dtype=float)))
+
+
+def test_ambiguity_locates_each_close_pose_best_first_and_leaves_out_the_far_ones():
+    closer, close, far = moved(120.0, [0.3, 0.0, 0.1]), moved(30.0, [0.0, 0.05, 0.0]), moved(90.0, [0.5, 0.0, 0.0])
+    r = result(alternatives=[Alternative(close, 3.0), Alternative(far, 500.0), Alternative(closer, 1.0)])
+    words = ambiguity_words(r)
+    assert "2 other poses" in words
+    parts = words.split("camera at")[1:]
+    assert len(parts) == 2  # the far one is not among them
+    first, second = parts
+    np.testing.assert_allclose(bracketed(first, ""), 1000 * closer.translation(), atol=0.05)  # lowest Δχ² first
+    np.testing.assert_allclose(bracketed(second, ""), 1000 * close.translation(), atol=0.05)
+    assert after(first, "mm,") == round(1000 * np.linalg.norm(closer.translation() - POSE.translation()))
+    assert after(first, "mm and") == pytest.approx(120.0, abs=0.05)
+    assert after(first, "chi-square only") == 1.0
+    assert after(second, "mm,") == round(1000 * np.linalg.norm(close.translation() - POSE.translation()))
+    assert after(second, "mm and") == pytest.approx(30.0, abs=0.05)
+    assert after(second, "chi-square only") == 3.0
+    assert after(words, "a difference below") == pytest.approx(AMBIGUITY_CHI2, abs=0.05)
+    assert "cannot tell them apart" in words and "neither this estimate nor its covariance" in words
+    assert "do not single one out" in words and "With three arm poses" not in words
+    assert "add arm poses" in words and "tilted" in words
+
+
+def test_ambiguity_with_three_measurements_explains_the_several_exact_solutions():
+    r = result(measurements=measurements(MIN_MEASUREMENTS), alternatives=[Alternative(moved(60.0, [0.1, 0, 0]), 0.2)])
+    words = ambiguity_words(r)
+    assert re.search(r"\b1 other pose of\b", words)  # one pose, not "poses"
+    assert "With three arm poses" in words and "several exact solutions" in words
+    assert "do not single one out" not in words
+
+
+# ---------------------------------------------------------------------------------------------------
+# summary
+
+
+def test_summary_prints_the_pose_its_sigma_and_each_measurement():
+    ms = [measurement(0, 14, n_points=1730, residual_rms_px=1.2291, weight=0.994),
+          measurement(1, 12, n_points=1598, residual_rms_px=1.2049, weight=1.031, rejected_tracks={3: "short"}),
+          measurement(2, 12, rejected_tracks={1: "a", 4: "b"}),
+          measurement(3, 1, outlier=True, weight=0.0, outlier_reason="axis far from the others")]
+    r = result(measurements=ms, iterations=17, sigma_px=1.2214)
+    text = summary(r)
+    head = text.splitlines()[0]
+    assert "weighted" in head and "converged" in head and "NOT" not in head
+    assert after(head, "converged,") == 17 and after(head, "pixel sigma") == 1.221
+    np.testing.assert_allclose(floats(line_starting(text, "translation (mm):")), 1000 * POSE.translation(),
+                               atol=0.005)
+    np.testing.assert_allclose(floats(line_starting(text, "roll/pitch/yaw (deg):")), arm_rpy_deg(POSE), atol=5e-4)
+    # 1σ of the position in the arm frame, computed here from the camera-frame covariance
+    R = POSE.rotation().matrix()
+    arm_mm = 1000 * np.sqrt(np.diag(R @ COVARIANCE[3:, 3:] @ R.T))
+    assert not np.allclose(arm_mm, SIGMA_MM, atol=0.01)  # the frame matters for this pose
+    position = line_starting(text, "1-sigma position, arm frame (mm):").split(":")[1]
+    np.testing.assert_allclose(floats(position), arm_mm, atol=5e-4)
+    np.testing.assert_allclose(floats(line_starting(text, "1-sigma rotation (deg):").split(":")[1]), SIGMA_DEG,
+                               atol=5e-5)
+    assert "all six degrees of freedom" in text
+    assert "COVARIANCE UNUSABLE" not in text and "AMBIGUOUS" not in text and "image axes vs" not in text
+    lines = {k: line_starting(text, f"measurement {k}:") for k in range(4)}
+    assert floats(lines[0]) == [0, 14, 1730, 1.229, 0.99, 0]
+    assert floats(lines[1]) == [1, 12, 1598, 1.205, 1.03, 1]
+    assert "1 track rejected" in lines[1] and "2 tracks rejected" in lines[2]
+    assert "OUTLIER (axis far from the others)" in lines[3]
+    assert not any("OUTLIER" in lines[k] for k in range(3))
+
+
+def test_summary_says_when_the_solver_did_not_converge():
+    assert "NOT converged" in summary(result(converged=False)).splitlines()[0]
+
+
+def test_summary_states_what_the_covariance_assumes_of_kinematics_and_tracking():
+    text = summary(result(joint_sigma_deg=0.2, axis_floor_px=0.35))
+    assert after(line_starting(text, "kinematics:"), "uncertain by") == 0.2
+    assert after(line_starting(text, "tracking:"), "at least") == 0.35
+    text = summary(result())
+    assert "taken as exact" in line_starting(text, "kinematics:")
+    assert "no floor" in line_starting(text, "tracking:")
+
+
+def test_summary_shows_the_axis_test_only_when_it_changed_the_covariance():
+    scaled = summary(result(axis_consistency=AxisConsistency(30.0, 8, 2.1e-4, 5.0, floor_px=0.27)))
+    line = line_starting(scaled, "image axes vs")
+    assert after(line, "scaled by") == 5.0 and after(line, "a floor of") == 0.27
+    assert "1-sigma position" in scaled  # scaled, the covariance is still given
+    assert "image axes vs" not in summary(result(axis_consistency=AxisConsistency(5.7, 6, 0.457, 1.0)))
+
+
+def test_summary_of_an_untrusted_result_gives_the_reasons_not_the_sigmas():
+    ms = measurements()
+    ms[2] = measurement(2, 3, n_points=240, arc_span_deg=41.0, weak=True)
+    r = result(measurements=ms, axis_consistency=AxisConsistency(40.0, 6, 1e-5, 10.0),
+               untrusted={"thin_evidence": [2], "too_uncertain": []})
+    text = summary(r)
+    assert "1-sigma position" not in text and "1-sigma rotation" not in text
+    unusable = [line.strip() for line in text.splitlines() if "COVARIANCE UNUSABLE" in line]
+    assert unusable == ["COVARIANCE UNUSABLE: " + w for w in untrusted_words(r)] and len(unusable) == 2
+    assert "the arm poses do not determine" not in text and "one of several poses" not in text
+
+
+def test_summary_of_an_ambiguous_result_says_so_first_and_gives_no_sigma():
+    r = result(alternatives=[Alternative(moved(120.0, [0.3, 0.0, 0.1]), 1.0)], untrusted={"too_uncertain": []})
+    text = summary(r)
+    assert "AMBIGUOUS: " + ambiguity_words(r) in text
+    assert "one of several poses that fit the data" in text
+    assert "1-sigma position" not in text
+    assert untrusted_words(r)[0] not in text  # the ambiguity is the reason given, not a second one
+    assert text.index("AMBIGUOUS") < text.index("COVARIANCE UNUSABLE")
+
+
+def test_summary_of_undetermined_poses_blames_the_poses_and_names_the_direction():
+    t = np.array([0.0, 0.0, 0.0, 0.0, 0.6, 0.8])
+    r = result(information=with_null(t))
+    assert not r.observability.is_observable and not r.covariance_usable
+    text = summary(r)
+    assert "COVARIANCE UNUSABLE: the arm poses do not determine the calibration" in text
+    assert "DEGENERATE" in text and "camera position along the arm-frame direction" in text
+    assert "1-sigma position" not in text
+
+
+def test_summary_of_a_calibration_prints_its_numbers(reference_weighted):
+    _, _, r = reference_weighted
+    text = summary(r)
+    np.testing.assert_allclose(floats(line_starting(text, "translation (mm):")), 1000 * r.arm_T_camera.translation(),
+                               atol=0.005)
+    position = line_starting(text, "1-sigma position, arm frame (mm):").split(":")[1]
+    np.testing.assert_allclose(floats(position), r.sigma_mm_arm, atol=5e-4)
+    assert after(text, "condition number") == pytest.approx(r.observability.condition_number, rel=5e-3)
+    for m in r.measurements:
+        line = line_starting(text, f"measurement {m.index}:")
+        assert floats(line)[:4] == [m.index, m.n_tracks, m.n_points, round(m.residual_rms_px, 3)]
