@@ -68,9 +68,10 @@ class AxisConsistency:
     """Do the measurements' rotation axes agree with one ``arm_T_camera`` as closely as their pixel noise says?
 
     ``chi2`` sums, over the measurements used, the chi-square (2 dof) of each stage-1 image axis against the FK
-    axis projected by the estimate, at the line covariance the fit assumed (pixel noise from the residuals,
-    cluster-robust over tracks); ``dof`` is ``2 n - 6``. Errors the per-track noise model does not describe
-    (a sub-pixel bias the tracker shares across a measurement's tracks, joint-angle or kinematic errors, wrong
+    axis projected by the pose that fits those axes best (to first order from the estimate), at the line covariance
+    the fit assumed (pixel noise from the residuals, cluster-robust over tracks); ``dof`` is ``2 n - 6`` (infinite
+    ``chi2``, ``p_value`` 0: the FK axes do not project at the estimate). Errors the per-track noise model does not
+    describe (a sub-pixel bias the tracker shares across a measurement's tracks, joint-angle or kinematic errors, wrong
     intrinsics) move whole axes and show here, while every pixel residual looks white. When the test fails
     (``p_value`` < ``CalibrationOptions.axis_consistency_p``) the axes' covariance is taken to be understated by a
     common factor k, which their scatter measures, and the covariance is multiplied by ``scale`` =
