@@ -35,8 +35,8 @@ scenes outside their 99.9 % region (the "confident wrong numbers"; the target is
 dataset the calibration saw, :meth:`Dataset.save`) and ``scene.json`` (the true ``arm_T_camera`` as a 4x4 matrix
 and the tracker's numbers). ``--load DIR`` re-runs only the calibration on every saved scene and prints the same
 table (tracker columns as saved), in seconds: for re-evaluating an estimator change without rendering.
-``--spin-model free|rigid`` calibrates with that ``CalibrationOptions.spin_model``; ``--json FILE`` also writes
-every row's numbers.
+``--spin-model free|rigid`` and ``--axis-floor-px PX`` calibrate with those ``CalibrationOptions``; ``--json FILE``
+also writes every row's numbers.
 
 Run: ``python benchmarks/ambient.py [--robots kinova,ur5,panda] [--coverings photo,text,dots] [--seeds 0,1]
 [--variants nominal,short,half,blur] [--duration 20] [--features blobs|corners|auto] [--jobs 2] [--save DIR]``,
@@ -315,9 +315,12 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="one 3 s scene: checks that it runs")
     parser.add_argument("--spin-model", default=None, choices=("free", "rigid"),
                         help="CalibrationOptions.spin_model (default: the calibration's default)")
+    parser.add_argument("--axis-floor-px", type=float, default=None,
+                        help="CalibrationOptions.axis_floor_px (default: what the tracker wrote into the dataset)")
     parser.add_argument("--json", default=None, metavar="FILE", help="also write the rows (every number) to FILE")
     args = parser.parse_args(argv)
-    options = CalibrationOptions() if args.spin_model is None else CalibrationOptions(spin_model=args.spin_model)
+    options = CalibrationOptions(axis_floor_px=args.axis_floor_px,
+                                 **({} if args.spin_model is None else {"spin_model": args.spin_model}))
     started = time.perf_counter()
     if args.load is not None:
         roots = sorted(p.parent for p in Path(args.load).glob(f"*/{SCENE_FILE}"))
