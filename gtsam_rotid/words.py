@@ -77,6 +77,9 @@ def axis_consistency_sentence(c: AxisConsistency) -> str:
     """The test of the axes against one pose, and the scale it applied, in one sentence."""
     head = (f"image axes vs the projected FK axes: χ² = {c.chi2:.3g} for {c.dof} dof, "
             f"P(χ² ≥ this) = {c.p_value:.2g}")
+    if not np.isfinite(c.chi2):
+        return ("image axes vs the projected FK axes: the FK axes do not project at the estimate (their test points "
+                "lie at or behind the camera): the estimate has run away from the data, and it has no covariance")
     if c.scale == 1.0:
         return f"{head}: consistent with the pixel noise"
     floor = ("" if c.floor_px <= 0.0 else
@@ -114,6 +117,10 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
                        "short arcs admit wrong circle fits, so the estimate may be a wrong minimum and no scaling of "
                        "the covariance can be trusted. Spin the wrist longer (a full turn or more), give the hand more "
                        "texture (more tracks), or add arm poses; the tracking, not the joint angles, is the weak part")
+        elif kind == "inconsistent" and not np.isfinite(result.axis_consistency.chi2):
+            out.append("the FK axes do not even project at the estimate (their test points lie at or behind the "
+                       "camera): the fit ran away from the data, a poor minimum; check the joint angles, the "
+                       "intrinsics and the wrist joint, and give the hand more texture or the wrist longer spins")
         elif kind == "inconsistent":
             c = result.axis_consistency
             out.append(f"the measurements' axes disagree with one pose by χ²/dof = {c.chi2 / c.dof:.3g}, more than "
@@ -125,6 +132,9 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
                        f"for {c.dof} dof, P = {c.p_value:.2g}), and only {c.dof // 2 + 3} measurements are used: "
                        "too few to measure by how much the noise is understated, so no covariance can be given; add "
                        "arm poses (six or more used), or spin longer where measurements were left out")
+        elif kind == "too_uncertain" and not np.all(np.isfinite(result.covariance)):
+            out.append("the covariance is not finite: the data do not determine the calibration; add arm poses, "
+                       "longer spins or more texture")
         elif kind == "too_uncertain":
             out.append(f"the 1σ ({np.max(result.sigma_mm_arm):.3g} mm, {np.max(result.sigma_deg):.3g}°) exceeds "
                        f"{100 * MAX_RELATIVE_SIGMA:g} % of the camera's distance to the wrist or {MAX_SIGMA_DEG:g}°: "

@@ -286,6 +286,19 @@ def test_inconsistent_axes_give_their_reduced_chi2_and_the_model_errors_to_check
         assert cause in words[0]
 
 
+def test_a_runaway_pose_whose_axes_do_not_project_is_said_so_not_scaled_by_inf():
+    c = AxisConsistency(np.inf, 6, 0.0, np.inf)
+    sentence = axis_consistency_sentence(c)
+    assert "do not project" in sentence and "inf" not in sentence
+    words = untrusted_words(result(axis_consistency=c, untrusted={"inconsistent": [0, 1, 2]}))
+    assert len(words) == 1 and "do not even project" in words[0] and "poor minimum" in words[0]
+    assert "inf" not in words[0]
+    r = result(untrusted={"too_uncertain": []})
+    r.covariance = np.full((6, 6), np.inf)
+    words = untrusted_words(r)
+    assert words == [w for w in words if "not finite" in w and "inf" not in w] and len(words) == 1
+
+
 def test_unmeasured_scatter_counts_the_measurements_and_asks_for_more_poses():
     r = result(measurements=measurements(4), axis_consistency=AxisConsistency(14.0, 2, 9.1e-4, 7.0),
                untrusted={"unmeasured_scatter": [0, 1, 2, 3]})
