@@ -10,7 +10,13 @@ import numpy as np
 
 from .calibration.options import MIN_MEASUREMENTS
 from .calibration.result import AMBIGUITY_CHI2, AxisConsistency, CalibrationResult, MeasurementReport
-from .calibration.tuning import MAX_CONSISTENCY_SCALE, MAX_RELATIVE_SIGMA, MAX_SIGMA_DEG, RESTART_P
+from .calibration.tuning import (
+    LONG_ARC_CONSISTENCY_P,
+    MAX_CONSISTENCY_SCALE,
+    MAX_RELATIVE_SIGMA,
+    MAX_SIGMA_DEG,
+    RESTART_P,
+)
 from .uncertainty import Observability
 
 
@@ -73,6 +79,11 @@ def observability_words(obs: Observability) -> list[str]:
             "like the others (e.g. one that misses their common point)"] + words
 
 
+#: The lowest level ``calibrate`` tests the axes at (``tuning.LONG_ARC_CONSISTENCY_P``): an unscaled result with a
+#: smaller P had its test switched off (``CalibrationOptions.axis_consistency_p``).
+UNSCALED_BELOW_P = LONG_ARC_CONSISTENCY_P
+
+
 def axis_consistency_sentence(c: AxisConsistency) -> str:
     """The test of the axes against one pose, and the scale it applied, in one sentence."""
     head = (f"image axes vs the projected FK axes: χ² = {c.chi2:.3g} for {c.dof} dof, "
@@ -80,6 +91,9 @@ def axis_consistency_sentence(c: AxisConsistency) -> str:
     if not np.isfinite(c.chi2):
         return ("image axes vs the projected FK axes: the FK axes do not project at the estimate (their test points "
                 "lie at or behind the camera): the estimate has run away from the data, and it has no covariance")
+    if c.scale == 1.0 and c.p_value < UNSCALED_BELOW_P:  # only a test switched off leaves such a P unscaled
+        return (f"{head}: the axes disagree beyond their pixel noise, but the covariance was not scaled (the test's "
+                "level, CalibrationOptions.axis_consistency_p, is below this P)")
     if c.scale == 1.0:
         return f"{head}: consistent with the pixel noise"
     floor = ("" if c.floor_px <= 0.0 else
@@ -140,6 +154,9 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
                        f"{100 * MAX_RELATIVE_SIGMA:g} % of the camera's distance to the wrist or {MAX_SIGMA_DEG:g}°: "
                        "the data do not determine the calibration in practice, and an error that large changes the "
                        "geometry the covariance was computed in; add arm poses, longer spins or more texture")
+        else:  # a reason this version does not know (a newer or edited result file): still said
+            out.append(f"not trusted for a reason this version cannot describe ({kind!r}"
+                       + (f"; measurements: {named}" if named else "") + ")")
     return out
 
 

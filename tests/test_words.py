@@ -177,6 +177,12 @@ def test_consistent_axes_are_said_to_agree_with_their_pixel_noise():
     assert "scaled" not in words and "disagree" not in words and "floor" not in words
 
 
+def test_axes_left_unscaled_by_a_switched_off_test_are_not_called_consistent():
+    words = axis_consistency_sentence(AxisConsistency(50.0, 6, 1e-8, 1.0))  # axis_consistency_p=0
+    assert "consistent with the pixel noise" not in words
+    assert "disagree beyond their pixel noise" in words and "not scaled" in words and "axis_consistency_p" in words
+
+
 def test_scaled_axes_give_the_scale_and_its_rule_without_a_floor():
     words = axis_consistency_sentence(AxisConsistency(30.0, 8, 2.1e-4, 5.0))
     assert after(words, "χ² =") == 30 and after(words, "for") == 8
@@ -297,6 +303,11 @@ def test_a_runaway_pose_whose_axes_do_not_project_is_said_so_not_scaled_by_inf()
     r.covariance = np.full((6, 6), np.inf)
     words = untrusted_words(r)
     assert words == [w for w in words if "not finite" in w and "inf" not in w] and len(words) == 1
+
+
+def test_a_reason_this_version_does_not_know_is_still_said():
+    words = untrusted_words(result(untrusted={"future_reason": [1]}))
+    assert len(words) == 1 and "'future_reason'" in words[0] and "measurement 1 (" in words[0]
 
 
 def test_unmeasured_scatter_counts_the_measurements_and_asks_for_more_poses():
