@@ -708,3 +708,6 @@ def test_a_declared_floor_holds_errors_that_each_measurements_tracks_share(noisy
     error = result.error_to(truth.arm_T_camera)
     assert result.covariance_usable, summary(result)
     assert float(error @ np.linalg.solve(result.covariance, error)) < 22.458, summary(result)
+    # the axes' test weights each axis with the floor too: the scale reads only the scatter beyond it
+    bare = calibrate(shifted, options=CalibrationOptions(axis_floor_px=0.0))
+    assert result.axis_consistency.chi2 < bare.axis_consistency.chi2

@@ -62,9 +62,9 @@ class _Setup:
         """(2, 2) covariance (px²) of the prior floor on every image axis' test-point distances (a bias all of a
         measurement's tracks share): the axis shifted by ``floor_px`` and turned by ``floor_px`` at its test points,
         independent 1 sigma each (distances ``s + t`` and ``s - t``: ``2 floor_px² I``); None without a floor.
-        Neither in the fit's weights (the estimate keeps its precise axes' information) nor in the axes' test
-        (which reads the scatter beyond it the same way with or without it); what it passes into the estimate is
-        added to the covariance (:func:`stage2._prior_floor_covariance`)."""
+        Not in the fit's weights (the estimate keeps its precise axes' information): what it passes into the
+        estimate is added to the covariance (:func:`stage2._prior_floor_covariance`); in the axes' test (each axis'
+        distances at ``V_k + F``), whose scale and common floor then read only the scatter beyond it."""
         return 2.0 * self.floor_px**2 * np.eye(2) if self.floor_px > 0.0 else None
 
     @property

@@ -131,7 +131,7 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
     dof = 2 * len(used) - 6
     if dof <= 0:
         return None
-    chi2 = _refitted_chi2(_axis_rows(camera, setup, stage1, used, pose, sigma2), 0.0)
+    chi2 = _refitted_chi2(_axis_rows(camera, setup, stage1, used, pose, sigma2, floor=True), 0.0)
     if not np.isfinite(chi2):  # the FK axes do not even project: no agreement to measure
         return AxisConsistency(np.inf, dof, 0.0, np.inf)
     p = chi2_sf(chi2, dof)
@@ -144,12 +144,16 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
 
 
 def _axis_rows(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3,
-               sigma2: dict[int, float]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+               sigma2: dict[int, float], floor: bool = False) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per used measurement: its test points' distances to its image axis, their covariance (pixel noise at
-    ``sigma2[k]`` and joint-angle noise, :func:`_axis_distances`) and their (2, 6) Jacobian by the pose."""
+    ``sigma2[k]`` and joint-angle noise, :func:`_axis_distances`; with ``floor`` the prior floor's
+    :attr:`_Setup.floor_covariance` too) and their (2, 6) Jacobian by the pose."""
     rows = []
+    F = setup.floor_covariance if floor else None
     for k in used:
         e, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup, k)
+        if F is not None:
+            cov = cov + F
         J = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), stage1[k].line)[1]
         rows.append((e, cov, J))
     return rows
@@ -180,7 +184,7 @@ def _axis_floor(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose
     those weights fit best (linearised about ``pose``: distances ``e_k + J_k x``), and the pose covariance that
     floor adds (6x6, the Pose3 tangent: ``(sum_k J_k^T (V_k + tau^2 I)^-1 J_k)^-1`` minus the same at ``tau = 0``;
     None when the axes alone do not determine the pose)."""
-    rows = _axis_rows(camera, setup, stage1, used, pose, sigma2)
+    rows = _axis_rows(camera, setup, stage1, used, pose, sigma2, floor=True)
 
     def information(tau2: float) -> np.ndarray:
         return sum(J.T @ W @ J for (_, _, J), W in zip(rows, _floored_weights(rows, tau2), strict=True))
@@ -494,9 +498,9 @@ class _Solved:
 def _finish(solved: _Solved, reports, sigma_px, *, info_scale: float = 1.0, dof: int | None = None,
             consistency: AxisConsistency | None = None, prior: np.ndarray | None = None) -> CalibrationResult:
     """Result with the observability of ``info * info_scale`` (the scale makes it a real information); the
-    covariance (of the pose, or the observability's when it is undetermined) is multiplied by
-    ``consistency.scale`` or floored, whichever is larger, and ``prior`` (the prior floor's,
-    :func:`_prior_floor_covariance`) added."""
+    covariance (of the pose, or the observability's when it is undetermined) gains ``prior`` (the prior floor's,
+    :func:`_prior_floor_covariance`) and is then multiplied by ``consistency.scale`` or floored, whichever is larger
+    (the test that sets them weighted each axis with the prior floor too)."""
     pose, covariance, info, method = solved.pose, solved.covariance, solved.info, solved.method
     converged, iterations, error = solved.converged, solved.iterations, solved.error
     if not np.all(np.isfinite(info)):
@@ -506,13 +510,13 @@ def _finish(solved: _Solved, reports, sigma_px, *, info_scale: float = 1.0, dof:
     observability = analyse_observability(info * info_scale, pose)
     if covariance is None or not observability.is_observable:
         covariance = observability.covariance(info)
+    if prior is not None and observability.is_observable:  # what the axes' test cannot see
+        covariance = covariance + prior
     if consistency is not None and observability.is_observable:
         scaled = covariance * consistency.scale
         # the larger, direction by direction, of the two readings of the axes' scatter (AxisConsistency)
         covariance = scaled if consistency.floor_covariance is None else loewner_max(
             scaled, covariance + consistency.floor_covariance)
-    if prior is not None and observability.is_observable:  # what the axes' test cannot see, on top
-        covariance = covariance + prior
     return CalibrationResult(pose, covariance, method.value, bool(converged), int(iterations), float(error),
                              reports, observability, float(sigma_px), dof, axis_consistency=consistency)
 
