@@ -121,13 +121,17 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
             strong = sum(not m.weak and not m.outlier for m in result.measurements)
             if c is not None and c.p_value < RESTART_P:
                 head = (f"the image axes disagree with the estimate beyond their pixel noise (χ² = {c.chi2:.3g} for "
-                        f"{c.dof} dof, P = {c.p_value:.2g}) and these")
+                        f"{c.dof} dof, P = {c.p_value:.2g}) and")
             elif c is None:
-                head = "nothing tests the image axes against each other (too few measurements), and these"
+                head = "nothing tests the image axes against each other (too few measurements), and"
             else:
                 head = (f"the estimate rests on weak measurements (only {strong} of the measurements used have strong "
-                        f"evidence; {MIN_MEASUREMENTS} are needed to determine the pose without the weak ones): these")
-            out.append(f"{head} measurements have too little evidence for their axes to be Gaussian: {named}. Few or "
+                        f"evidence; {MIN_MEASUREMENTS} are needed to determine the pose without the weak ones):")
+            # a result that names none of its measurements (another version's file) gets no empty list
+            which = (f"these measurements have too little evidence for their axes to be Gaussian: {named}" if named
+                     else "some of the measurements used have too little evidence for their axes to be Gaussian (the "
+                     "result does not name them)")
+            out.append(f"{head} {which}. Few or "
                        "short arcs admit wrong circle fits, so the estimate may be a wrong minimum and no scaling of "
                        "the covariance can be trusted. Spin the wrist longer (a full turn or more), give the hand more "
                        "texture (more tracks), or add arm poses; the tracking, not the joint angles, is the weak part")

@@ -282,6 +282,20 @@ def test_thin_evidence_names_only_measurements_of_the_result():
     assert "measurement 2 (" in words[0] and "measurement 99" not in words[0]
 
 
+@pytest.mark.parametrize("c", [AxisConsistency(40.0, 6, 1e-5, 10.0), None, AxisConsistency(2.0, 4, 0.74, 1.0)])
+@pytest.mark.parametrize("ks", [[], [99]])
+def test_thin_evidence_naming_no_measurement_of_the_result_prints_no_empty_list(c, ks):
+    r = thin(c)
+    r.untrusted = {"thin_evidence": ks}  # e.g. a result file written by another version
+    words = untrusted_words(r)
+    assert len(words) == 1
+    assert not re.search(r":\s*\.", words[0]) and "Gaussian: " not in words[0]  # not "...Gaussian: . Few..."
+    assert "these measurements" not in words[0]  # nothing to point at
+    assert "measurement 99" not in words[0] and "measurement 2 (" not in words[0]
+    assert "too little evidence" in words[0] and "Few or short arcs" in words[0]
+    assert_names_the_weak_and_blames_the_tracking(words[0], [], [0, 1, 2, 3, 4, 5])
+
+
 def test_inconsistent_axes_give_their_reduced_chi2_and_the_model_errors_to_check():
     r = result(axis_consistency=AxisConsistency(1200.0, 6, 0.0, 300.0), untrusted={"inconsistent": [0, 1, 2]})
     words = untrusted_words(r)
