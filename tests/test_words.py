@@ -1,7 +1,9 @@
 """The report layer's sentences (gtsam_rotid.words), on results and observability analyses built by hand: the
 numbers a user reads, the reason named and the advice given, not the sentences verbatim."""
 
+import itertools
 import re
+from types import SimpleNamespace
 
 import gtsam
 import numpy as np
@@ -16,6 +18,7 @@ from gtsam_rotid.calibration.result import (
     CalibrationResult,
     MeasurementReport,
 )
+from gtsam_rotid.calibration.run import _untrusted
 from gtsam_rotid.calibration.tuning import MAX_CONSISTENCY_SCALE, MAX_RELATIVE_SIGMA, MAX_SIGMA_DEG, RESTART_P
 from gtsam_rotid.uncertainty import analyse_observability
 from gtsam_rotid.words import (
@@ -294,6 +297,44 @@ def test_thin_evidence_naming_no_measurement_of_the_result_prints_no_empty_list(
     assert "measurement 99" not in words[0] and "measurement 2 (" not in words[0]
     assert "too little evidence" in words[0] and "Few or short arcs" in words[0]
     assert_names_the_weak_and_blames_the_tracking(words[0], [], [0, 1, 2, 3, 4, 5])
+
+
+#: what ``calibration.run._untrusted`` reads of the setup: the wrist axes (the camera's distance to them)
+SETUP = SimpleNamespace(axes=[SimpleNamespace(point=np.zeros(3))])
+
+
+def left_out(index: int, n_tracks: int = 2, **kw) -> MeasurementReport:
+    """A weak measurement the estimate did not use (an outlier, weight 0)."""
+    return measurement(index, n_tracks, weak=True, outlier=True, weight=0.0, arc_span_deg=20.0,
+                       outlier_reason="left out: too little evidence for a reliable image axis", **kw)
+
+
+def test_thin_evidence_names_the_weak_measurements_used_not_the_weak_ones_left_out():
+    ms = [measurement(0), measurement(1), measurement(2, 3, n_points=240, arc_span_deg=41.0, weak=True), left_out(3),
+          measurement(4), left_out(5)]
+    r = result(measurements=ms, axis_consistency=AxisConsistency(40.0, 6, 1e-5, 10.0))
+    r.untrusted = _untrusted(r, SETUP)
+    assert r.untrusted == {"thin_evidence": [2]}
+    words = untrusted_words(r)
+    assert len(words) == 1 and "measurement 2 (3 tracks, 240 points, longest arc 41°)" in words[0]
+    assert "measurement 3 " not in words[0] and "measurement 5 " not in words[0]
+
+
+@pytest.mark.parametrize("c", [None, AxisConsistency(40.0, 6, 1e-5, 10.0), AxisConsistency(2.0, 4, 0.74, 1.0)])
+def test_thin_evidence_is_set_as_before_and_never_with_an_empty_list(c):
+    """Each of strong, weak used, weak left out and strong left out in each of five measurements: the flag is set
+    exactly where the rule sets it (weak measurements used, and the axes disagree, or nothing tests them, or too
+    few strong ones), and it then names the weak ones used, never none."""
+    kinds = {"strong": lambda k: measurement(k), "weak": lambda k: measurement(k, 3, weak=True),
+             "weak out": left_out, "strong out": lambda k: measurement(k, outlier=True, weight=0.0)}
+    for combo in itertools.product(kinds, repeat=5):
+        r = result(measurements=[kinds[kind](k) for k, kind in enumerate(combo)], axis_consistency=c)
+        weak_used = [k for k, kind in enumerate(combo) if kind == "weak"]
+        rule = bool(weak_used) and (c is None or c.p_value < RESTART_P or combo.count("strong") < MIN_MEASUREMENTS)
+        untrusted = _untrusted(r, SETUP)
+        assert ("thin_evidence" in untrusted) is rule, combo
+        if rule:
+            assert untrusted["thin_evidence"] == weak_used, combo
 
 
 def test_inconsistent_axes_give_their_reduced_chi2_and_the_model_errors_to_check():

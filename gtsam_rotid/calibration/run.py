@@ -104,13 +104,13 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
         return {}
     out = {}
     c = result.axis_consistency
-    weak = [m.index for m in result.measurements if m.weak]
     strong = [m.index for m in result.measurements if not m.weak and not m.outlier]
     # weak measurements are trusted only where strong ones determine the pose without them and the axes agree
-    # (without redundancy, three measurements used, nothing tests them)
+    # (without redundancy, three measurements used, nothing tests them); the ones named are those the estimate
+    # rests on (never none: the flag needs one), not the weak ones left out as outliers
     weak_used = [m.index for m in result.measurements if m.weak and not m.outlier]
     if weak_used and (c is None or c.p_value < RESTART_P or len(strong) < MIN_MEASUREMENTS):
-        out["thin_evidence"] = weak
+        out["thin_evidence"] = weak_used
     if c is not None and c.dof > 0 and c.chi2 / c.dof > MAX_CONSISTENCY_SCALE:
         out["inconsistent"] = [m.index for m in result.measurements if not m.outlier]
     elif c is not None and not c.consistent and c.dof <= 2:
