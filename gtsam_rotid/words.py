@@ -185,18 +185,32 @@ def tracking_words(axis_floor_px: float) -> str:
 
 
 def ambiguity_words(result: CalibrationResult) -> str:
-    """Plain words for an ambiguous result: which other poses fit, and what to do."""
+    """Plain words for an ambiguous result: which other poses fit, and what to do; none ("") when the result is not
+    ambiguous."""
     close = sorted((a for a in result.alternatives if a.delta_chi2 < AMBIGUITY_CHI2), key=lambda a: a.delta_chi2)
+    if not close:
+        return ""
     t = np.asarray(result.arm_T_camera.translation(), dtype=float)
+
+    def fit(delta: float) -> str:  # an alternative may fit better than the estimate (delta < 0)
+        if delta > 0.0:
+            return f"chi-square only {delta:.3g} worse"
+        if delta == 0.0:
+            return "the same chi-square: it fits as well as this estimate"
+        return f"chi-square {-delta:.3g} lower: it fits better than this estimate"
+
     where = "; ".join(
         f"camera at {np.round(1000 * np.asarray(a.arm_T_camera.translation(), dtype=float), 1).tolist()} mm, "
         f"{1000 * np.linalg.norm(np.asarray(a.arm_T_camera.translation(), dtype=float) - t):.0f} mm and "
         f"{np.degrees(np.linalg.norm(result.arm_T_camera.rotation().localCoordinates(a.arm_T_camera.rotation()))):.1f}"
-        f"° from this estimate, chi-square only {max(a.delta_chi2, 0.0):.3g} worse" for a in close)
-    return (f"{len(close)} other pose{'s' if len(close) > 1 else ''} of the camera fit the pixels almost as well "
+        f"° from this estimate, {fit(a.delta_chi2)}" for a in close)
+    how = ("almost as well" if close[0].delta_chi2 > 0.0 else
+           "as well or better" if close[-1].delta_chi2 <= 0.0 else "almost as well or better")
+    used = sum(not m.outlier for m in result.measurements)
+    return (f"{len(close)} other pose{'s' if len(close) > 1 else ''} of the camera fit the pixels {how} "
             f"({where}; a difference below {AMBIGUITY_CHI2:.1f} is a likelihood ratio under 1000:1): the data cannot "
             f"tell them apart, so neither this estimate nor its covariance can be trusted. "
             + ("With three arm poses the wrist axes give exactly as many equations as the six unknowns, and those "
-               "have several exact solutions" if len(result.measurements) == MIN_MEASUREMENTS else
+               "have several exact solutions" if used == MIN_MEASUREMENTS else
                "The chosen wrist axes do not single one out")
             + "; add arm poses whose wrist axes are tilted from the others and miss their common point")

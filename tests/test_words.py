@@ -475,6 +475,36 @@ def test_ambiguity_with_three_measurements_explains_the_several_exact_solutions(
     assert "do not single one out" not in words
 
 
+def test_ambiguity_with_a_pose_that_fits_better_says_so_not_only_zero_worse():
+    better, worse = moved(60.0, [0.1, 0.0, 0.0]), moved(20.0, [0.0, 0.02, 0.0])
+    r = result(alternatives=[Alternative(worse, 2.5), Alternative(better, -4.0)])
+    words = ambiguity_words(r)
+    first, second = words.split("camera at")[1:]
+    np.testing.assert_allclose(bracketed(first, ""), 1000 * better.translation(), atol=0.05)  # lowest Δχ² first
+    assert "worse" not in first and "only 0" not in first
+    assert after(first, "chi-square") == 4.0 and "lower" in first and "fits better" in first
+    assert after(second, "chi-square only") == 2.5 and "worse" in second
+    assert "almost as well or better" in words
+    alone = ambiguity_words(result(alternatives=[Alternative(better, -4.0)]))
+    assert "almost" not in alone and "as well or better" in alone and "worse" not in alone
+    tie = ambiguity_words(result(alternatives=[Alternative(better, 0.0)]))
+    assert "worse" not in tie and "fits as well as this estimate" in tie
+
+
+def test_ambiguity_explains_three_poses_by_the_measurements_used_not_the_outliers():
+    ms = [*measurements(MIN_MEASUREMENTS), measurement(MIN_MEASUREMENTS, 2, outlier=True, weight=0.0)]
+    r = result(measurements=ms, alternatives=[Alternative(moved(60.0, [0.1, 0, 0]), 0.2)])
+    words = ambiguity_words(r)
+    assert "With three arm poses" in words and "several exact solutions" in words
+    assert "do not single one out" not in words
+
+
+def test_a_result_that_is_not_ambiguous_has_no_ambiguity_words():
+    assert not result().ambiguous and not ambiguity_words(result())
+    far = result(alternatives=[Alternative(moved(90.0, [0.5, 0.0, 0.0]), 500.0)])
+    assert not far.ambiguous and not ambiguity_words(far)  # not "0 other pose of the camera fit ..."
+
+
 # ---------------------------------------------------------------------------------------------------
 # summary
 
