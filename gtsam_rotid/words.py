@@ -59,14 +59,26 @@ def summary(result: CalibrationResult) -> str:
 
 def observability_words(obs: Observability) -> list[str]:
     """The observability verdict in sentences: each direction the data do not determine (in the arm frame), or
-    that all six are determined, with the condition number."""
+    that all six are determined, with the condition number. A direction's 1σ is along its unit vector of the
+    Pose3 tangent (rad, m): in mm for a translation, degrees for a rotation, both units named where it mixes
+    them."""
     words = []
     for i, v, sigma in zip(obs.unobservable_indices, obs.unobservable_directions, obs.unobservable_sigmas,
                            strict=True):
         t_arm = obs.arm_R_camera @ v[3:]
         r_arm = obs.arm_R_camera @ v[:3]
-        what = "not determined at all" if not np.isfinite(sigma) else f"poorly determined (1-sigma {sigma:.3g})"
-        if np.linalg.norm(v[:3]) < 0.1:
+        rotation, translation = np.linalg.norm(v[:3]), np.linalg.norm(v[3:])
+        if not np.isfinite(sigma):
+            what = "not determined at all"
+        elif rotation < 0.1:  # a translation (the sentence below calls it one)
+            what = f"poorly determined (1-sigma {1000 * sigma * translation:.3g} mm)"
+        elif translation < 0.1:  # a rotation
+            what = f"poorly determined (1-sigma {np.degrees(sigma * rotation):.3g}°)"
+        else:
+            what = (f"poorly determined (1-sigma {sigma:.3g} along it, in the tangent's units rad and m: "
+                    f"{np.degrees(sigma * rotation):.3g}° of rotation with {1000 * sigma * translation:.3g} mm of "
+                    "translation)")
+        if rotation < 0.1:
             direction = np.round(t_arm / np.linalg.norm(t_arm), 3)
             words.append(f"the camera position along the arm-frame direction {direction} is {what}")
         else:

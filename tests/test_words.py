@@ -155,9 +155,32 @@ def test_a_poorly_determined_direction_gives_its_sigma_and_one_within_the_limit_
     words = observability_words(obs)
     assert len(words) == 2 and words[0].startswith("DEGENERATE")
     assert "poorly determined" in words[1] and "not determined at all" not in words[1]
-    assert after(words[1], "1-sigma") == pytest.approx(0.1, rel=1e-3)
+    assert after(words[1], "1-sigma") == pytest.approx(100.0, rel=1e-3)  # in mm
     printed = bracketed(words[1], "direction")
     assert abs(printed @ (POSE.rotation().matrix() @ translations[:, 0])) == pytest.approx(1.0, abs=2e-3)
+
+
+def test_a_poorly_determined_sigma_has_its_unit_mm_for_translation_degrees_for_rotation():
+    translation = analyse_observability(information([1e8, 1e8, 1e8, 100.0, 1e8, 1e8]), POSE)  # 1σ 0.1 m
+    words = observability_words(translation)[1]
+    assert "camera position" in words and re.search(r"1-sigma 100 mm\b", words)
+    rotation = analyse_observability(information([1 / 0.2**2, 1e8, 1e8, 1e8, 1e8, 1e8]), POSE)  # 1σ 0.2 rad
+    words = observability_words(rotation)[1]
+    assert "poorly determined" in words and after(words, "1-sigma") == pytest.approx(np.degrees(0.2), rel=5e-3)
+    assert re.search(r"1-sigma " + NUMBER + "°", words) and " mm" not in words
+
+
+def test_a_poorly_determined_direction_that_mixes_rotation_and_translation_names_the_tangent_units():
+    mixed = np.array([0.3, 0.0, 0.0, 0.0, 0.5, 0.2])
+    mixed /= np.linalg.norm(mixed)
+    basis, _, _ = np.linalg.svd(mixed.reshape(6, 1), full_matrices=True)
+    obs = analyse_observability(basis @ np.diag([1 / 0.2**2, 1e6, 2e6, 5e6, 1e7, 3e7]) @ basis.T, POSE)  # 1σ 0.2
+    words = observability_words(obs)[1]
+    assert "combined rotation" in words and "poorly determined" in words
+    assert after(words, "1-sigma") == pytest.approx(0.2, rel=1e-3) and "rad and m" in words
+    # what that moves: 0.2 x the unit vector's parts, in degrees and mm
+    assert after(words, "rad and m:") == pytest.approx(np.degrees(0.2 * np.linalg.norm(mixed[:3])), rel=1e-2)
+    assert after(words, "° of rotation with") == pytest.approx(200 * np.linalg.norm(mixed[3:]), rel=1e-2)
 
 
 def test_each_undetermined_direction_has_its_own_sentence():
