@@ -131,7 +131,8 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
     dof = 2 * len(used) - 6
     if dof <= 0:
         return None
-    chi2 = _refitted_chi2(_axis_rows(camera, setup, stage1, used, pose, sigma2, floor=True), 0.0)
+    rows = _axis_rows(camera, setup, stage1, used, pose, sigma2, floor=True)
+    chi2 = _refitted_chi2(rows, 0.0)
     if not np.isfinite(chi2):  # the FK axes do not even project: no agreement to measure
         return AxisConsistency(np.inf, dof, 0.0, np.inf)
     p = chi2_sf(chi2, dof)
@@ -139,7 +140,7 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
         return AxisConsistency(chi2, dof, p, 1.0)
     if dof <= 2:  # k's mean is unbounded with 2 dof: the Birge ratio (and the result is not trusted)
         return AxisConsistency(chi2, dof, p, chi2 / dof)
-    floor, increment = _axis_floor(camera, setup, stage1, used, pose, sigma2, dof - 2)
+    floor, increment = _axis_floor(rows, dof - 2)
     return AxisConsistency(chi2, dof, p, chi2 / (dof - 2), floor, increment)
 
 
@@ -177,14 +178,12 @@ def _refitted_chi2(rows, tau2: float) -> float:
                  - g @ np.linalg.lstsq(H, g, rcond=None)[0])
 
 
-def _axis_floor(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3, sigma2: dict[int, float],
-                target: float) -> tuple[float, np.ndarray | None]:
-    """The axes' common floor (see :class:`AxisConsistency`): ``tau`` (px) such that, with ``tau^2`` added to the
-    variance ``V_k`` of every projected test point's distance, the axes' chi-square falls to ``target`` at the pose
-    those weights fit best (linearised about ``pose``: distances ``e_k + J_k x``), and the pose covariance that
-    floor adds (6x6, the Pose3 tangent: ``(sum_k J_k^T (V_k + tau^2 I)^-1 J_k)^-1`` minus the same at ``tau = 0``;
-    None when the axes alone do not determine the pose)."""
-    rows = _axis_rows(camera, setup, stage1, used, pose, sigma2, floor=True)
+def _axis_floor(rows, target: float) -> tuple[float, np.ndarray | None]:
+    """The axes' common floor (see :class:`AxisConsistency`) on the test's rows (:func:`_axis_rows`, with the prior
+    floor): ``tau`` (px) such that, with ``tau^2`` added to the variance ``V_k`` of every projected test point's
+    distance, the axes' chi-square falls to ``target`` at the pose those weights fit best (:func:`_refitted_chi2`),
+    and the pose covariance that floor adds (6x6, the Pose3 tangent: ``(sum_k J_k^T (V_k + tau^2 I)^-1 J_k)^-1``
+    minus the same at ``tau = 0``; None when the axes alone do not determine the pose)."""
 
     def information(tau2: float) -> np.ndarray:
         return sum(J.T @ W @ J for (_, _, J), W in zip(rows, _floored_weights(rows, tau2), strict=True))
