@@ -333,15 +333,17 @@ def _jackknife(builder: RotIdGraph, measurement, k: int, pose: gtsam.Pose3, prep
 
 
 def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepared, options,
-                        start_line: gtsam.Rot3 | None = None, settle: bool = False) -> _Stage1:
+                        start_line: gtsam.Rot3 | None = None, settle: bool = False,
+                        skip: dict[int, str] | None = None) -> _Stage1:
     """Coaxial circles of one measurement, rejecting outlier tracks round by round.
 
     ``builders``: the projected model first (fast); if LM cannot lower its error at all (wrong arcs far from
     any coaxial circle can make the projected-out circles jump between solutions from one line to the next),
     the measurement is redone with the next builder's model (circle variables that move continuously).
+    ``skip``: tracks left out from the first round (default none).
     """
     builder, *fallbacks = builders
-    skip: dict[int, str] = {}
+    skip = dict(skip or {})
     iterations = 0
     line_start, circles_start = start_line, None
     rounds = 0
