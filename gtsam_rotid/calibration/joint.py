@@ -35,6 +35,7 @@ from ..uncertainty import (
     sandwich_marginal,
 )
 from .lm import _builder, _graph_dof, _lm, _turned
+from .opinion import _second_opinion
 from .options import CalibrationError, Method, SpinModel
 from .result import CalibrationResult
 from .stage1 import _circles, _noise_variance, _track_correlation, _track_stats
@@ -44,7 +45,6 @@ from .stage2 import (
     _prior_floor_covariance,
     _reports,
     _robust_weighted,
-    _second_opinion,
     _Solved,
     _tied_circles,
     _weighted_stage2,
