@@ -292,10 +292,9 @@ class RotIdGraph:
 
         Nothing is added to ``graph`` or ``values`` unless every check passes.
         """
-        if arm_T_camera is None:
-            if not values.exists(self.pose_key):
-                raise InputError("insert an initial arm_T_camera into values (or pass arm_T_camera=) first")
-            arm_T_camera = values.atPose3(self.pose_key)
+        if arm_T_camera is None and not values.exists(self.pose_key):
+            raise InputError("insert an initial arm_T_camera into values (or pass arm_T_camera=) first")
+        arm_T_camera = values.atPose3(self.pose_key) if arm_T_camera is None else arm_T_camera
         bound = tie and self.model is Model.POSE
         tie_noise = tie_noise_model(self.tie_sigma_px, tie_covariance) if tie and not bound else None
         line_key = None if bound else self.line_key(k)
@@ -333,12 +332,7 @@ class RotIdGraph:
                 continue
             new_values.insert(circle_key, circle)
             sigma = None if track_sigmas is None else track_sigmas.get(j)
-            noise = self.track_noise(len(track.ideal), sigma)
-            if bound:
-                factor = make_pose_circle_point_factor(noise, self.pose_key, circle_key, track.ideal, K, fk_axis)
-            else:
-                factor = make_circle_point_factor(noise, line_key, circle_key, track.ideal, K)
-            new_factors.append(factor)
+            new_factors.append(self._circle_factor(track, sigma, circle_key, line_key, fk_axis))
             keys.circles.append(circle_key)
         if len(keys.tracks) < 2:
             raise InputError(f"measurement {k}: only {len(keys.tracks)} usable track(s), need at least 2 "
@@ -349,17 +343,19 @@ class RotIdGraph:
         elif refine_circles:
             new_values = self._refined_circles(new_factors, new_values, keys, line_key, line_cam, arm_T_camera)
         # nothing is added to the caller's graph or values before every check has passed
-        for factor in new_factors:
-            graph.add(factor)
-            keys.circle_factors.append(graph.size() - 1)
-        if line_key is not None:
-            new_values.insert(line_key, line_cam)
-        values.insert(new_values)
-        if not tie or bound:
-            return keys
-        graph.add(make_axis_to_line_variable_factor(tie_noise, self.pose_key, line_key, axis_test_points(axis), K))
-        keys.tie_factor = graph.size() - 1
+        _commit(graph, values, new_factors, new_values, keys, line_cam)
+        if tie and not bound:
+            graph.add(make_axis_to_line_variable_factor(tie_noise, self.pose_key, line_key, axis_test_points(axis), K))
+            keys.tie_factor = graph.size() - 1
         return keys
+
+    def _circle_factor(self, track, sigma: float | None, circle_key: int, line_key: int | None, fk_axis: FKAxis):
+        """One track's circle-point factor: on its line variable, or (``line_key`` None: the ``"pose"`` model) on
+        the pose through the FK axis."""
+        noise = self.track_noise(len(track.ideal), sigma)
+        if line_key is None:
+            return make_pose_circle_point_factor(noise, self.pose_key, circle_key, track.ideal, self.camera.K, fk_axis)
+        return make_circle_point_factor(noise, line_key, circle_key, track.ideal, self.camera.K)
 
     def _coaxial(self, line_key, prepared: PreparedMeasurement, tracks: list[int], start_circles: list[np.ndarray],
                  track_sigmas: dict[int, float] | None):
@@ -389,6 +385,17 @@ class RotIdGraph:
         for key in keys.circles:
             refined.insert(key, result.atVector(key))
         return refined
+
+
+def _commit(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, factors: list, new_values: gtsam.Values,
+            keys: MeasurementKeys, line_cam: gtsam.Rot3) -> None:
+    """Add a measurement's checked factors and values (its line variable, if it has one, at ``line_cam``)."""
+    for factor in factors:
+        graph.add(factor)
+        keys.circle_factors.append(graph.size() - 1)
+    if keys.line is not None:
+        new_values.insert(keys.line, line_cam)
+    values.insert(new_values)
 
 
 def _start_circle(track, K_inv: np.ndarray, point_cam: np.ndarray, direction_cam: np.ndarray, foot_offset: float,
