@@ -130,7 +130,7 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
         named = "; ".join(f"measurement {k} ({evidence_words(by_index[k])})" for k in ks if k in by_index)
         if kind == "thin_evidence":
             c = result.axis_consistency
-            strong = sum(not m.weak and not m.outlier for m in result.measurements)
+            strong = sum(not m.weak and m.used for m in result.measurements)
             if c is not None and c.p_value < RESTART_P:
                 head = (f"the image axes disagree with the estimate beyond their pixel noise (χ² = {c.chi2:.3g} for "
                         f"{c.dof} dof, P = {c.p_value:.2g}) and")
@@ -218,7 +218,7 @@ def ambiguity_words(result: CalibrationResult) -> str:
         f"° from this estimate, {fit(a.delta_chi2)}" for a in close)
     how = ("almost as well" if close[0].delta_chi2 > 0.0 else
            "as well or better" if close[-1].delta_chi2 <= 0.0 else "almost as well or better")
-    used = sum(not m.outlier for m in result.measurements)
+    used = sum(m.used for m in result.measurements)
     return (f"{len(close)} other pose{'s' if len(close) > 1 else ''} of the camera fit the pixels {how} "
             f"({where}; a difference below {AMBIGUITY_CHI2:.1f} is a likelihood ratio under 1000:1): the data cannot "
             f"tell them apart, so neither this estimate nor its covariance can be trusted. "

@@ -345,14 +345,17 @@ def test_thin_evidence_names_the_weak_measurements_used_not_the_weak_ones_left_o
 
 @pytest.mark.parametrize("c", [None, AxisConsistency(40.0, 6, 1e-5, 10.0), AxisConsistency(2.0, 4, 0.74, 1.0)])
 def test_thin_evidence_is_set_as_before_and_never_with_an_empty_list(c):
-    """Each of strong, weak used, weak left out and strong left out in each of five measurements: the flag is set
-    exactly where the rule sets it (weak measurements used, and the axes disagree, or nothing tests them, or too
-    few strong ones), and it then names the weak ones used, never none."""
+    """Each of strong, weak used, weak left out, strong left out and weak called an outlier for its residual RMS
+    alone (still used: weight > 0) in each of five measurements: the flag is set exactly where the rule sets it
+    (weak measurements used, and the axes disagree, or nothing tests them, or too few strong ones), and it then
+    names the weak ones used, never none. The weak outlier by RMS counts as used (it was taken as unused)."""
     kinds = {"strong": lambda k: measurement(k), "weak": lambda k: measurement(k, 3, weak=True),
-             "weak out": left_out, "strong out": lambda k: measurement(k, outlier=True, weight=0.0)}
+             "weak out": left_out, "strong out": lambda k: measurement(k, outlier=True, weight=0.0),
+             "weak rms": lambda k: measurement(k, 3, weak=True, outlier=True, weight=0.3,
+                                               outlier_reason="residual RMS 4.0 px > 3x the median 1.2 px")}
     for combo in itertools.product(kinds, repeat=5):
         r = result(measurements=[kinds[kind](k) for k, kind in enumerate(combo)], axis_consistency=c)
-        weak_used = [k for k, kind in enumerate(combo) if kind == "weak"]
+        weak_used = [k for k, kind in enumerate(combo) if kind in ("weak", "weak rms")]
         rule = bool(weak_used) and (c is None or c.p_value < RESTART_P or combo.count("strong") < MIN_MEASUREMENTS)
         untrusted = _untrusted(r, SETUP)
         assert ("thin_evidence" in untrusted) is rule, combo

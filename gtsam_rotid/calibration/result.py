@@ -43,6 +43,12 @@ class MeasurementReport:
     #: WEAK_MANY_TRACKS and no arc of WEAK_ARC_DEG
     weak: bool = False
 
+    @property
+    def used(self) -> bool:
+        """Whether the estimate uses this measurement (weight > 0). An ``outlier`` for its residual RMS alone is
+        still used, down-weighted by its own pixel noise; one left out has weight 0."""
+        return self.weight > 0.0
+
 
 @dataclass
 class Alternative:

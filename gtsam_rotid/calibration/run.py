@@ -104,17 +104,18 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
         return {}
     out = {}
     c = result.axis_consistency
-    strong = [m.index for m in result.measurements if not m.weak and not m.outlier]
+    strong = [m.index for m in result.measurements if not m.weak and m.used]
     # weak measurements are trusted only where strong ones determine the pose without them and the axes agree
     # (without redundancy, three measurements used, nothing tests them); the ones named are those the estimate
-    # rests on (never none: the flag needs one), not the weak ones left out as outliers
-    weak_used = [m.index for m in result.measurements if m.weak and not m.outlier]
+    # rests on (never none: the flag needs one), not the weak ones left out (weight 0); one called an outlier for its
+    # residual RMS alone is still used
+    weak_used = [m.index for m in result.measurements if m.weak and m.used]
     if weak_used and (c is None or c.p_value < RESTART_P or len(strong) < MIN_MEASUREMENTS):
         out["thin_evidence"] = weak_used
     if c is not None and c.dof > 0 and c.chi2 / c.dof > MAX_CONSISTENCY_SCALE:
-        out["inconsistent"] = [m.index for m in result.measurements if not m.outlier]
+        out["inconsistent"] = [m.index for m in result.measurements if m.used]
     elif c is not None and not c.consistent and c.dof <= 2:
-        out["unmeasured_scatter"] = [m.index for m in result.measurements if not m.outlier]
+        out["unmeasured_scatter"] = [m.index for m in result.measurements if m.used]
     distance = float(np.median([np.linalg.norm(result.arm_T_camera.transformTo(a.point)) for a in setup.axes]))
     limit_mm = 1000.0 * MAX_RELATIVE_SIGMA * distance
     if (not np.all(np.isfinite(result.covariance)) or np.max(result.sigma_mm_arm) > limit_mm
