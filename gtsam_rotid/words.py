@@ -81,6 +81,9 @@ def observability_words(obs: Observability) -> list[str]:
         if rotation < 0.1:
             direction = np.round(t_arm / np.linalg.norm(t_arm), 3)
             words.append(f"the camera position along the arm-frame direction {direction} is {what}")
+        elif translation < 0.1:
+            axis = np.round(r_arm / np.linalg.norm(r_arm), 3)
+            words.append(f"the camera rotation about the arm-frame axis {axis} is {what}")
         else:
             words.append(f"a combined rotation (arm-frame axis {np.round(r_arm, 3)}) and translation "
                          f"({np.round(t_arm, 3)}) of the camera is {what} (eigenvector {i})")

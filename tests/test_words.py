@@ -168,6 +168,10 @@ def test_a_poorly_determined_sigma_has_its_unit_mm_for_translation_degrees_for_r
     words = observability_words(rotation)[1]
     assert "poorly determined" in words and after(words, "1-sigma") == pytest.approx(np.degrees(0.2), rel=5e-3)
     assert re.search(r"1-sigma " + NUMBER + "°", words) and " mm" not in words
+    # a pure rotation is named as one, about its arm-frame axis (not "a combined rotation and translation [0 0 0]")
+    assert "camera rotation about the arm-frame axis" in words and "translation" not in words
+    printed = bracketed(words, "axis")
+    assert abs(printed @ POSE.rotation().matrix()[:, 0]) == pytest.approx(1.0, abs=2e-3)
 
 
 def test_a_poorly_determined_direction_that_mixes_rotation_and_translation_names_the_tangent_units():
