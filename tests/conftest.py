@@ -11,3 +11,15 @@ def reference_weighted():
     """The reference scene (seed 0, 10 s spins) and its ``weighted`` calibration: (dataset, truth, result)."""
     dataset, truth = simulate.reference_scene(seed=0, duration=10.0)
     return dataset, truth, calibrate(dataset, method="weighted")
+
+
+@pytest.fixture(scope="session")
+def noise_free_scene():
+    """Five noise-free 6 s spins of the reference scene (seed 1): (dataset, truth)."""
+    return simulate.reference_scene(seed=1, noise_var=0.0, duration=6.0, n_measurements=5)
+
+
+@pytest.fixture(scope="session")
+def noisy_scene():
+    """The reference scene at 1.5 px^2 pixel noise, six 12 s spins (seed 11): (dataset, truth)."""
+    return simulate.reference_scene(seed=11, noise_var=1.5, duration=12.0)
