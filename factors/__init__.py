@@ -16,7 +16,8 @@ Pixels are ideal (undistorted): ``u = pi(K X)``. Image lines are homogeneous ``l
 signed distance of pixel ``u`` is ``l . (u, 1)``. :func:`rot3_from_line` converts a metric camera-frame line into a
 line variable and the scale (camera-to-axis distance) that converts metric offsets and radii.
 
-Factories (thin ``gtsam.CustomFactor`` wrappers over the pure functions in :mod:`.geometry`):
+Factories (thin ``gtsam.CustomFactor`` wrappers over the pure functions in :mod:`.geometry` and
+:mod:`.circle_track`):
 
 - :func:`make_circle_point_factor` — one track's pixels vs. its projected circle (keys: line, circle); its maths is
   :class:`CircleTrack` (closed-form residuals and Jacobians, warm-started closest phases).
@@ -28,18 +29,23 @@ Factories (thin ``gtsam.CustomFactor`` wrappers over the pure functions in :mod:
   at phase ``theta_f + phi0_j`` with the spin angles ``theta_f`` shared by all tracks of the measurement
   (keys: line, track ``(d, r, phi0)``, spin-angle chunks); :func:`initial_spin` and :func:`spin_priors` start
   it and fix its gauge. Not used by the estimators yet.
+- :func:`make_coaxial_line_factor` (:mod:`.coaxial`) — all tracks of one measurement, their circles projected out
+  (key: line), over a :class:`CoaxialTracks`.
+
+Modules: :mod:`.geometry` (parametrisation, projection, image lines, projected circles, FK axis points);
+:mod:`.circle_track` (one track's certified closest phases, residuals and Jacobians) with :mod:`.ellipse` (the
+image conic's certificates); :mod:`.coaxial` (all tracks of a measurement at once, and the variable-projection line
+factor); the factor modules :mod:`.circle`, :mod:`.axis`, :mod:`.pose_circle` and :mod:`.rigid`.
 """
 
 from .axis import make_axis_to_line_factor, make_axis_to_line_variable_factor
 from .circle import make_circle_point_factor
+from .circle_track import CircleTrack, circle_point_residuals, closest_phases
 from .coaxial import CoaxialLineFactor, CoaxialTracks, make_coaxial_line_factor
 from .geometry import (
-    CircleTrack,
     axis_point_residuals,
     circle_coordinates,
-    circle_point_residuals,
     circle_points,
-    closest_phases,
     image_line_from_rot3,
     line_distance_covariance,
     line_distances,

@@ -2,8 +2,8 @@
 
 Keys: a ``gtsam.Rot3`` line variable (see :mod:`.geometry`) and a 2-vector circle variable ``(d, r)``.
 Residual (length N, one per pixel): the signed geometric pixel distance of each observed pixel to the projected
-circle, positive outside. The maths lives in :func:`.geometry.circle_point_residuals`; the factor evaluates it
-with a per-factor :class:`.geometry.CircleTrack`, which warm-starts each call's closest-phase search from the
+circle, positive outside. The maths lives in :func:`.circle_track.circle_point_residuals`; the factor evaluates
+it with a per-factor :class:`.circle_track.CircleTrack`, which warm-starts each call's closest-phase search from the
 previous call's phases (the result does not depend on it: see that class).
 
 Robust kernels: GTSAM's ``noiseModel.Robust`` evaluates its loss on the factor's *whole* Mahalanobis norm
@@ -16,7 +16,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from .geometry import CircleTrack
+from .circle_track import CircleTrack
 
 
 def checked_track(noise, pixels, K, residuals_per_pixel: int = 1) -> tuple[np.ndarray, np.ndarray]:

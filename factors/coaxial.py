@@ -1,7 +1,7 @@
 """All tracks of one measurement at once, and a variable-projection factor on the measurement's line variable.
 
-:class:`CoaxialTracks` evaluates the circle-point maths of :class:`.geometry.CircleTrack` (closest phases,
-residuals, Jacobians; see the comment above :func:`.geometry.projected_circle`) for every track of a measurement
+:class:`CoaxialTracks` evaluates the circle-point maths of :class:`.circle_track.CircleTrack` (closest phases,
+residuals, Jacobians; see the module docstring of :mod:`.circle_track`) for every track of a measurement
 in one go: the per-track coefficients are one small matrix product of monomials of the (m,) arrays ``d``, ``r``
 (see :meth:`CoaxialTracks._polynomials`), the pixels sit in a padded (rows, L) layout (a track fills one or more
 rows of L points; see :func:`_layout`), and the warm-started Halley iterations, the certificates and the Jacobians
@@ -56,7 +56,9 @@ from collections import OrderedDict
 import gtsam
 import numpy as np
 
-from .geometry import _RHO_MARGIN, COLD_GRID_SIZE, CircleTrack, _matrix, _phase_grid
+from .circle_track import COLD_GRID_SIZE, CircleTrack, _phase_grid
+from .ellipse import _RHO_MARGIN
+from .geometry import _matrix
 
 __all__ = ["CoaxialLineFactor", "CoaxialTracks", "make_coaxial_line_factor"]
 
@@ -272,7 +274,7 @@ class _Eval:
 class CoaxialTracks:
     """Closest phases, residuals and Jacobians of all tracks of one measurement against coaxial circles.
 
-    The same maths and results as one :class:`.geometry.CircleTrack` per track, vectorised across the tracks, and
+    The same maths and results as one :class:`.circle_track.CircleTrack` per track, vectorised across the tracks, and
     warm-started: the phases of the last call start the next call's Halley iterations. Pixels whose phase the
     cheap or the exact certificate does not certify go through CircleTrack's stage 1 (the nearest of
     ``COLD_GRID_SIZE`` phases, safeguarded Newton), vectorised too, and the few still uncertified through

@@ -6,7 +6,7 @@ camera frame by the pose, :func:`line_from_pose`. This is the joint model with t
 constraint: all three observable DOF of the axis (its image line *and* its tilt within the projection plane)
 inform the pose, and there is no stiff tie for the optimiser to crawl along.
 
-Residuals and the line Jacobian are :class:`.geometry.CircleTrack`'s (one factor per track, vectorised); the
+Residuals and the line Jacobian are :class:`.circle_track.CircleTrack`'s (one factor per track, vectorised); the
 pose Jacobian is chained through ``d(line)/d(pose)``.
 """
 
@@ -16,7 +16,8 @@ import gtsam
 import numpy as np
 
 from .circle import checked_track
-from .geometry import CircleTrack, skew
+from .circle_track import CircleTrack
+from .geometry import skew
 
 
 def line_from_pose(arm_T_camera: gtsam.Pose3, axis_point_arm, axis_direction_arm) -> tuple[np.ndarray, np.ndarray]:

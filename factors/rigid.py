@@ -243,7 +243,7 @@ def initial_spin(phases_by_track: Sequence[tuple], chunk_size: int = DEFAULT_CHU
                  refine_iterations: int = 3) -> SpinInit:
     """Consistent spin angles ``theta_f`` and phase offsets ``phi0_j`` from per-pixel phases.
 
-    The per-pixel phases ``p_i ≈ theta_{f_i} + phi0_j`` (e.g. :func:`.geometry.closest_phases` of each track on a
+    The per-pixel phases ``p_i ≈ theta_{f_i} + phi0_j`` (e.g. :func:`.circle_track.closest_phases` of each track on a
     solved free-phase model) are combined with circular means, so wraps by 2 pi anywhere are harmless. Tracks that
     share a frame are linked; in each connected component ``phi0`` of its first track is 0, the other tracks are
     placed one at a time (the one sharing most pixels with the frames placed so far first): ``phi0_j`` = circular
