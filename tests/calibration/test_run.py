@@ -1,23 +1,17 @@
-"""Estimators against ground truth they never see: noise-free, noisy, distorted, degenerate and broken scenes."""
+"""calibration.run: ``calibrate`` against ground truth it never sees: noise-free, noisy, distorted, degenerate
+and broken scenes; its arguments, measurements left out and named, the tracker's floor, the reasons not to trust a
+result."""
 
 import numpy as np
 import pytest
+from thin_tracks import _thin
 
-from gtsam_rotid import Camera, Dataset, InputError, Measurement, Track, estimate, simulate
-from gtsam_rotid.estimate import CalibrationError, CalibrationOptions, CalibrationResult, calibrate, initial_pose
+from gtsam_rotid import Camera, Dataset, InputError, Measurement, simulate
+from gtsam_rotid.estimate import CalibrationError, CalibrationOptions, CalibrationResult, calibrate
 from gtsam_rotid.simulate import SceneConfig
 from gtsam_rotid.words import observability_words, summary
 
 METHODS = ["joint", "weighted", "paper"]
-
-
-def test_initial_pose_needs_no_guess(noise_free_scene):
-    dataset, truth = noise_free_scene
-    pose = initial_pose(dataset.arm, dataset.camera, list(dataset))
-    error = truth.arm_T_camera.localCoordinates(pose)
-    # ellipse centres are not the projected circle centres, so the start is close but not exact
-    assert np.degrees(np.linalg.norm(error[:3])) < 10.0
-    assert np.linalg.norm(error[3:]) < 0.2
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -118,20 +112,6 @@ def test_single_crossing_is_reported_degenerate(single_crossing, method):
     assert "COVARIANCE UNUSABLE" in summary(result)
 
 
-@pytest.mark.parametrize("method", ["weighted", "joint"])
-def test_noisy_single_crossing_stays_near_its_start(method):
-    """With pixel noise the cost along the undetermined ray is not flat (the noisy image axes fit better the
-    farther the camera): LM used to slide the camera kilometres along it. The gauge prior keeps it where the
-    guess-free start put it, and the report still says that direction is undetermined."""
-    dataset, truth = simulate.single_crossing_scene(seed=0, duration=20.0)
-    result = calibrate(dataset, method=method)
-    assert not result.covariance_usable
-    (direction,) = result.observability.unobservable_directions
-    assert np.linalg.norm(direction[:3]) < 0.1  # a translation
-    # the start's depth comes from a weak regulariser: tens of cm off at worst (it was 48 km before the prior)
-    assert np.linalg.norm(result.arm_T_camera.translation() - truth.arm_T_camera.translation()) < 0.3
-
-
 def test_wrong_joint_angles_end_in_a_reported_poor_minimum():
     # 8 s spins (noise_free_scene's 6 s leave one measurement without an arc of 90 deg: the short-arc refits then
     # run on data no pose explains, 85 s per method)
@@ -171,44 +151,6 @@ def test_too_few_usable_measurements_names_them(noise_free_scene):
     with pytest.raises(InputError, match=r"got 2 of 4.*measurement 1: only 0 usable track\(s\).*too short "
                                          r"\(5 < 10 points\).*measurement 2: only 0"):
         calibrate(dataset.arm, dataset.camera, [measurements[0], *shorts, measurements[3]])
-
-
-def _thin(dataset, seed: int, n_tracks: int = 3, shortest: int = 20, longest: int = 90) -> Dataset:
-    """At most ``n_tracks`` tracks per measurement, each cut to a random arc of ``shortest``-``longest`` frames
-    (0.7-3 s at 30 fps: 20-86 degrees of a 0.5 rad/s spin): what a tracker that finds little texture keeps."""
-    rng = np.random.default_rng(seed)
-    measurements = []
-    for m in dataset:
-        tracks = list(m.tracks)
-        rng.shuffle(tracks)
-        cut = []
-        for t in tracks:
-            if len(t) < shortest:
-                continue
-            length = int(rng.integers(shortest, min(longest, len(t)) + 1))
-            first = int(rng.integers(0, len(t) - length + 1))
-            cut.append(Track(t.pixels[first:first + length], t.frames[first:first + length]))
-            if len(cut) == n_tracks:
-                break
-        measurements.append(Measurement(m.joint_angles, cut))
-    return Dataset(dataset.arm, dataset.camera, measurements, metadata=dataset.metadata)
-
-
-def test_a_poor_start_from_thin_tracks_names_the_tracking_first():
-    """When the start cannot fit the image axes and the measurements have few tracks of short arcs, the refusal
-    names them with their evidence and says to spin longer before it says to check the joint angles (the limit
-    is set below any fit here, to reach that refusal deterministically)."""
-    dataset, _ = simulate.reference_scene(seed=5, duration=20.0, noise_var=0.05)
-    thin = _thin(dataset, 5, n_tracks=3, shortest=20, longest=40)
-    with pytest.raises(CalibrationError) as raised:
-        calibrate(thin, options=estimate.CalibrationOptions(max_initial_rms_px=1e-6))
-    words = str(raised.value)
-    assert "initialisation ended in a poor minimum" in words
-    assert "the tracking is the likelier cause" in words and "measurement 0: 3 tracks, longest arc" in words
-    assert words.index("spin the wrist longer") < words.index("check joint angles")
-    # with the full tracks nothing is thin: the words stay with joints, intrinsics and tracks
-    with pytest.raises(CalibrationError, match="check joint angles, camera intrinsics and tracks"):
-        calibrate(dataset, options=estimate.CalibrationOptions(max_initial_rms_px=1e-6))
 
 
 @pytest.mark.parametrize("seed", [5, 8])
