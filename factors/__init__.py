@@ -34,14 +34,17 @@ Factories (thin ``gtsam.CustomFactor`` wrappers over the pure functions in :mod:
 
 Modules: :mod:`.geometry` (parametrisation, projection, image lines, projected circles, FK axis points);
 :mod:`.circle_track` (one track's certified closest phases, residuals and Jacobians) with :mod:`.ellipse` (the
-image conic's certificates); :mod:`.coaxial` (all tracks of a measurement at once, and the variable-projection line
-factor); the factor modules :mod:`.circle`, :mod:`.axis`, :mod:`.pose_circle` and :mod:`.rigid`.
+image conic's certificates); :mod:`.coaxial_tracks` (all tracks of a measurement at once) with
+:mod:`.coaxial_coefficients` (its per-track coefficient tables), :mod:`.coaxial_layout` (its padded pixel layout)
+and :mod:`.coaxial_solve` (the circles projected out); :mod:`.coaxial` (the variable-projection line factor); the
+factor modules :mod:`.circle`, :mod:`.axis`, :mod:`.pose_circle` and :mod:`.rigid`.
 """
 
 from .axis import make_axis_to_line_factor, make_axis_to_line_variable_factor
 from .circle import make_circle_point_factor
 from .circle_track import CircleTrack, circle_point_residuals, closest_phases
-from .coaxial import CoaxialLineFactor, CoaxialTracks, make_coaxial_line_factor
+from .coaxial import CoaxialLineFactor, make_coaxial_line_factor
+from .coaxial_tracks import CoaxialTracks
 from .geometry import (
     axis_point_residuals,
     circle_coordinates,
