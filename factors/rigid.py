@@ -260,6 +260,20 @@ def initial_spin(phases_by_track: Sequence[tuple], chunk_size: int = DEFAULT_CHU
     Returns:
         :class:`SpinInit` ``(theta, phi0, components, observed)``.
     """
+    tracks = _phasor_tracks(phases_by_track, chunk_size, first_frame)
+    n_frames = max((int(f.max()) + 1 for f, _ in tracks if len(f)), default=0)
+    components = _track_components(tracks, n_frames)
+    phi0 = _place_tracks(tracks, components, n_frames)
+    _refine_offsets(tracks, phi0, n_frames, refine_iterations)
+    theta, seen, phi0 = _spin_angles(tracks, components, phi0, n_frames)
+    theta_chunks, observed = _spin_chunks(tracks, theta, seen, n_frames, chunk_size)
+    return SpinInit(theta_chunks, phi0, components, observed)
+
+
+def _phasor_tracks(phases_by_track: Sequence[tuple], chunk_size: int,
+                   first_frame: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per track: its pixels' frames (relative to ``first_frame``) and the unit phasors ``exp(i p)`` of their
+    phases."""
     tracks = []
     for frames, phases in phases_by_track:
         ids, cols = spin_chunk_index(frames, chunk_size, first_frame)
@@ -267,11 +281,13 @@ def initial_spin(phases_by_track: Sequence[tuple], chunk_size: int = DEFAULT_CHU
         if len(phases) != len(ids):
             raise ValueError(f"{len(ids)} frames for {len(phases)} phases")
         tracks.append((ids * chunk_size + cols, np.exp(1j * phases)))
-    n_tracks = len(tracks)
-    n_frames = max((int(f.max()) + 1 for f, _ in tracks if len(f)), default=0)
+    return tracks
 
-    # Connected components of the track-frame graph (union-find on tracks).
-    parent = list(range(n_tracks))
+
+def _track_components(tracks: list, n_frames: int) -> list[list[int]]:
+    """Connected components of the track-frame graph (union-find on tracks): tracks linked by shared frames, each
+    ascending, ordered by first track."""
+    parent = list(range(len(tracks)))
 
     def find(a: int) -> int:
         while parent[a] != a:
@@ -287,11 +303,15 @@ def initial_spin(phases_by_track: Sequence[tuple], chunk_size: int = DEFAULT_CHU
                 parent[max(ra, rb)] = min(ra, rb)
         owner[f] = j
     groups: dict[int, list[int]] = {}
-    for j in range(n_tracks):
+    for j in range(len(tracks)):
         groups.setdefault(find(j), []).append(j)
-    components = sorted(groups.values(), key=lambda g: g[0])
+    return sorted(groups.values(), key=lambda g: g[0])
 
-    phi0 = np.zeros(n_tracks)
+
+def _place_tracks(tracks: list, components: list[list[int]], n_frames: int) -> np.ndarray:
+    """``phi0`` (J,) of the tracks placed one at a time per component (its first track at 0, then the one sharing
+    most pixels with the frames placed so far): the circular mean of ``p_i - theta_{f_i}`` over the shared frames."""
+    phi0 = np.zeros(len(tracks))
     Z = np.zeros(n_frames, dtype=complex)  # sum of unit phasors exp(i theta_f) from the placed tracks
     for comp in components:
         placed = [comp[0]]
@@ -305,19 +325,33 @@ def initial_spin(phases_by_track: Sequence[tuple], chunk_size: int = DEFAULT_CHU
             phi0[j] = np.angle(np.sum(z * np.conj(Z[f])))
             np.add.at(Z, f, z * np.exp(-1j * phi0[j]))
             placed.append(j)
+    return phi0
 
-    for _ in range(refine_iterations):
-        Z[:] = 0.0
-        for j, (f, z) in enumerate(tracks):
-            np.add.at(Z, f, z * np.exp(-1j * phi0[j]))
-        unit = np.exp(1j * np.angle(Z))
+
+def _phasor_sums(tracks: list, phi0: np.ndarray, n_frames: int) -> np.ndarray:
+    """Per frame, the sum over the tracks' pixels at that frame of ``exp(i (p_i - phi0_j))``."""
+    Z = np.zeros(n_frames, dtype=complex)
+    for j, (f, z) in enumerate(tracks):
+        np.add.at(Z, f, z * np.exp(-1j * phi0[j]))
+    return Z
+
+
+def _refine_offsets(tracks: list, phi0: np.ndarray, n_frames: int, iterations: int) -> None:
+    """Alternating circular means, ``phi0`` modified in place: ``theta_f`` over all pixels at ``f``, then each
+    ``phi0_j``."""
+    for _ in range(iterations):
+        unit = np.exp(1j * np.angle(_phasor_sums(tracks, phi0, n_frames)))
         for j, (f, z) in enumerate(tracks):
             if len(f):
                 phi0[j] = np.angle(np.sum(z * np.conj(unit[f])))
 
-    Z[:] = 0.0
-    for j, (f, z) in enumerate(tracks):
-        np.add.at(Z, f, z * np.exp(-1j * phi0[j]))
+
+def _spin_angles(tracks: list, components: list[list[int]], phi0: np.ndarray,
+                 n_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Spin angles ``theta`` (n_frames,) (per component unwrapped along the frames, unseen frames interpolated), the
+    mask of the frames seen, and ``phi0`` shifted per component to ``phi0`` of its first track = 0 (``phi0`` is
+    modified) and wrapped to [-pi, pi)."""
+    Z = _phasor_sums(tracks, phi0, n_frames)
     seen = np.abs(Z) > 0.0
     theta = np.angle(Z)
     for comp in components:
@@ -331,6 +365,12 @@ def initial_spin(phases_by_track: Sequence[tuple], chunk_size: int = DEFAULT_CHU
     seen_frames = np.flatnonzero(seen)
     if len(seen_frames):
         theta = np.interp(np.arange(n_frames), seen_frames, theta[seen_frames])
+    return theta, seen, phi0
+
+
+def _spin_chunks(tracks: list, theta: np.ndarray, seen: np.ndarray, n_frames: int,
+                 chunk_size: int) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
+    """``theta`` and the mask of the frames seen, cut into the chunks that some track touches."""
     touched = sorted({int(c) for f, _ in tracks for c in np.unique(f // chunk_size)})
     padded = np.zeros((touched[-1] + 1) * chunk_size if touched else 0)
     padded[:n_frames] = theta
@@ -338,7 +378,7 @@ def initial_spin(phases_by_track: Sequence[tuple], chunk_size: int = DEFAULT_CHU
     mask[:n_frames] = seen
     theta_chunks = {c: padded[c * chunk_size:(c + 1) * chunk_size].copy() for c in touched}
     observed = {c: mask[c * chunk_size:(c + 1) * chunk_size].copy() for c in touched}
-    return SpinInit(theta_chunks, phi0, components, observed)
+    return theta_chunks, observed
 
 
 def make_entries_prior(key: int, columns, mean, sigma: float) -> gtsam.CustomFactor:
