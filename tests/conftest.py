@@ -23,3 +23,9 @@ def noise_free_scene():
 def noisy_scene():
     """The reference scene at 1.5 px^2 pixel noise, six 12 s spins (seed 11): (dataset, truth)."""
     return simulate.reference_scene(seed=11, noise_var=1.5, duration=12.0)
+
+
+@pytest.fixture(scope="session")
+def single_crossing():
+    """Noise-free 6 s spins whose wrist axes all pass through one point (seed 0): (dataset, truth)."""
+    return simulate.single_crossing_scene(seed=0, noise_var=0.0, duration=6.0)

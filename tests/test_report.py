@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from gtsam_rotid import Line3, simulate
+from gtsam_rotid import Line3
 from gtsam_rotid.cli import add_report_parser
 from gtsam_rotid.errors import OutputError
 from gtsam_rotid.estimate import calibrate
@@ -28,8 +28,8 @@ def reference(reference_weighted):
 
 
 @pytest.fixture(scope="module")
-def crossing():
-    dataset, truth = simulate.single_crossing_scene(seed=0, duration=6.0, noise_var=0.0)
+def crossing(single_crossing):
+    dataset, truth = single_crossing
     return dataset, truth, calibrate(dataset, method="weighted")
 
 

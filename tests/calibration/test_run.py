@@ -85,11 +85,6 @@ def test_noisy_error_within_reported_uncertainty(noisy_scene, method):
     assert np.all(result.sigma_mm_arm < 5.0) and np.all(result.sigma_deg < 0.2)
 
 
-@pytest.fixture(scope="module")
-def single_crossing():
-    return simulate.single_crossing_scene(seed=0, noise_var=0.0, duration=6.0)
-
-
 @pytest.mark.parametrize("method", METHODS)
 def test_single_crossing_is_reported_degenerate(single_crossing, method):
     dataset, truth = single_crossing
