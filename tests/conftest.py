@@ -1,9 +1,12 @@
 """Scenes shared by several test modules, built once per session (results are not mutated by the tests)."""
 
 import pytest
+from scene_parameters import DEMO_DURATION, DEMO_N_MEASUREMENTS
 
 from gtsam_rotid import simulate
 from gtsam_rotid.calibration import calibrate
+from gtsam_rotid.demo import run_demo
+from gtsam_rotid.render import RenderConfig
 
 
 @pytest.fixture(scope="session")
@@ -29,3 +32,15 @@ def noisy_scene():
 def single_crossing():
     """Noise-free 6 s spins whose wrist axes all pass through one point (seed 0): (dataset, truth)."""
     return simulate.single_crossing_scene(seed=0, noise_var=0.0, duration=6.0)
+
+
+@pytest.fixture(scope="session")
+def demo(tmp_path_factory):
+    """One short rendered scene (scene_parameters.DEMO_*) run through ``run_demo``: (output directory, DemoRun,
+    printed text). Read by test_pixels.py and test_demo.py."""
+    out = tmp_path_factory.mktemp("demo")
+    lines: list[str] = []
+    run = run_demo(out, duration=DEMO_DURATION, n_measurements=DEMO_N_MEASUREMENTS, progress=False,
+                   render_config=RenderConfig(),  # the dotted cylinder, whose dots are matched to their true centres
+                   print=lambda *args, **kwargs: lines.append(" ".join(str(a) for a in args)))
+    return out, run, "\n".join(lines)

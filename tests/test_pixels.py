@@ -1,36 +1,21 @@
 """Tests of gtsam_rotid.pixels: rendered video -> tracks -> calibration, against the simulator's ground truth.
 
 One short rendered scene (four 8 s spins of the reference scene, ~1000 frames) runs through :func:`run_demo` once
-per module; the tests read its outputs.
+per session (the ``demo`` fixture, tests/conftest.py, shared with test_demo.py); the tests read its outputs.
 """
 
 from __future__ import annotations
 
-import json
-
-import cv2
 import numpy as np
 import pytest
+from scene_parameters import DEMO_DURATION as DURATION
+from scene_parameters import DEMO_N_MEASUREMENTS as N_MEASUREMENTS
 
-from gtsam_rotid import Dataset, OutputError, Track
-from gtsam_rotid.demo import demo_files, run_demo
-from gtsam_rotid.estimate import CalibrationResult
+from gtsam_rotid import Track
 from gtsam_rotid.pixels import TrackingAccuracy, tracking_accuracy
-from gtsam_rotid.render import RenderConfig
 
 #: 99.9 % point of the chi-square distribution with 6 degrees of freedom.
 CHI2_999_6DOF = 22.458
-N_MEASUREMENTS, DURATION = 4, 8.0
-
-
-@pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    out = tmp_path_factory.mktemp("demo")
-    lines: list[str] = []
-    run = run_demo(out, duration=DURATION, n_measurements=N_MEASUREMENTS, progress=False,
-                   render_config=RenderConfig(),  # the dotted cylinder, whose dots are matched to their true centres
-                   print=lambda *args, **kwargs: lines.append(" ".join(str(a) for a in args)))
-    return out, run, "\n".join(lines)
 
 
 # ---------------------------------------------------------------------------------------------- pixels -> pose
@@ -81,43 +66,6 @@ def test_stage1_keeps_the_trackers_good_tracks(demo):
     assert len(for_fit) <= 0.05 * sum(len(m.tracks) for m in dataset), for_fit
     for m in result.measurements:
         assert m.n_tracks + len(m.rejected_tracks) == len(dataset[m.index].tracks)
-
-
-# ---------------------------------------------------------------------------------------------- the demo's files
-def test_demo_prints_the_result_and_its_true_error(demo):
-    _, _, text = demo
-    assert "arm_T_camera (joint" in text
-    assert "error vs truth" in text and "Mahalanobis chi2" in text
-    assert "RMS" in text and "frames" in text
-
-
-def test_demo_writes_dataset_result_and_one_overlay_per_measurement(demo):
-    out, run, _ = demo
-    files = demo_files(out, N_MEASUREMENTS)
-    loaded = Dataset.load(files["dataset"])
-    assert len(loaded) == N_MEASUREMENTS
-    assert loaded.n_observations == run.scene.dataset.n_observations
-    assert all(t.frames is not None for m in loaded for t in m.tracks)
-    assert (files["dataset"] / "truth.json").is_file()
-    result = CalibrationResult.load(files["result"])
-    assert np.allclose(result.arm_T_camera.matrix(), run.result.arm_T_camera.matrix())
-    assert "RMS" in files["tracking"].read_text()
-    assert len(files["overlays"]) == N_MEASUREMENTS
-    for path in files["overlays"]:
-        image = cv2.imread(str(path))
-        assert image is not None and image.shape[0] > 400 and image.shape[1] > 400
-        assert image.std() > 10  # a picture, not a blank canvas
-    assert set(run.paths) >= set(files["overlays"])
-    json.loads(files["result"].read_text())
-
-
-def test_demo_refuses_existing_output_before_any_work(tmp_path):
-    (tmp_path / "result.json").write_text("{}")
-    with pytest.raises(OutputError, match="result.json exists"):
-        run_demo(tmp_path, duration=1.0, n_measurements=3, progress=False, print=lambda *a, **k: None)
-    (tmp_path / "file").write_text("")
-    with pytest.raises(OutputError, match="not a directory"):
-        run_demo(tmp_path / "file", progress=False, print=lambda *a, **k: None)
 
 
 # ---------------------------------------------------------------------------------------------- accuracy helper

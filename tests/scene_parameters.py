@@ -1,0 +1,5 @@
+"""Parameters of the session scenes in conftest.py that tests read too (one place, so a scene and what its tests
+expect of it cannot drift apart)."""
+
+#: the ``demo`` run shared by test_pixels.py and test_demo.py: four 8 s spins of the reference scene (~1000 frames)
+DEMO_N_MEASUREMENTS, DEMO_DURATION = 4, 8.0
