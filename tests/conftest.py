@@ -1,7 +1,7 @@
 """Scenes shared by several test modules, built once per session (results are not mutated by the tests)."""
 
 import pytest
-from scene_parameters import DEMO_DURATION, DEMO_N_MEASUREMENTS
+from scene_parameters import DEMO_DURATION, DEMO_N_MEASUREMENTS, REFERENCE_8S_NOISE_VAR
 
 from gtsam_rotid import simulate
 from gtsam_rotid.calibration import calibrate
@@ -13,6 +13,14 @@ from gtsam_rotid.render import RenderConfig
 def reference_weighted():
     """The reference scene (seed 0, 10 s spins) and its ``weighted`` calibration: (dataset, truth, result)."""
     dataset, truth = simulate.reference_scene(seed=0, duration=10.0)
+    return dataset, truth, calibrate(dataset, method="weighted")
+
+
+@pytest.fixture(scope="session")
+def reference_8s_weighted():
+    """The reference scene (seed 1, 8 s spins, scene_parameters.REFERENCE_8S_NOISE_VAR) and its ``weighted``
+    calibration: (dataset, truth, result). Read by test_plots.py and test_fits.py."""
+    dataset, truth = simulate.reference_scene(seed=1, duration=8.0, noise_var=REFERENCE_8S_NOISE_VAR)
     return dataset, truth, calibrate(dataset, method="weighted")
 
 

@@ -1,4 +1,4 @@
-"""Plots: figures are drawn headless (Agg), the fitted circles match the simulated noise, files are not replaced."""
+"""Plots: figures are drawn headless (Agg), files are not replaced (the fitted circles they draw: test_fits.py)."""
 
 import dataclasses
 import io
@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from gtsam_rotid import InputError, simulate
+from gtsam_rotid import InputError
 from gtsam_rotid.errors import OutputError
-from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.plots import (
     fit_tracks,
     plot_angular_errors,
@@ -23,34 +22,16 @@ from gtsam_rotid.plots import (
 )
 from gtsam_rotid.uncertainty import analyse_observability
 
-NOISE_VAR = 1.5
-
 
 @pytest.fixture(scope="module")
-def reference():
-    dataset, truth = simulate.reference_scene(seed=1, duration=8.0, noise_var=NOISE_VAR)
-    return dataset, truth, calibrate(dataset, method="weighted")
+def reference(reference_8s_weighted):
+    return reference_8s_weighted
 
 
 def png_bytes(fig: Figure) -> bytes:
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=40)
     return buffer.getvalue()
-
-
-def test_fitted_circles_explain_the_tracks_at_the_simulated_noise(reference):
-    dataset, truth, result = reference
-    fit = fit_tracks(result, dataset, 0)
-    kept = set(range(dataset[0].n_tracks)) - set(result.measurements[0].rejected_tracks)
-    assert set(fit.circles) == kept
-    rms = np.sqrt(np.mean(fit.all_residuals**2))
-    # the residuals are pixel noise (sigma^2 = 1.5 px^2), less the 2 fitted parameters per track
-    assert rms == pytest.approx(np.sqrt(NOISE_VAR), rel=0.1)
-    # each circle's radius (unit: camera-to-axis distance) matches its feature's true radius
-    axis = truth.measurements[0].axis
-    distance = axis.distance_to(truth.arm_T_camera.translation())[0]
-    for j, (_, r) in fit.circles.items():
-        assert r * distance == pytest.approx(truth.measurements[0].tracks[j].radius, rel=0.05)
 
 
 def test_tracks_and_residual_figures(reference):
