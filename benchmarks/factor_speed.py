@@ -4,7 +4,7 @@ Builds one circle-point factor per track (as :class:`gtsam_rotid.graph.RotIdGrap
 ``arm_T_camera``; the projected-axis ties are left out) and times ``graph.error`` and ``graph.linearize`` of all
 of them for several variants of the same factor:
 
-- ``warm``: the library factor (warm-started closest phases, see ``factors/geometry.py`` ``CircleTrack``);
+- ``warm``: the library factor (warm-started closest phases, see ``factors/circle_track.py`` ``CircleTrack``);
 - ``cold``: the library factor with ``warm_start=False`` (ray-plane start + certificate + grid fallback, every call);
 - ``reference``: the original implementation (72-phase grid + 8 Newton steps every call),
   ``tests/factors/reference_circle.py``;

@@ -41,7 +41,6 @@ from collections import OrderedDict
 import gtsam
 import numpy as np
 
-from .coaxial_layout import _Layout as _Layout  # re-exported: tests/factors/test_coaxial.py patches it here
 from .coaxial_solve import CIRCLE_TOL, _inverse2, project_circles
 from .coaxial_tracks import CoaxialTracks
 

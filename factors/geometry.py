@@ -22,9 +22,6 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-# re-exported: tests/factors/test_circle_track.py imports it from here (it moved to .ellipse)
-from .ellipse import _Ellipse as _Ellipse
-
 
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrices: (..., 3) -> (..., 3, 3) with ``skew(a) @ b == cross(a, b)``."""

@@ -1,6 +1,6 @@
 """The original (pre-optimisation) circle-point maths, kept verbatim as a slow reference.
 
-:mod:`gtsam_rotid.factors.geometry` evaluates the same residuals and Jacobians with a warm-started, closed-form
+:mod:`gtsam_rotid.factors.circle_track` evaluates the same residuals and Jacobians with a warm-started, closed-form
 solver; the tests compare the two, and ``benchmarks/factor_speed.py`` times both. Not used by the library.
 """
 

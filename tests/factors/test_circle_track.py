@@ -19,7 +19,7 @@ from gtsam_rotid.factors import (
     project,
     projected_circle,
 )
-from gtsam_rotid.factors.geometry import _Ellipse
+from gtsam_rotid.factors.ellipse import _Ellipse
 
 K_SKEW = np.array([[560.0, 1.5, 330.0], [0.0, 580.0, 250.0], [0.0, 0.0, 1.0]])
 DENSE = np.linspace(-np.pi, np.pi, 100_000, endpoint=False)

@@ -15,6 +15,7 @@ from gtsam.symbol_shorthand import C, L
 from gtsam.utils.numerical_derivative import numericalDerivative11
 
 import gtsam_rotid.factors.coaxial as coaxial_module
+import gtsam_rotid.factors.coaxial_layout as layout_module
 from gtsam_rotid.dataset import Track
 from gtsam_rotid.factors import (
     CircleTrack,
@@ -230,8 +231,8 @@ def test_nearly_edge_on_tracks_with_pixels_inside(rng):
 def test_evaluating_a_subset_of_tracks(rng, monkeypatch):
     """Evaluating only some tracks (the others keep the last evaluation, at the same line) gives the full result."""
     subsets = []
-    original = coaxial_module._Layout.subset
-    monkeypatch.setattr(coaxial_module._Layout, "subset", lambda self, sel: subsets.append(sel) or original(self, sel))
+    original = layout_module._Layout.subset
+    monkeypatch.setattr(layout_module._Layout, "subset", lambda self, sel: subsets.append(sel) or original(self, sel))
     R = random_line_rot3(rng).matrix()
     tracks, d, r = random_tracks(rng, K_NOMINAL, R, [25, 60, 0, 33, 48, 7])
     coaxial = CoaxialTracks(K_NOMINAL, tracks, row_length=20)
