@@ -130,9 +130,35 @@ def initial_pose(arm: Arm, camera: Camera, measurements: list[Measurement],
     return _initial(arm, camera, measurements, options)[0][0]
 
 
-def _initial(arm, camera, measurements, options, index=None) -> tuple[list[gtsam.Pose3], _Setup, list[gtsam.Pose3]]:
+def axis_miss_rms(camera: Camera, setup: _Setup, lines, pose: gtsam.Pose3, options) -> tuple[gtsam.Pose3, float]:
+    """The pose (LM from ``pose``) that fits the FK axes to the image ``lines`` unweighted, and how far they miss
+    there (px RMS over the test points)."""
+    unit = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(setup.axes)
+    fitted, error, _, _ = _best_stage2(_stage2_graph(setup.axes, lines, camera.K, unit), [pose], options)
+    return fitted, float(np.sqrt(2.0 * error / (2 * len(setup.axes))))
+
+
+def poor_start(setup: _Setup, rms: float, options, what: str = "image axes") -> CalibrationError:
+    """The refusal of a start whose FK axes miss the ``what`` by ``rms`` px RMS: the tracking named first where
+    measurements have few tracks of short arcs."""
+    thin = [f"measurement {setup.index[k]}: {len(p.usable)} tracks, longest arc {setup.turning[k]:.0f}°"
+            for k, p in enumerate(setup.prepared) if len(p.usable) < WEAK_MANY_TRACKS
+            and setup.turning[k] < WEAK_ARC_DEG]
+    first = ("; the tracking is the likelier cause: these measurements have few tracks and short arcs ("
+             + "; ".join(thin) + "), so their image axes can be far off: "
+             "spin the wrist longer (a full turn or more) or give the hand more texture, then check joint "
+             "angles and camera intrinsics") if thin else "; check joint angles, camera intrinsics and tracks"
+    return CalibrationError(f"initialisation ended in a poor minimum: the FK axes miss the {what} by {rms:.1f} px "
+                            f"RMS (limit {options.max_initial_rms_px} px)" + first)
+
+
+def _initial(arm, camera, measurements, options, index=None, tolerance: float = 1.0
+             ) -> tuple[list[gtsam.Pose3], _Setup, list[gtsam.Pose3]]:
     """Starting poses (one, or a pose and its twin when the image axes cannot tell them apart), the setup, and
-    per start the candidate it came from (before LM: the anchor of :func:`_gauge_prior`)."""
+    per start the candidate it came from (before LM: the anchor of :func:`_gauge_prior`). A start whose FK axes
+    miss the image axes through the ellipse centres by more than ``tolerance`` times ``max_initial_rms_px`` is
+    refused (:func:`poor_start`); ``calibrate`` allows more here and checks again against stage 1's coaxial fits,
+    which are far better where arcs are short."""
     setup = _setup(arm, camera, measurements, options)
     if index is not None:
         setup.index = list(index)
@@ -147,17 +173,8 @@ def _initial(arm, camera, measurements, options, index=None) -> tuple[list[gtsam
     minima = sorted(_stage2_minima(graph, candidates, options), key=lambda m: m[1])
     pose, error, _, best = minima[0]
     rms = np.sqrt(2.0 * error / (2 * len(setup.axes)))
-    if rms > options.max_initial_rms_px:
-        thin = [f"measurement {setup.index[k]}: {len(p.usable)} tracks, longest arc {setup.turning[k]:.0f}°"
-                for k, p in enumerate(setup.prepared) if len(p.usable) < WEAK_MANY_TRACKS
-                and setup.turning[k] < WEAK_ARC_DEG]
-        first = ("; the tracking is the likelier cause: these measurements have few tracks and short arcs ("
-                 + "; ".join(thin) + "), so their image axes (through the ellipses' centres) can be far off: "
-                 "spin the wrist longer (a full turn or more) or give the hand more texture, then check joint "
-                 "angles and camera intrinsics") if thin else "; check joint angles, camera intrinsics and tracks"
-        raise CalibrationError(
-            f"initialisation ended in a poor minimum: the FK axes miss the image axes by {rms:.1f} px RMS "
-            f"(limit {options.max_initial_rms_px} px)" + first)
+    if rms > tolerance * options.max_initial_rms_px:
+        raise poor_start(setup, rms, options, "image axes (through the ellipses' centres)")
     # Other minima that explain the image axes about as well are kept for the circles to decide: with three
     # measurements the image axes give exactly six equations, which have several exact solutions.
     starts, anchors = [pose], [candidates[best]]

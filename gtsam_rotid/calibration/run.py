@@ -13,7 +13,7 @@ from ..arm import Arm
 from ..camera import Camera
 from ..dataset import Dataset, Measurement
 from ..errors import InputError
-from .initial import _initial
+from .initial import _initial, axis_miss_rms, poor_start
 from .joint import _common_chi2, _joint, _weighted
 from .lm import _builder, _turned
 from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method
@@ -22,6 +22,7 @@ from .setup import _Setup, arc_span_deg
 from .stage2 import _check_scale, _paper, _refined_stage1
 from .tuning import (
     CHI2_6_999,
+    INITIAL_TOLERANCE,
     LONG_ARC_CONSISTENCY_P,
     MAX_CONSISTENCY_SCALE,
     MAX_RELATIVE_SIGMA,
@@ -125,7 +126,7 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
 
 
 def _calibrate(arm, camera, measurements, method, options, index) -> tuple[CalibrationResult, _Setup]:
-    starts, setup, anchors = _initial(arm, camera, measurements, options, index)
+    starts, setup, anchors = _initial(arm, camera, measurements, options, index, INITIAL_TOLERANCE)
     # Short arcs (a tracker's drift shared by a measurement's tracks, which neither the per-track scores nor the
     # jackknife see) lower the level at which the axes' scatter scales the covariance: the test has 2 n - 6
     # dof, little power with six poses (18 rendered corner-tracked scenes: at 0.01 three of nine usable results
@@ -137,6 +138,7 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
                           else LONG_ARC_CONSISTENCY_P)
     runs = [_refined_stage1(arm, camera, measurements, start, setup, options, anchor)
             for start, anchor in zip(starts, anchors, strict=True)]
+    runs, anchors = _close_enough(camera, setup, runs, anchors, options)
     alternatives = []
     if len(runs) > 1:  # the image axes cannot choose between the starts: the joint fit of the circles does
         joints, failures = [], []
@@ -161,6 +163,16 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
     return replace(result, alternatives=alternatives,
                    joint_sigma_deg=0.0 if method is Method.PAPER else options.joint_sigma_deg,
                    axis_floor_px=0.0 if method is Method.PAPER else setup.floor_px), setup
+
+
+def _close_enough(camera, setup: _Setup, runs, anchors, options) -> tuple[list, list]:
+    """The runs (start, stage 1) whose FK axes, fitted to stage 1's image axes, miss them by at most
+    ``max_initial_rms_px`` (RMS), with their anchors; refused (:func:`poor_start`) when none does."""
+    misses = [axis_miss_rms(camera, setup, [s.line for s in stage1], start, options)[1] for start, stage1 in runs]
+    keep = [i for i, miss in enumerate(misses) if miss <= options.max_initial_rms_px]
+    if not keep:
+        raise poor_start(setup, min(misses), options, "stage-1 image axes (coaxial circles fitted to the tracks)")
+    return [runs[i] for i in keep], [anchors[i] for i in keep]
 
 
 def _same_solution(result: CalibrationResult, pose: gtsam.Pose3) -> bool:

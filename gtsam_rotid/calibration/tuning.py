@@ -28,6 +28,12 @@ TIE_PX2 = 0.5
 SAME_ANGLE_DEG = 1.0
 #: 99.9 % point of chi-square with 6 dof.
 CHI2_6_999 = 22.457744484825326
+#: ``calibrate`` refuses a start whose FK axes miss the image axes through the ellipse centres by more than this
+#: multiple of ``CalibrationOptions.max_initial_rms_px`` at once; below it, only if they still miss stage 1's
+#: coaxial image axes by more than ``max_initial_rms_px``. Ellipse centres of short arcs are far off the axis
+#: (two rendered Jaco2 text scenes were refused at 27 and 32 px, one of them 0.84 mm from the truth, chi-square
+#: 0.52, when let through); beyond a few times the limit the inputs themselves are wrong.
+INITIAL_TOLERANCE = 4.0
 #: At most this many starts (the best, other minima of the image-axis fit, the twin) go on to the circle fits.
 MAX_STARTS = 4
 #: The image-axis (stage-2) graphs hold the pose near the start along directions whose information is below this
