@@ -53,7 +53,7 @@ class Problem:
                                             prepared=prepared, refine_circles=refine)
         self.tracks = [prepared.usable[j].ideal for j in self.keys.tracks]
         self.circles = np.array([self.values.atVector(c) for c in self.keys.circles])
-        self.line = self.values.atRot3(self.keys.line)
+        self.line = self.values.atRot3(self.keys.line_key)
         self.K = builder.camera.K
         self.n_points = sum(len(t) for t in self.tracks)
         self.corners = np.array([np.min([t.min(axis=0) for t in self.tracks], axis=0),
@@ -61,19 +61,19 @@ class Problem:
 
     def vp(self):
         """A fresh VP factor and its graph and values."""
-        factor = make_coaxial_line_factor(self.keys.line, self.tracks, self.K, self.circles)
+        factor = make_coaxial_line_factor(self.keys.line_key, self.tracks, self.K, self.circles)
         graph = gtsam.NonlinearFactorGraph()
         graph.add(factor.factor)
         values = gtsam.Values()
-        values.insert(self.keys.line, self.line)
+        values.insert(self.keys.line_key, self.line)
         return factor, graph, values
 
     def stepped(self, rng: np.random.Generator, scale: float) -> tuple[gtsam.Values, gtsam.Values]:
         """(per-track values, VP values) after the same random step of the line (and of the circles)."""
         line = self.line.retract(rng.normal(scale=scale, size=3))
         full, vp = gtsam.Values(), gtsam.Values()
-        full.insert(self.keys.line, line)
-        vp.insert(self.keys.line, line)
+        full.insert(self.keys.line_key, line)
+        vp.insert(self.keys.line_key, line)
         for key, (d, r) in zip(self.keys.circles, self.circles, strict=True):
             full.insert(key, np.array([d + scale * abs(r) * rng.normal(), r * (1.0 + scale * rng.normal())]))
         return full, vp
@@ -112,7 +112,7 @@ def time_passes(problems, repeats: int, step: float) -> None:
         for p, (factor, graph, _), (full, vp) in zip(problems, vps, steps, strict=True):
             timed("per-track error", p.graph.error, full)
             timed("VP error (incl. circle solve)", graph.error, vp)
-            line = vp.atRot3(p.keys.line)
+            line = vp.atRot3(p.keys.line_key)
             d, r = factor.circles(line).T
             timed("CoaxialTracks.evaluate (one pass, no solve)", factor.tracks.evaluate, line, d * (1.0 + 1e-9), r,
                   jacobians=True)
@@ -146,7 +146,7 @@ def watched_lm(graph, values, p: Problem, watch: bool) -> tuple[gtsam.Values, in
         return optimizer.optimize(), optimizer.iterations()
 
     def image_axis(v):
-        line, _ = image_line_from_rot3(p.K, v.atRot3(p.keys.line))
+        line, _ = image_line_from_rot3(p.K, v.atRot3(p.keys.line_key))
         return line_distances(line, p.corners)
 
     n_residuals = sum(graph.at(i).dim() for i in range(graph.size()))
@@ -178,8 +178,8 @@ def stage1(problems, repeats: int, watch: bool) -> list[tuple[gtsam.Rot3, np.nda
             vp, vp_iterations = watched_lm(graph, values, p, watch)
             vp_seconds.append(time.perf_counter() - start)
         sigma = float(np.sqrt(2.0 * graph.error(vp) / max(p.n_points - 3 - 2 * len(p.tracks), 1)))
-        results.append((vp.atRot3(p.keys.line), factor.circles(vp), sigma))
-        difference = np.linalg.norm(full.atRot3(p.keys.line).localCoordinates(vp.atRot3(p.keys.line)))
+        results.append((vp.atRot3(p.keys.line_key), factor.circles(vp), sigma))
+        difference = np.linalg.norm(full.atRot3(p.keys.line_key).localCoordinates(vp.atRot3(p.keys.line_key)))
         details.append((best(full_seconds), full_iterations, best(vp_seconds), vp_iterations,
                         factor.solves, factor.work, difference, p.graph.error(full), graph.error(vp)))
     how = "stops when the image axis stops moving, as estimate.py" if watch else "relative tolerance 1e-8 only"
@@ -219,10 +219,10 @@ def joint(dataset, problems, stage1_results, pose: gtsam.Pose3, repeats: int) ->
         values.insert(pose_key, pose)
         factors = []
         for p, keys, circles, sigma in parts:
-            factor = make_coaxial_line_factor(keys.line, p.tracks, p.K, circles, sigma_px=sigma, robust=track_huber)
+            factor = make_coaxial_line_factor(keys.line_key, p.tracks, p.K, circles, sigma_px=sigma, robust=track_huber)
             graph.add(factor.factor)
             graph.add(full_graph.at(keys.tie_factor))
-            values.insert(keys.line, full_values.atRot3(keys.line))
+            values.insert(keys.line_key, full_values.atRot3(keys.line_key))
             factors.append(factor)
         graph.add(anchor)
         return graph, values, factors

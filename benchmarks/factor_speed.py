@@ -55,7 +55,7 @@ def build_problem(seed: int):
         keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=truth.arm_T_camera, tie=False)
         for circle_key, j in zip(keys.circles, keys.tracks, strict=True):
             ideal = dataset.camera.undistort_pixels(Track.from_any(measurement.tracks[j]).pixels)
-            tracks.append((keys.line, circle_key, ideal))
+            tracks.append((keys.line_key, circle_key, ideal))
     return dataset.camera.K, tracks, values
 
 

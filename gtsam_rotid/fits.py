@@ -50,8 +50,8 @@ def fit_tracks(result, dataset, k: int, max_iterations: int = 30) -> TrackFit:
                                        skip_tracks=skip)
     except (InputError, ValueError) as exc:  # too few tracks, or the axis through the camera centre
         return TrackFit(k, None, problem=str(exc))
-    line = values.atRot3(keys.line)
-    graph.add(gtsam.NonlinearEqualityRot3(keys.line, line))
+    line = values.atRot3(keys.line_key)
+    graph.add(gtsam.NonlinearEqualityRot3(keys.line_key, line))
     fitted = gtsam.LevenbergMarquardtOptimizer(graph, values, lm_params(max_iterations, 1e-6)).optimize()
     fit = TrackFit(k, line)
     prepared = builder.prepare(measurement, k)

@@ -141,7 +141,7 @@ class MeasurementKeys:
     """What :meth:`RotIdGraph.add_measurement` made for one measurement."""
 
     index: int
-    line: int | None  # None in the pose-bound model (no line variable)
+    line_key: int | None  # the key of the line variable (a Rot3); None in the pose-bound model (none)
     circles: list[int]
     tracks: list[int]  # track index (in the measurement) of each circle
     circle_factors: list[int]  # factor index in the graph of each track's circle-point factor
@@ -393,8 +393,8 @@ def _commit(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, factors: li
     for factor in factors:
         graph.add(factor)
         keys.circle_factors.append(graph.size() - 1)
-    if keys.line is not None:
-        new_values.insert(keys.line, line_cam)
+    if keys.line_key is not None:
+        new_values.insert(keys.line_key, line_cam)
     values.insert(new_values)
 
 

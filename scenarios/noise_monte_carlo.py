@@ -126,8 +126,8 @@ def stage1_line_bounds(dataset, truth, noise_var: float) -> np.ndarray:
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False,
                                        initial_circles=circles, refine_circles=False)
-        info = marginal_information(graph, values, keys.line, 3)
-        line, J = image_line_from_rot3(dataset.camera.K, values.atRot3(keys.line))
+        info = marginal_information(graph, values, keys.line_key, 3)
+        line, J = image_line_from_rot3(dataset.camera.K, values.atRot3(keys.line_key))
         cov_line = J @ np.linalg.inv(info) @ J.T
         G = mb_jacobian(line)
         out.append(G @ cov_line @ G.T)

@@ -90,8 +90,9 @@ def scene(verdict, name, dataset, truth, rng, ray=None):
     print(f"  CAD prior: {np.linalg.norm(position_error_mm(cad_pose, truth.arm_T_camera)):.2f} mm and "
           f"{rotation_error_deg(cad_pose, truth.arm_T_camera):.3f} deg from the truth (1σ 10 mm, 1 deg per axis)")
     fused, covariance, n_factors, keys0, builder, graph, values = fuse(dataset, start, cad_pose)
-    print(f"  fused graph: {n_factors} factors; measurement 0 made line key {gtsam.DefaultKeyFormatter(keys0.line)} "
-          f"and {len(keys0.circles)} circle keys ({gtsam.DefaultKeyFormatter(keys0.circles[0])}, ...)")
+    print(f"  fused graph: {n_factors} factors; measurement 0 made line key "
+          f"{gtsam.DefaultKeyFormatter(keys0.line_key)} and {len(keys0.circles)} circle keys "
+          f"({gtsam.DefaultKeyFormatter(keys0.circles[0])}, ...)")
     if covariance is None:
         verdict.check(False, f"{name}: the fused graph has a covariance")
         return None

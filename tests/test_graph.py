@@ -43,7 +43,7 @@ def test_builder_fuses_with_a_cad_prior(scene, model):
     made = [builder.add_measurement(graph, values, k, m) for k, m in enumerate(dataset)]
     # the builder made its own keys (no line variables in the pose-bound model) and left the user's alone
     for keys in made:
-        assert (keys.line is None) == (model == "pose")
+        assert (keys.line_key is None) == (model == "pose")
         assert all(gtsam.Symbol(c).chr() == ord("b") for c in keys.circles)
         if model == "projected":  # one factor for all tracks, on the line only: no circle variables
             assert keys.circles == [] and len(keys.circle_factors) == 1 and keys.coaxial is not None

@@ -163,13 +163,13 @@ def _initial(arm, camera, measurements, options, index=None, tolerance: float = 
     if index is not None:
         setup.index = list(index)
     K = camera.K
-    normals = np.array([plane_normal(K, line) for line in setup.lines])
+    normals = np.array([plane_normal(K, line) for line in setup.centre_axes])
     candidates = pose_candidates(normals, setup.axes, n_best=options.n_candidates)
     if not candidates:
         raise CalibrationError("no pose candidate puts the wrist in front of the camera; check the joint angles "
                                "and that the tracks belong to the wrist")
     unit = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(setup.axes)
-    graph = _stage2_graph(setup.axes, setup.lines, K, unit)
+    graph = _stage2_graph(setup.axes, setup.centre_axes, K, unit)
     minima = sorted(_stage2_minima(graph, candidates, options), key=lambda m: m[1])
     pose, error, _, best = minima[0]
     rms = np.sqrt(2.0 * error / (2 * len(setup.axes)))

@@ -163,7 +163,7 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
                     setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
                     prepared=setup.prepared[k], initial_circles=circles[k], initial_line=lines[k],
                     refine_circles=circles[k] is None, tie_covariance=setup.tie_covariance(
-                        camera, k, stage1[k].line, pose)) for k in used}
+                        camera, k, stage1[k].image_axis, pose)) for k in used}
         start_pose = pose
         result, it, error, converged = _lm(
             graph, values, options.max_iterations, anchor=True, watch_tolerance=WATCH_POSE,
@@ -177,7 +177,7 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
             raise CalibrationError(f"the joint fit failed: the circles of measurement(s) {failed} have no finite "
                                    "residuals at the estimate (too little evidence: few tracks or short arcs)")
         circles = {k: dict(zip(keys[k].tracks, _circles(keys[k], result), strict=True)) for k in used}
-        lines = {k: None if keys[k].line is None else result.atRot3(keys[k].line) for k in used}
+        lines = {k: None if keys[k].line_key is None else result.atRot3(keys[k].line_key) for k in used}
         stable = all(abs(new_sigmas[k] / sigmas[k] - 1.0) < 0.05 for k in used)
         sigmas = new_sigmas
         if stable:
@@ -202,7 +202,7 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
     except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
         covariance = None
     # plus the jackknife's excess of each line (a variance in units of its pixel noise: information H E H)
-    correlated = {keys[k].line: _track_correlation(keys[k].coaxial, result)
+    correlated = {keys[k].line_key: _track_correlation(keys[k].coaxial, result)
                   + stage1[k].rotation_info @ stage1[k].excess @ stage1[k].rotation_info / sigmas[k] ** 2
                   for k in used if keys[k].coaxial is not None}
     if covariance is not None and correlated:  # errors shared along a track: the cluster-robust covariance
@@ -238,11 +238,11 @@ def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options) -> _Ri
     values.insert(POSE_KEY, free.atPose3(POSE_KEY))
     rigid_tracks = 0
     for k, keys_k in keys.items():
-        R = free.atRot3(keys_k.line)
-        values.insert(keys_k.line, R)
+        R = free.atRot3(keys_k.line_key)
+        values.insert(keys_k.line_key, R)
         tie_cov = setup.tie_covariance(camera, k, image_line_from_rot3(K, R)[0], free.atPose3(POSE_KEY))
         graph.add(make_axis_to_line_variable_factor(tie_noise_model(options.tie_sigma_px, tie_cov),
-                                                    POSE_KEY, keys_k.line, axis_test_points(setup.axes[k]), K))
+                                                    POSE_KEY, keys_k.line_key, axis_test_points(setup.axes[k]), K))
         spun = []
         for j, (d, r) in zip(keys_k.tracks, _circles(keys_k, free), strict=True):
             circle_key = gtsam.symbol("c", k * CIRCLE_STRIDE + j)
@@ -252,7 +252,7 @@ def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options) -> _Ri
                 values.insert(circle_key, np.array([d, r]))
                 noise = gtsam.noiseModel.Robust.Create(track_huber(len(ideal)),
                                                        gtsam.noiseModel.Isotropic.Sigma(len(ideal), sigmas[k]))
-                graph.add(make_circle_point_factor(noise, keys_k.line, circle_key, ideal, K))
+                graph.add(make_circle_point_factor(noise, keys_k.line_key, circle_key, ideal, K))
                 continue
             spun.append((j, d, r, ideal, frames, closest_phases(K, R, d, r, ideal)))
         if not spun:
@@ -274,7 +274,7 @@ def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options) -> _Ri
                 noise = gtsam.noiseModel.Robust.Create(
                     gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(chi2_quantile(n))),
                     gtsam.noiseModel.Isotropic.Sigma(n, sigmas[k]))
-                graph.add(make_rigid_circle_factor(noise, keys_k.line, track_keys[i], chunk_key, ideal[idx],
+                graph.add(make_rigid_circle_factor(noise, keys_k.line_key, track_keys[i], chunk_key, ideal[idx],
                                                    frames[idx], K, C, first))
         for prior in spin_priors(init, chunk_key, track_keys):
             graph.add(prior)

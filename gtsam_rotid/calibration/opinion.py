@@ -41,7 +41,7 @@ def _tied_fit(builder: RotIdGraph, measurement, k: int, prepared, s: _Stage1, po
                                        initial_line=None if fresh else s.rotation,
                                        initial_circles=None if fresh else dict(s.circles),
                                        refine_circles=fresh, track_sigmas=dict.fromkeys(prepared.usable, 1.0),
-                                       tie_covariance=setup.tie_covariance(builder.camera, k, s.line, pose))
+                                       tie_covariance=setup.tie_covariance(builder.camera, k, s.image_axis, pose))
     except RotIdError:
         return None
     graph.add(gtsam.NonlinearEqualityPose3(POSE_KEY, pose))
@@ -51,7 +51,7 @@ def _tied_fit(builder: RotIdGraph, measurement, k: int, prepared, s: _Stage1, po
     if not np.isfinite(sse):
         return None
     tie = 2.0 * graph.at(keys.tie_factor).error(result) if keys.tie_factor >= 0 else 0.0
-    return sse, result.atRot3(keys.line), dict(zip(keys.tracks, _circles(keys, result), strict=True)), tie
+    return sse, result.atRot3(keys.line_key), dict(zip(keys.tracks, _circles(keys, result), strict=True)), tie
 
 
 def _sse(s: _Stage1) -> float:

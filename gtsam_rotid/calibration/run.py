@@ -168,7 +168,7 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
 def _close_enough(camera, setup: _Setup, runs, anchors, options) -> tuple[list, list]:
     """The runs (start, stage 1) whose FK axes, fitted to stage 1's image axes, miss them by at most
     ``max_initial_rms_px`` (RMS), with their anchors; refused (:func:`poor_start`) when none does."""
-    misses = [axis_miss_rms(camera, setup, [s.line for s in stage1], start, options)[1] for start, stage1 in runs]
+    misses = [axis_miss_rms(camera, setup, [s.image_axis for s in stage1], start, options)[1] for start, stage1 in runs]
     keep = [i for i, miss in enumerate(misses) if miss <= options.max_initial_rms_px]
     if not keep:
         raise poor_start(setup, min(misses), options, "stage-1 image axes (coaxial circles fitted to the tracks)")

@@ -30,7 +30,7 @@ from .tuning import ARC_TRIM, WEAK_ARC_DEG
 class _Setup:
     axes: list  # FK wrist axes (Line3, arm frame)
     prepared: list[PreparedMeasurement]
-    lines: list[np.ndarray]  # initial image axes through the ellipse centres
+    centre_axes: list[np.ndarray]  # the initial image axes: lines through the tracks' ellipse centres
     #: per measurement, the axis' test points' derivative by each joint angle times its sigma, (6, n_joints), or
     #: None (exact kinematics)
     axis_noise: list[np.ndarray | None] = field(default_factory=list)

@@ -54,8 +54,8 @@ class _Stage1:
     keys: MeasurementKeys
     rotation: gtsam.Rot3  # the line variable at the solution
     circles: dict[int, np.ndarray]  # track -> (d, r) at the solution
-    line: np.ndarray  # (3,) image axis
-    line_cov: np.ndarray  # (3, 3) its covariance at unit pixel noise
+    image_axis: np.ndarray  # (3,) the image of the axis (a homogeneous image line, docs/design.md §2)
+    image_axis_cov: np.ndarray  # (3, 3) its covariance at unit pixel noise
     sigma2: float  # pixel noise variance from the residuals (chi2 / dof)
     n_points: int
     outliers: dict[int, str]  # track -> reason
@@ -257,7 +257,7 @@ def _stage1_round(builder, measurement, k, pose, prepared, skip, line_start, cir
         # circles started from each track's rays about the start line: let them settle with the line held first
         held = gtsam.NonlinearFactorGraph()
         held.push_back(graph)
-        held.add(gtsam.PriorFactorRot3(keys.line, values.atRot3(keys.line),
+        held.add(gtsam.PriorFactorRot3(keys.line_key, values.atRot3(keys.line_key),
                                        gtsam.noiseModel.Isotropic.Sigma(3, HOLD_SIGMA_RAD)))
         values, warm, _, _ = _lm(held, values, min(options.max_iterations, STAGE1_MAX_ITERATIONS),
                                  relative_tolerance=options.stage1_tolerance)
@@ -269,9 +269,9 @@ def _stage1_round(builder, measurement, k, pose, prepared, skip, line_start, cir
 
 
 def _stage1_result(builder, graph, keys, result, stats, skip, iterations, options) -> _Stage1:
-    R = result.atRot3(keys.line)
+    R = result.atRot3(keys.line_key)
     line, J = image_line_from_rot3(builder.camera.K, R)
-    info = marginal_information(graph, result, keys.line, 3)  # unit pixel noise
+    info = marginal_information(graph, result, keys.line_key, 3)  # unit pixel noise
     w, V = np.linalg.eigh(info)
     cov_R = (V / np.maximum(w, 1e-12 * max(w.max(), 1e-300))) @ V.T
     circles = dict(zip(keys.tracks, _circles(keys, result), strict=True))
@@ -310,7 +310,7 @@ def _jackknife(builder: RotIdGraph, measurement, k: int, pose: gtsam.Pose3, prep
                                                 dict(s.circles), options)[:3]
         except RotIdError:
             return s
-        offsets.append(gtsam.Rot3.Logmap(s.rotation.between(result.atRot3(keys.line))))
+        offsets.append(gtsam.Rot3.Logmap(s.rotation.between(result.atRot3(keys.line_key))))
     t = np.asarray(offsets)
     if not np.all(np.isfinite(t)):
         return s
@@ -329,7 +329,7 @@ def _jackknife(builder: RotIdGraph, measurement, k: int, pose: gtsam.Pose3, prep
     excess = root @ ((U * grow) @ U.T) @ root.T
     cov_R = s.rotation_cov + excess
     _, J = image_line_from_rot3(builder.camera.K, s.rotation)
-    return replace(s, line_cov=J @ cov_R @ J.T, rotation_cov=cov_R, excess=excess)
+    return replace(s, image_axis_cov=J @ cov_R @ J.T, rotation_cov=cov_R, excess=excess)
 
 
 def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepared, options,
@@ -363,7 +363,7 @@ def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepar
         if not new or len(stats) - len(new) < 2 or rounds == STAGE1_ROUNDS:
             break
         skip.update(new)
-        line_start = result.atRot3(keys.line)  # the next round starts where this one ended
+        line_start = result.atRot3(keys.line_key)  # the next round starts where this one ended
         circles_start = dict(zip(keys.tracks, _circles(keys, result), strict=True))
     return _stage1_result(builder, graph, keys, result, stats, skip, iterations, options)
 
@@ -442,7 +442,7 @@ def _readmit_tracks(builders, measurements, pose, setup: _Setup, stage1: list[_S
             if not new or len(stats) - len(new) < 2 or rounds == 2:
                 break
             skip.update(new)
-            line_start = result.atRot3(keys.line)
+            line_start = result.atRot3(keys.line_key)
             circles_start = dict(zip(keys.tracks, _circles(keys, result), strict=True))
         out[k] = _stage1_result(builder, graph, keys, result, stats, skip, iterations, options)
     return out
@@ -453,9 +453,9 @@ def _stage1(arm, camera, measurements, pose, setup: _Setup, options, image_axes:
     # pull; a good track is untouched
     builders = [_builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber),
                 _builder(arm, camera, options, robust=track_huber)]
-    stage1 = [_stage1_measurement(builders, m, k, pose, setup.prepared[k], options,
-                                  _start_line(camera, setup.axes[k], setup.lines[k] if image_axes else None, pose),
-                                  settle=not image_axes)
+    starts = [_start_line(camera, setup.axes[k], setup.centre_axes[k] if image_axes else None, pose)
+              for k in range(len(measurements))]
+    stage1 = [_stage1_measurement(builders, m, k, pose, setup.prepared[k], options, starts[k], settle=not image_axes)
               for k, m in enumerate(measurements)]
     return _readmit_tracks(builders, measurements, pose, setup, stage1, options)
 

@@ -91,10 +91,10 @@ def _axis_distances(camera: Camera, axis, stage1: _Stage1, pose: gtsam.Pose3, si
     of measurement ``k``, :meth:`_Setup.tie_covariance`)."""
     points = np.array([pose.transformTo(p) for p in axis_test_points(axis)])
     pixels = camera.project(points, distort=False)
-    e = line_distances(stage1.line, pixels)
+    e = line_distances(stage1.image_axis, pixels)
     sigma2 = stage1.sigma2 if sigma2 is None else sigma2
-    cov = line_distance_covariance(stage1.line_cov * sigma2, pixels) + 1e-12 * np.eye(len(e))
-    extra = None if setup is None else setup.tie_covariance(camera, k, stage1.line, pose)
+    cov = line_distance_covariance(stage1.image_axis_cov * sigma2, pixels) + 1e-12 * np.eye(len(e))
+    extra = None if setup is None else setup.tie_covariance(camera, k, stage1.image_axis, pose)
     if extra is not None:
         cov = cov + extra
     return e, cov
@@ -157,7 +157,7 @@ def _axis_rows(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3
         e, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup, k)
         if F is not None:
             cov = cov + F
-        J = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), stage1[k].line)[1]
+        J = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), stage1[k].image_axis)[1]
         rows.append((e, cov, J))
     return rows
 
@@ -246,7 +246,7 @@ def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsa
             _, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, setup=setup, k=k)
             base = gtsam.noiseModel.Gaussian.Covariance(cov)
             noises.append(gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(3.0), base))
-        graph = _stage2_graph([setup.axes[k] for k in used], [stage1[k].line for k in used], camera.K, noises)
+        graph = _stage2_graph([setup.axes[k] for k in used], [stage1[k].image_axis for k in used], camera.K, noises)
         previous = pose
         pose, _, it, _ = _best_stage2(graph, [pose], options, anchor=anchor)
         iterations += it
@@ -485,7 +485,7 @@ def _reports(stage1: list[_Stage1], setup: _Setup, sigmas: dict[int, float], use
             k, len(s.keys.tracks), s.n_points, float(sigma),
             0.0 if excluded else median**2 / sigma**2, excluded, rejected, reason,
             axis_point=[float(v) for v in axis.point], axis_direction=[float(v) for v in axis.direction],
-            image_axis=[float(v) for v in s.line / np.hypot(s.line[0], s.line[1])],
+            image_axis=[float(v) for v in s.image_axis / np.hypot(s.image_axis[0], s.image_axis[1])],
             axis_chi2=None if chi2 is None else float(chi2[k]), arc_span_deg=span, weak=weak))
     _flag_outlier_measurements(reports, options)
     return reports
@@ -504,7 +504,7 @@ def _paper(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResu
     """The seed's stage 2: unweighted, random restarts, covariance (J^T J)^-1 at unit noise."""
     rng = np.random.default_rng(options.seed)
     noises = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(stage1)
-    graph = _stage2_graph(setup.axes, [s.line for s in stage1], camera.K, noises)
+    graph = _stage2_graph(setup.axes, [s.image_axis for s in stage1], camera.K, noises)
     starts = [init_pose, *_random_restarts(init_pose, options.restarts, rng)]
     # the unit line noise stands for the lines' real noise: the gauge prior is scaled to match (a prior of
     # GAUGE_SIGMA against 1 px lines would drag a weakly determined direction to the anchor)

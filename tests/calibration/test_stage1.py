@@ -149,7 +149,7 @@ def test_jackknife_holds_the_line_covariance_where_the_linearisation_does_not():
     _, setup, _ = initial._initial(clean.arm, clean.camera, list(clean), options, list(range(len(clean))))
     builders = [lm._builder(clean.arm, clean.camera, options, model=Model.PROJECTED, robust=track_huber),
                 lm._builder(clean.arm, clean.camera, options, robust=track_huber)]
-    start = stage1._start_line(clean.camera, setup.axes[k], setup.lines[k], truth.arm_T_camera)
+    start = stage1._start_line(clean.camera, setup.axes[k], setup.centre_axes[k], truth.arm_T_camera)
     rng = np.random.default_rng(1)
     fits = []
     for _ in range(30):
