@@ -292,7 +292,7 @@ def _common_chi2(arm, camera, measurements, setup, results: list[CalibrationResu
                  options) -> tuple[np.ndarray, list[gtsam.Pose3]]:
     """Chi-square and pose of each result re-solved (from its pose) on one joint graph: the measurements and tracks
     that none of ``results`` rejected, each measurement at the smallest of their pixel sigmas."""
-    used = [k for k in range(len(measurements)) if not any(r.measurements[k].outlier for r in results)]
+    used = [k for k in range(len(measurements)) if all(r.measurements[k].used for r in results)]
     sigmas = {k: max(min(r.measurements[k].residual_rms_px for r in results), options.min_sigma_px) for k in used}
     skip = {k: set().union(*(r.measurements[k].rejected_tracks for r in results)) for k in used}
     builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model)

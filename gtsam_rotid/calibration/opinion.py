@@ -10,7 +10,7 @@ import gtsam
 import numpy as np
 
 from ..errors import RotIdError
-from ..graph import Model, RotIdGraph, chi2_quantile, track_huber
+from ..graph import Model, RotIdGraph, chi2_quantile, initial_circle, track_huber
 from .lm import _builder, _lm
 from .setup import _Setup
 from .stage1 import (
@@ -59,18 +59,34 @@ def _sse(s: _Stage1) -> float:
 
 
 def _stats_at(builder: RotIdGraph, measurement, k: int, prepared, pose: gtsam.Pose3, line: gtsam.Rot3,
-              skip: dict[int, str]) -> dict[int, tuple[float, int]]:
-    """Every track's (residual sum of squares, points) at ``line``, its circle solved there, but those in ``skip``."""
+              skip: dict[int, str], circles: dict[int, np.ndarray]) -> dict[int, tuple[float, int]]:
+    """Every track's (residual sum of squares, points) at ``line``, its circle solved there, but those in ``skip``.
+
+    Each circle's solve starts from ``circles[j]`` (the fit's own), or from the track's rays about ``line``: the
+    solve is local, and a short arc's circle started elsewhere (about another axis) can end in a worse minimum."""
+    R = line.matrix()
+    K_inv = np.linalg.inv(builder.camera.K)
+    start = {}
+    for j, track in prepared.usable.items():
+        if j in skip:
+            continue
+        if j in circles:
+            start[j] = circles[j]
+        else:
+            rays = np.column_stack([track.ideal, np.ones(len(track.ideal))]) @ K_inv.T
+            centre_ray = K_inv @ np.append(track.ellipse.centre, 1.0)
+            start[j] = np.array(initial_circle(R[:, 0], R[:, 1], rays, centre_ray))
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False, prepared=prepared,
-                                   skip_tracks=skip, refine_circles=False, initial_line=line)
+                                   skip_tracks=skip, refine_circles=False, initial_line=line, initial_circles=start)
     return _track_stats(graph, keys, values)
 
 
 def _truncated_cost(stats: dict[int, tuple[float, int]], variance: float, options) -> float:
-    """Sum over tracks of ``min(sse / variance, chi-square 99.9 % point of its points)``: the cost that rejecting
-    the tracks beyond their fit test minimises (a rejected track costs its test's limit), comparable between two
-    fits that keep different tracks when both are evaluated on the same ones."""
+    """Sum over tracks of ``min(sse / variance, chi-square 99.9 % point of its points)``: a truncated least-squares
+    cost, in which a track that does not fit costs a fixed limit (stage 1's own test is relative to the tracks'
+    median, not this absolute one), comparable between two fits that keep different tracks when both are evaluated
+    on the same tracks at the same variance."""
     return float(sum(min(sse / variance, chi2_quantile(n, options.outlier_track_z)) for sse, n in stats.values()))
 
 
@@ -90,24 +106,29 @@ def _reselected(builder: RotIdGraph, measurement, k: int, prepared, s: _Stage1, 
     others = {j: why for j, why in s.outliers.items() if not isinstance(why, FitRejection)}
     line = _start_line(builder.camera, setup.axes[k], None, pose)
     try:
-        at_fk = _stats_at(builder, measurement, k, prepared, pose, line, others)
+        at_fk = _stats_at(builder, measurement, k, prepared, pose, line, others, {})
         if len(at_fk) < 3:
             return None
         chosen = {**others, **_outlier_tracks(at_fk, options)}
         if len(at_fk) - (len(chosen) - len(others)) < 2:
             return None
         new = _stage1_measurement([builder], measurement, k, pose, prepared, options, line, settle=True, skip=chosen)
-        if new.keys.coaxial is None or new.n_points <= s.n_points:
+        if new.n_points <= s.n_points or not np.isfinite(new.sigma2):
             return None
-        cost_new = _truncated_cost(_stats_at(builder, measurement, k, prepared, pose, new.rotation, others),
+        cost_new = _truncated_cost(_stats_at(builder, measurement, k, prepared, pose, new.rotation, others,
+                                             new.circles), variance, options)
+        cost_old = _truncated_cost(_stats_at(builder, measurement, k, prepared, pose, s.rotation, others, s.circles),
                                    variance, options)
-        cost_old = _truncated_cost(_stats_at(builder, measurement, k, prepared, pose, s.rotation, others),
-                                   variance, options)
-    except RotIdError:
+    except (RotIdError, np.linalg.LinAlgError, RuntimeError, ValueError):  # no better fit found: stage 1's stays
         return None
     if not (np.isfinite(cost_new) and cost_new < cost_old):
         return None
-    return _jackknife(builder, measurement, k, pose, prepared, new, options) if setup.short_arcs else new
+    if not setup.short_arcs:
+        return new
+    try:  # as stage 1's own fits (``_refined_stage1``)
+        return _jackknife(builder, measurement, k, pose, prepared, new, options)
+    except (np.linalg.LinAlgError, RuntimeError, ValueError):
+        return new
 
 
 def _second_opinion(arm, camera, measurements, setup: _Setup, stage1: list[_Stage1], k: int, pose: gtsam.Pose3,

@@ -422,8 +422,8 @@ def _readmit_tracks(builders, measurements, pose, setup: _Setup, stage1: list[_S
         s = stage1[k]
         flagged = _outlier_tracks(stats, options, spread)
         # a wrong arc can fit its own circle within the noise spread and still drag the line: it is not taken back
-        flagged.update({j: f"pulls the axis away from the other tracks' (score test {value:.3g} > {limit:.3g}, "
-                           "3 dof, at the line fitted without it)"
+        flagged.update({j: FitRejection(f"pulls the axis away from the other tracks' (score test {value:.3g} > "
+                                        f"{limit:.3g}, 3 dof, at the line fitted without it)")
                         for j, value in pull.items() if j not in flagged and value > limit})
         back = [j for j, why in s.outliers.items() if isinstance(why, FitRejection) and j not in flagged]
         s.outliers.update({j: why for j, why in flagged.items() if j in s.outliers})  # the reasons at the final line
