@@ -325,6 +325,20 @@ def _short_words(setup: _Setup, ks) -> str:
             "longer, a full turn or more, or track features that can be followed further)")
 
 
+def _classify(setup: _Setup, stage1: list[_Stage1]) -> tuple[dict[int, str], dict[int, float]]:
+    """The measurements whose stage-1 evidence is weak (k -> its evidence in words) and those with enough tracks but
+    only short arcs (k -> the longest arc, deg): what the words of a refusal or a left-out measurement name."""
+    weak, short = {}, {}
+    for k, s in enumerate(stage1):
+        span, is_weak = _evidence(setup, s, k)
+        if not is_weak and setup.turning[k] < WEAK_ARC_DEG:
+            short[k] = setup.turning[k]
+        if is_weak:
+            arc = "" if span is None else f", longest arc {span:.0f}° (at most)"
+            weak[k] = f"{len(s.keys.tracks)} tracks{arc}"
+    return weak, short
+
+
 def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opinion=None, drop_weak: bool = False
                      ) -> tuple[gtsam.Pose3, int, gtsam.NonlinearFactorGraph, list[int], dict[int, float]]:
     """Weighted stage 2 that leaves out measurements whose image axis disagrees with the FK axis.
@@ -339,14 +353,7 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opini
     limit = options.outlier_measurement_chi2
     iterations = 0
     refitted: set[int] = set()
-    setup.weak, setup.short = {}, {}
-    for k, s in enumerate(stage1):
-        span, weak = _evidence(setup, s, k)
-        if not weak and setup.turning[k] < WEAK_ARC_DEG:
-            setup.short[k] = setup.turning[k]
-        if weak:
-            arc = "" if span is None else f", longest arc {span:.0f}° (at most)"
-            setup.weak[k] = f"{len(s.keys.tracks)} tracks{arc}"
+    setup.weak, setup.short = _classify(setup, stage1)
     # with ``drop_weak``, weak measurements (their image axes need not be Gaussian) are left out when enough strong
     # ones remain
     strong = [k for k in range(n) if k not in setup.weak]
@@ -502,6 +509,9 @@ def _flag_outlier_measurements(reports: list[MeasurementReport], options: Calibr
 
 def _paper(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
     """The seed's stage 2: unweighted, random restarts, covariance (J^T J)^-1 at unit noise."""
+    # its own evidence words, not those a joint fit of another start left in ``setup``; it leaves nothing out
+    setup.weak, setup.short = _classify(setup, stage1)
+    setup.dropped = set()
     rng = np.random.default_rng(options.seed)
     noises = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(stage1)
     graph = _stage2_graph(setup.axes, [s.image_axis for s in stage1], camera.K, noises)

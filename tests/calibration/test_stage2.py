@@ -3,10 +3,11 @@ out, the image axes' consistency test, its covariance scale and its floor."""
 
 import numpy as np
 import pytest
+from thin_tracks import _thin
 
 from gtsam_rotid import Dataset, Measurement, Track, simulate
 from gtsam_rotid.calibration import stage2
-from gtsam_rotid.estimate import CalibrationResult, calibrate
+from gtsam_rotid.estimate import CalibrationError, CalibrationResult, calibrate
 from gtsam_rotid.report import make_report
 from gtsam_rotid.uncertainty import loewner_max
 from gtsam_rotid.words import summary, untrusted_words
@@ -167,3 +168,15 @@ def test_a_declared_floor_holds_errors_that_each_measurements_tracks_share(noisy
     # the axes' test weights each axis with the floor too: the scale reads only the scatter beyond it
     bare = calibrate(shifted, options=CalibrationOptions(axis_floor_px=0.0))
     assert result.axis_consistency.chi2 < bare.axis_consistency.chi2
+
+
+def test_the_papers_refusal_names_thin_evidence_whatever_ran_before():
+    """The paper method's refusal names the measurements of thin evidence first, as the others' do. Its words read
+    the evidence that only the robust stage 2 used to classify: with one start (this scene) they named none, with
+    several (seed 0) those a joint fit of another start left behind."""
+    dataset, _ = simulate.reference_scene(seed=2, duration=20.0, noise_var=0.05)
+    with pytest.raises(CalibrationError) as raised:
+        calibrate(_thin(dataset, 2, n_tracks=3, shortest=20, longest=90), method="paper")
+    words = str(raised.value)
+    assert "most measurements disagree" in words
+    assert "too little evidence for a reliable image axis (measurement " in words and "tracks, longest arc" in words
