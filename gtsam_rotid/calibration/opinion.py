@@ -10,7 +10,7 @@ import gtsam
 import numpy as np
 
 from ..errors import RotIdError
-from ..graph import Model, RotIdGraph, chi2_quantile, initial_circle, track_huber
+from ..graph import Model, RotIdGraph, chi2_quantile, track_huber
 from .lm import _builder, _lm
 from .setup import _Setup
 from .stage1 import (
@@ -24,6 +24,7 @@ from .stage1 import (
     _stage1_round,
     _start_line,
     _track_stats,
+    circles_about,
 )
 from .tuning import POSE_KEY, STAGE1_MAX_ITERATIONS
 
@@ -62,20 +63,10 @@ def _stats_at(builder: RotIdGraph, measurement, k: int, prepared, pose: gtsam.Po
               skip: dict[int, str], circles: dict[int, np.ndarray]) -> dict[int, tuple[float, int]]:
     """Every track's (residual sum of squares, points) at ``line``, its circle solved there, but those in ``skip``.
 
-    Each circle's solve starts from ``circles[j]`` (the fit's own), or from the track's rays about ``line``: the
-    solve is local, and a short arc's circle started elsewhere (about another axis) can end in a worse minimum."""
-    R = line.matrix()
-    K_inv = np.linalg.inv(builder.camera.K)
-    start = {}
-    for j, track in prepared.usable.items():
-        if j in skip:
-            continue
-        if j in circles:
-            start[j] = circles[j]
-        else:
-            rays = np.column_stack([track.ideal, np.ones(len(track.ideal))]) @ K_inv.T
-            centre_ray = K_inv @ np.append(track.ellipse.centre, 1.0)
-            start[j] = np.array(initial_circle(R[:, 0], R[:, 1], rays, centre_ray))
+    Each circle's solve starts from ``circles[j]`` (the fit's own), or from the track's rays about ``line``
+    (:func:`circles_about`)."""
+    tracks = [j for j in prepared.usable if j not in skip]
+    start = circles_about(builder.camera.K, prepared, line, {j: c for j, c in circles.items() if j in tracks}, tracks)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False, prepared=prepared,
                                    skip_tracks=skip, refine_circles=False, initial_line=line, initial_circles=start)

@@ -368,20 +368,29 @@ def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepar
     return _stage1_result(builder, graph, keys, result, stats, skip, iterations, options)
 
 
+def circles_about(K: np.ndarray, prepared, line: gtsam.Rot3, known: dict[int, np.ndarray], tracks) -> dict:
+    """``known`` plus, for each of ``tracks`` not in it, a start ``(d, r)`` about the line variable ``line`` from the
+    track's rays and its ellipse centre (a circle solve is local: one started about another axis can end in a worse
+    minimum)."""
+    R = line.matrix()
+    K_inv = np.linalg.inv(K)
+    circles = dict(known)
+    for j in tracks:
+        if j not in circles:
+            track = prepared.usable[j]
+            rays = np.column_stack([track.ideal, np.ones(len(track.ideal))]) @ K_inv.T
+            centre_ray = K_inv @ np.append(track.ellipse.centre, 1.0)
+            circles[j] = np.array(initial_circle(R[:, 0], R[:, 1], rays, centre_ray))
+    return circles
+
+
 #: Reasons of stage 1's fit tests (the tracks that :func:`_readmit_tracks` re-tests).
 def _retest(builder: RotIdGraph, measurement, k, pose, prepared, s: _Stage1, options):
     """Every track stage 1 kept or rejected for its fit, at its final line: (stats, circles) with the rejected
     tracks' circles solved there (started from their rays about that line: the builder's start is about the FK axis
     seen from ``pose``, which can be degrees off the line of a measurement of short arcs)."""
-    R = s.rotation.matrix()
-    K_inv = np.linalg.inv(builder.camera.K)
-    circles = dict(s.circles)
-    for j, why in s.outliers.items():
-        if isinstance(why, FitRejection):
-            track = prepared.usable[j]
-            rays = np.column_stack([track.ideal, np.ones(len(track.ideal))]) @ K_inv.T
-            centre_ray = K_inv @ np.append(track.ellipse.centre, 1.0)
-            circles[j] = np.array(initial_circle(R[:, 0], R[:, 1], rays, centre_ray))
+    circles = circles_about(builder.camera.K, prepared, s.rotation, s.circles,
+                            [j for j, why in s.outliers.items() if isinstance(why, FitRejection)])
     others = {j: why for j, why in s.outliers.items() if not isinstance(why, FitRejection)}
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     keys = builder.add_measurement(graph, values, k, measurement, arm_T_camera=pose, tie=False, prepared=prepared,
