@@ -159,9 +159,7 @@ def _initial(arm, camera, measurements, options, index=None, tolerance: float = 
     miss the image axes through the ellipse centres by more than ``tolerance`` times ``max_initial_rms_px`` is
     refused (:func:`poor_start`); ``calibrate`` allows more here and checks again against stage 1's coaxial fits,
     which are far better where arcs are short."""
-    setup = _setup(arm, camera, measurements, options)
-    if index is not None:
-        setup.index = list(index)
+    setup = _setup(arm, camera, measurements, options, index)
     K = camera.K
     normals = np.array([plane_normal(K, line) for line in setup.centre_axes])
     candidates = pose_candidates(normals, setup.axes, n_best=options.n_candidates)

@@ -4,6 +4,7 @@ sandwich covariance, restarts, and the rigid-spin model.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import NamedTuple
 
 import gtsam
@@ -34,84 +35,95 @@ from ..uncertainty import (
     pose_information,
     sandwich_marginal,
 )
+from .evidence import measurement_reports
 from .lm import _builder, _graph_dof, _lm, _turned
 from .opinion import _second_opinion
 from .options import CalibrationError, Method, SpinModel
 from .result import CalibrationResult
-from .stage1 import _circles, _noise_variance, _track_correlation, _track_stats
+from .stage1 import _circles, _noise_variance, _Stage1, _track_correlation, _track_stats
 from .stage2 import (
     _axis_consistency,
     _finish,
     _prior_floor_covariance,
-    _reports,
     _robust_weighted,
     _Solved,
+    _Stage2,
     _tied_circles,
     _weighted_stage2,
 )
 from .tuning import MIN_STRONG, POSE_KEY, RESTART_LEAVE_OUT, RESTART_P, RESTART_SAME_M, SAME_ANGLE_DEG, WATCH_POSE
 
 
-def _opinion(arm, camera, measurements, setup, stage1, options):
-    return lambda k, pose: _second_opinion(arm, camera, measurements, setup, stage1, k, pose, options)
+class Fitted(NamedTuple):
+    """A result and the stage-1 fits it was made from (second opinions may have replaced some of the fits passed in):
+    the scale check reads their circles, and with several starts the chosen start's fits go on to the paper's or the
+    weighted method."""
+
+    result: CalibrationResult
+    stage1: list[_Stage1]
 
 
-def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
-    pose, iterations, graph, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options, anchor,
-                                                           _opinion(arm, camera, measurements, setup, stage1, options))
+def _opinion(arm, camera, measurements, setup, options):
+    return lambda k, pose, stage1: _second_opinion(arm, camera, measurements, setup, stage1, k, pose, options)
+
+
+def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anchor) -> Fitted:
+    fit = _robust_weighted(camera, setup, stage1, init_pose, options, anchor,
+                           _opinion(arm, camera, measurements, setup, options))
+    stage1, used = fit.stage1, fit.used
     values = gtsam.Values()
-    values.insert(POSE_KEY, pose)
+    values.insert(POSE_KEY, fit.pose)
     sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
-    tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
-    reports = _reports(stage1, setup, sigmas, used, options, chi2, tied)
-    consistency = _axis_consistency(camera, setup, stage1, used, pose, {k: stage1[k].sigma2 for k in used}, options)
-    solved = _Solved(pose, None, pose_information(graph, values, POSE_KEY), Method.WEIGHTED, True, iterations,
-                     graph.error(values))
-    return _finish(solved, reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(graph, values),
-                   consistency=consistency, prior=_prior_floor_covariance(
-                       camera, setup, stage1, used, pose, {k: stage1[k].sigma2 for k in used}))
+    tied = _tied_circles(arm, camera, measurements, setup, stage1, fit.pose, options, range(len(stage1)))
+    reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, fit.chi2, tied)
+    variances = {k: stage1[k].sigma2 for k in used}
+    consistency = _axis_consistency(camera, setup, stage1, used, fit.pose, variances, options)
+    solved = _Solved(fit.pose, None, pose_information(fit.graph, values, POSE_KEY), Method.WEIGHTED, True,
+                     fit.iterations, fit.graph.error(values))
+    return Fitted(_finish(solved, reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(fit.graph, values),
+                          consistency=consistency, prior=_prior_floor_covariance(camera, setup, stage1, used,
+                                                                                 fit.pose, variances)), stage1)
 
 
-def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
+def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor) -> Fitted:
     """One graph: every circle-point factor (Huber per track) tied to the pose; Marginals of the whole graph.
 
     It starts from the weighted two-stage pose, within the joint problem's basin (from a few degrees off,
     circles of short arcs can run off to degenerate solutions that LM cannot leave), with the circles
     fitted at that pose (``"line"`` model: the stage-1 lines and circles, see RotIdGraph.add_measurement).
     """
-    pose, iterations, _, used, chi2 = _robust_weighted(camera, setup, stage1, init_pose, options, anchor,
-                                                       _opinion(arm, camera, measurements, setup, stage1, options))
-    result = _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used, chi2, options)
+    opinion = _opinion(arm, camera, measurements, setup, options)
+    fit = _robust_weighted(camera, setup, stage1, init_pose, options, anchor, opinion)
+    result = _joint_fit(arm, camera, measurements, setup, fit, options)
     c = result.axis_consistency
-    weak_used = [k for k in used if k in setup.weak]
-    strong_enough = bool(weak_used) and len([k for k in used if k not in setup.weak]) >= MIN_STRONG
+    weak = fit.evidence.weak
+    weak_used = [k for k in fit.used if k in weak]
+    strong_enough = bool(weak_used) and len([k for k in fit.used if k not in weak]) >= MIN_STRONG
     if c is None or (c.p_value >= RESTART_P and (c.consistent or not strong_enough)):
-        return result
+        return Fitted(result, fit.stage1)
     if strong_enough:
         # the axes disagree and weak measurements take part: fit the strong ones alone (the weak are named). A
         # weak axis far off its own wide 1 sigma would otherwise set the scale or the common floor of them all
         # (one 3-track pose 70 px off made a floor of 21 px and a 1 sigma of 158 mm on a good estimate)
-        dropped = set(setup.dropped)
-        pose_s, it, _, used_s, chi2_s = _robust_weighted(camera, setup, stage1, pose, options, anchor,
-                                                         _opinion(arm, camera, measurements, setup, stage1, options),
-                                                         drop_weak=True)
-        strong = _joint_fit(arm, camera, measurements, setup, stage1, pose_s, result.iterations + it, used_s,
-                            chi2_s, options)
+        strong_fit = _robust_weighted(camera, setup, fit.stage1, fit.pose, options, anchor, opinion, drop_weak=True)
+        strong_fit = strong_fit._replace(iterations=result.iterations + strong_fit.iterations)
+        strong = _joint_fit(arm, camera, measurements, setup, strong_fit, options)
         if strong.axis_consistency is None or strong.axis_consistency.p_value >= RESTART_P:
-            return strong
-        if result.axis_consistency.p_value >= RESTART_P:
-            setup.dropped = dropped  # the weak ones stay: the strong ones alone disagree no less
-            return result
-        result, used, chi2 = strong, used_s, chi2_s
-    return _restarted(arm, camera, measurements, setup, stage1, result, used, chi2, options, anchor)
+            return Fitted(strong, strong_fit.stage1)
+        if result.axis_consistency.p_value >= RESTART_P:  # the strong ones alone disagree no less
+            return Fitted(result, fit.stage1)
+        result, fit = strong, strong_fit
+    return _restarted(arm, camera, measurements, setup, fit, result, options, anchor)
 
 
-def _restarted(arm, camera, measurements, setup, stage1, result, used, chi2, options, anchor) -> CalibrationResult:
-    """When the measurements disagree with the joint estimate far beyond their noise, the estimate may be a local
-    minimum that weak measurements (few tracks, short arcs) led stage 2 into: fit again from the stage-2 pose
-    without each measurement in turn, and keep the fit of lowest chi-square on the same tracks (then re-test the
-    measurements left out, which a wrong estimate blames)."""
+def _restarted(arm, camera, measurements, setup, fit: _Stage2, result: CalibrationResult, options,
+               anchor) -> Fitted:
+    """When the measurements disagree with the joint estimate ``result`` (of ``fit``) far beyond their noise, the
+    estimate may be a local minimum that weak measurements (few tracks, short arcs) led stage 2 into: fit again from
+    the stage-2 pose without each measurement in turn, and keep the fit of lowest chi-square on the same tracks (then
+    re-test the measurements left out, which a wrong estimate blames)."""
     candidates = [result]
+    used, chi2, stage1 = fit.used, fit.chi2, fit.stage1
     worst = sorted(used, key=lambda k: -chi2.get(k, 0.0))[:RESTART_LEAVE_OUT]
     for k in worst:
         rest = [i for i in used if i != k]
@@ -120,37 +132,39 @@ def _restarted(arm, camera, measurements, setup, stage1, result, used, chi2, opt
                 start.translation() - result.arm_T_camera.translation()) < RESTART_SAME_M:
             continue
         try:
-            candidates.append(_joint_fit(arm, camera, measurements, setup, stage1, start, 0, used, chi2, options))
+            candidates.append(_joint_fit(arm, camera, measurements, setup, fit._replace(pose=start, iterations=0),
+                                         options))
         except (CalibrationError, RotIdError, RuntimeError):
             continue
     if len(candidates) > 1:
-        costs = _common_chi2(arm, camera, measurements, setup, candidates, options)[0]
+        costs = common_chi2(arm, camera, measurements, setup, candidates, options)[0]
         best = candidates[int(np.argmin(costs))]
     else:
         best = candidates[0]
     iterations = sum(c.iterations for c in candidates)
-    left_out = [k for k in range(len(stage1)) if k not in used and k not in setup.dropped]
+    left_out = [k for k in range(len(stage1)) if k not in used and k not in fit.evidence.dropped]
     opinions = {k: _second_opinion(arm, camera, measurements, setup, stage1, k, best.arm_T_camera, options)
                 for k in left_out}
     back = [k for k, (_, statistic) in opinions.items() if statistic <= options.outlier_measurement_chi2]
     if back:
-        chi2 = dict(chi2)
+        chi2, stage1 = dict(chi2), list(stage1)
         for k in back:
             refit, chi2[k] = opinions[k]
             if refit is not None:
                 stage1[k] = refit
         try:
-            best = _joint_fit(arm, camera, measurements, setup, stage1, best.arm_T_camera, 0, sorted(used + back),
-                              chi2, options)
+            best = _joint_fit(arm, camera, measurements, setup, fit._replace(
+                pose=best.arm_T_camera, iterations=0, used=sorted(used + back), chi2=chi2, stage1=stage1), options)
         except (CalibrationError, RotIdError, RuntimeError):
-            pass
+            stage1 = fit.stage1
         iterations += best.iterations
-    best.iterations = iterations
-    return best
+    return Fitted(replace(best, iterations=iterations), stage1)
 
 
-def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used, chi2, options) -> CalibrationResult:
-    """The joint graph of the measurements ``used`` from ``pose`` (see :func:`_joint`)."""
+def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> CalibrationResult:
+    """The joint graph of the measurements ``fit.used`` from ``fit.pose``, with ``fit.stage1``'s lines and circles
+    and their pixel noise to start (see :func:`_joint`)."""
+    pose, iterations, used, chi2, stage1 = fit.pose, fit.iterations, fit.used, fit.chi2, fit.stage1
     builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model)
     sigmas = {k: float(np.sqrt(stage1[k].sigma2)) for k in used}
     circles = {k: None if builder.model is Model.POSE else dict(stage1[k].circles) for k in used}
@@ -184,7 +198,7 @@ def _joint_fit(arm, camera, measurements, setup, stage1, pose, iterations, used,
             break
     info = pose_information(graph, result, POSE_KEY)
     tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
-    reports = _reports(stage1, setup, sigmas, used, options, chi2, tied)
+    reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, chi2, tied)
     variances = {k: sigmas[k] ** 2 for k in used}
     if options.spin_model is SpinModel.RIGID and builder.model is not Model.POSE:
         rigid = _rigid_spin(camera, measurements, setup, keys, result, sigmas, options)
@@ -288,7 +302,7 @@ def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options) -> _Ri
     return _RigidFit(result.atPose3(POSE_KEY), covariance, iterations, error, converged)
 
 
-def _common_chi2(arm, camera, measurements, setup, results: list[CalibrationResult],
+def common_chi2(arm, camera, measurements, setup, results: list[CalibrationResult],
                  options) -> tuple[np.ndarray, list[gtsam.Pose3]]:
     """Chi-square and pose of each result re-solved (from its pose) on one joint graph: the measurements and tracks
     that none of ``results`` rejected, each measurement at the smallest of their pixel sigmas."""

@@ -6,29 +6,27 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import gtsam
 import numpy as np
 
 from ..arm import Arm
 from ..camera import Camera
 from ..dataset import Dataset, Measurement
 from ..errors import InputError
+from .choice import choose_start
 from .initial import _initial, axis_miss_rms, poor_start
-from .joint import _common_chi2, _joint, _weighted
-from .lm import _builder, _turned
-from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method
-from .result import Alternative, CalibrationResult, MeasurementReport
+from .joint import Fitted, _joint, _weighted
+from .lm import _builder
+from .options import MIN_MEASUREMENTS, CalibrationOptions, Method
+from .result import CalibrationResult, MeasurementReport
 from .setup import _Setup, arc_span_deg
 from .stage2 import _check_scale, _paper, _refined_stage1
 from .tuning import (
-    CHI2_6_999,
     INITIAL_TOLERANCE,
     LONG_ARC_CONSISTENCY_P,
     MAX_CONSISTENCY_SCALE,
     MAX_RELATIVE_SIGMA,
     MAX_SIGMA_DEG,
     RESTART_P,
-    SAME_ANGLE_DEG,
     SHORT_ARC_CONSISTENCY_P,
 )
 
@@ -141,26 +139,16 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
     runs, anchors = _close_enough(camera, setup, runs, anchors, options)
     alternatives = []
     if len(runs) > 1:  # the image axes cannot choose between the starts: the joint fit of the circles does
-        joints, failures = [], []
-        for (start, stage1), anchor in zip(runs, anchors, strict=True):
-            try:  # a wrong start's circles may not fit at all: its estimate is then a poor one
-                joint = _joint(arm, camera, measurements, setup, stage1, start, options, anchor)
-                _check_scale(joint, setup, stage1, options)
-                joints.append(joint)
-            except CalibrationError as failure:
-                joints.append(None)
-                failures.append(failure)
-        if len(failures) == len(runs):
-            raise failures[0]
-        best, alternatives = _choose(arm, camera, measurements, setup, joints, options)
+        choice = choose_start(arm, camera, measurements, setup, runs, anchors, options)
         if method is Method.JOINT:
-            return replace(joints[best], alternatives=alternatives, joint_sigma_deg=options.joint_sigma_deg,
+            return replace(choice.joint, alternatives=choice.alternatives, joint_sigma_deg=options.joint_sigma_deg,
                            axis_floor_px=setup.floor_px), setup
-        runs, anchors = [runs[best]], [anchors[best]]
+        runs, anchors = [(runs[choice.best][0], choice.stage1)], [anchors[choice.best]]
+        alternatives = choice.alternatives
     init_pose, stage1 = runs[0]
-    result = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
-    _check_scale(result, setup, stage1, options)
-    return replace(result, alternatives=alternatives,
+    fitted = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
+    _check_scale(fitted.result, setup, fitted.stage1, options)
+    return replace(fitted.result, alternatives=alternatives,
                    joint_sigma_deg=0.0 if method is Method.PAPER else options.joint_sigma_deg,
                    axis_floor_px=0.0 if method is Method.PAPER else setup.floor_px), setup
 
@@ -182,45 +170,9 @@ def _close_enough(camera, setup: _Setup, runs, anchors, options) -> tuple[list, 
     return [runs[i] for i in keep], [anchors[i] for i in keep]
 
 
-def _same_solution(result: CalibrationResult, pose: gtsam.Pose3) -> bool:
-    """``pose`` is ``result``'s solution again: inside its 99.9 % region when the covariance is usable, else
-    turned less than SAME_ANGLE_DEG from it (positions differ arbitrarily along undetermined directions)."""
-    xi = result.arm_T_camera.localCoordinates(pose)
-    if result.observability.is_observable:
-        try:
-            return float(xi @ np.linalg.solve(result.covariance, xi)) <= CHI2_6_999
-        except np.linalg.LinAlgError:
-            pass
-    return float(np.linalg.norm(xi[:3])) < np.radians(SAME_ANGLE_DEG)
-
-
-def _choose(arm, camera, measurements, setup, joints: list[CalibrationResult | None],
-            options) -> tuple[int, list[Alternative]]:
-    """The joint result that fits best and the other distinct ones as :class:`Alternative`.
-
-    The results may have rejected different tracks and estimated different pixel noise, so their own errors are
-    not comparable: each pose is re-solved on one graph (the tracks and measurements none of them rejected, one
-    pixel sigma per measurement) and the chi-squares of that graph compared.
-    """
-    ok = [i for i, r in enumerate(joints) if r is not None]
-    if len(ok) == 1:
-        return ok[0], []
-    results = [joints[i] for i in ok]
-    chi2, poses = _common_chi2(arm, camera, measurements, setup, results, options)
-    order = [int(j) for j in np.argsort(chi2)]
-    best = results[order[0]]
-    alternatives: list[Alternative] = []
-    for j in order[1:]:
-        if not np.isfinite(chi2[j]) or _same_solution(best, poses[j]) or any(
-                _turned(a.arm_T_camera, poses[j]) < np.radians(SAME_ANGLE_DEG) for a in alternatives):
-            continue
-        alternatives.append(Alternative(poses[j], float(chi2[j] - chi2[order[0]])))
-    return ok[order[0]], alternatives
-
-
-def _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
+def _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchor) -> Fitted:
     if method is Method.PAPER:
-        return _paper(camera, setup, stage1, init_pose, options, anchor)
+        return Fitted(_paper(camera, setup, stage1, init_pose, options, anchor), stage1)
     if method is Method.WEIGHTED:
         return _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
     return _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)

@@ -26,8 +26,10 @@ from .options import MIN_MEASUREMENTS, CalibrationOptions
 from .tuning import ARC_TRIM, WEAK_ARC_DEG
 
 
-@dataclass
+@dataclass(frozen=True)
 class _Setup:
+    """Built once per calibration (:func:`_setup`) and read by every stage; none changes it."""
+
     axes: list  # FK wrist axes (Line3, arm frame)
     prepared: list[PreparedMeasurement]
     centre_axes: list[np.ndarray]  # the initial image axes: lines through the tracks' ellipse centres
@@ -37,13 +39,6 @@ class _Setup:
     #: the caller's index of each measurement here (measurements without enough evidence are left out before)
     index: list[int] = field(default_factory=list)
     K: np.ndarray | None = None  # the camera matrix
-    #: k -> the evidence of measurements whose stage-1 fit is weak (for the words of a refusal)
-    weak: dict[int, str] = field(default_factory=dict)
-    #: the weak measurements left out because enough strong ones determine the pose without them
-    dropped: set[int] = field(default_factory=set)
-    #: k -> the longest arc (deg, ``turning``) of measurements with enough tracks but none of WEAK_ARC_DEG: a
-    #: tracker's drift along short arcs can put their image axes off (for the words that name a likely cause)
-    short: dict[int, float] = field(default_factory=dict)
     #: per measurement, the longest turn of a usable track's direction of motion (deg, :func:`_turning_deg`)
     turning: list[float] = field(default_factory=list)
     #: the image axes' prior floor (px, ``CalibrationOptions.axis_floor_px`` resolved by ``calibrate``)
@@ -74,7 +69,8 @@ class _Setup:
         return any(t < WEAK_ARC_DEG for t in self.turning)
 
 
-def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: CalibrationOptions) -> _Setup:
+def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: CalibrationOptions,
+           index: list[int] | None = None) -> _Setup:
     if len(measurements) < MIN_MEASUREMENTS:
         raise InputError(f"need at least {MIN_MEASUREMENTS} measurements (arm poses) to calibrate, "
                          f"got {len(measurements)}")
@@ -94,7 +90,8 @@ def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: C
         sigma = np.radians(options.joint_sigma_deg)
         noise = [sigma * test_point_jacobian(arm, m.joint_angles) for m in measurements]
     turning = [max((_turning_deg(t.ideal) for t in p.usable.values()), default=0.0) for p in prepared]
-    return _Setup(axes, prepared, lines, noise, list(range(len(measurements))), camera.K, turning=turning,
+    index = list(range(len(measurements))) if index is None else list(index)
+    return _Setup(axes, prepared, lines, noise, index, camera.K, turning=turning,
                   floor_px=float(options.axis_floor_px or 0.0))
 
 

@@ -1,11 +1,12 @@
-"""Stage 2 and the two-stage estimators: the projected-axis distances of the FK axes to the stage-1 image axes,
-weighted and robust, the axes' consistency test and its covariance scale, the evidence of each measurement, the
-refits of stage 1 at the estimate (short arcs), the paper's and the weighted method, the per-measurement reports.
+"""Stage 2: the projected-axis distances of the FK axes to the stage-1 image axes, weighted and robust (a
+:class:`_Stage2` record), the axes' consistency test and its covariance scale, the refits of stage 1 at the estimate
+(short arcs), the result's assembly (:func:`_finish`) and the paper's method.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import gtsam
 import numpy as np
@@ -27,12 +28,13 @@ from ..uncertainty import (
     loewner_max,
     pose_information,
 )
+from .evidence import Evidence, _named, classify, measurement_reports, poor_minimum
 from .initial import _best_stage2, _random_restarts, _stage2_graph, _stage2_minima
 from .lm import _builder, _graph_dof, _turned
 from .opinion import _tied_fit
 from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method
-from .result import AxisConsistency, CalibrationResult, MeasurementReport
-from .setup import _Setup, circle_arc_span_deg
+from .result import AxisConsistency, CalibrationResult
+from .setup import _Setup
 from .stage1 import (
     _jackknife,
     _Stage1,
@@ -45,9 +47,6 @@ from .tuning import (
     REFINE_M,
     REFINE_PASSES,
     TIE_PX2,
-    WEAK_ARC_DEG,
-    WEAK_MANY_TRACKS,
-    WEAK_TRACKS,
 )
 
 
@@ -256,23 +255,6 @@ def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsa
     return pose, iterations, graph
 
 
-def _evidence(setup: _Setup, s: _Stage1, k: int, tied=None) -> tuple[float | None, bool]:
-    """(longest arc in deg, weak) of measurement k's kept tracks. Each arc is measured about its stage-1 circle and,
-    when ``tied = (line, circles)`` is given (the circles fitted with the line on the estimate's FK axis), about that
-    circle too, and the smaller is taken: a short arc fitted with a circle far too small wraps around it."""
-    spans = []
-    for j in s.keys.tracks:
-        ideal = setup.prepared[k].usable[j].ideal
-        span = circle_arc_span_deg(ideal, setup.K, s.rotation, s.circles[j]) if j in s.circles else np.inf
-        if tied is not None and j in tied[1]:
-            span = min(span, circle_arc_span_deg(ideal, setup.K, tied[0], tied[1][j]))
-        if np.isfinite(span):
-            spans.append(span)
-    longest = max(spans) if spans else None
-    n = len(s.keys.tracks)
-    return longest, n < WEAK_TRACKS or (n < WEAK_MANY_TRACKS and (longest is None or longest < WEAK_ARC_DEG))
-
-
 def _tied_circles(arm, camera, measurements, setup: _Setup, stage1, pose: gtsam.Pose3, options, ks) -> dict:
     """k -> (line, circles) of measurement k fitted with its line on the FK axis seen from ``pose``."""
     builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
@@ -284,89 +266,50 @@ def _tied_circles(arm, camera, measurements, setup: _Setup, stage1, pose: gtsam.
     return out
 
 
-def _named(setup: _Setup, ks) -> list[int]:
-    """Internal measurement positions -> the caller's measurement indices."""
-    return [setup.index[k] for k in ks] if setup.index else list(ks)
+class _Stage2(NamedTuple):
+    """The robust weighted stage 2 (:func:`_robust_weighted`): its pose and graph, the measurements it used, every
+    measurement's chi-square against the pose (2 dof), the evidence it judged them by, and the stage-1 fits it ended
+    with (second opinions may have replaced some)."""
+
+    pose: gtsam.Pose3
+    iterations: int
+    graph: gtsam.NonlinearFactorGraph
+    used: list[int]
+    chi2: dict[int, float]
+    evidence: Evidence
+    stage1: list[_Stage1]
 
 
-def _poor_minimum(chi2: np.ndarray, limit: float, what: str, setup: _Setup | None = None,
-                  bad=()) -> CalibrationError:
-    names = _named(setup, range(len(chi2))) if setup is not None else list(range(len(chi2)))
-    listing = ", ".join(f"{name}: {value:.3g}" for name, value in zip(names, chi2, strict=True))
-    return CalibrationError(
-        f"the estimate ended in a poor minimum or the data are inconsistent: {what} (chi-square of each "
-        f"measurement's image axis against the projected FK axis, 2 dof, limit {limit:g}: {listing}); check "
-        "the joint angles, the intrinsics and the wrist joint (if the kinematics are known to be inaccurate, "
-        "raise CalibrationOptions.outlier_measurement_chi2)" + _weak_words(setup, bad))
-
-
-def _weak_words(setup: _Setup | None, bad=()) -> str:
-    """For a refusal: the measurements whose evidence is thin (from ``setup.weak``), which come first, and those of
-    ``bad`` whose arcs are all short (``setup.short``)."""
-    if setup is None:
-        return ""
-    out = ""
-    if setup.weak:
-        named = "; ".join(f"measurement {_named(setup, [k])[0]}: {why}" for k, why in setup.weak.items())
-        out += (f". But first: these measurements have too little evidence for a reliable image axis ({named}); spin "
-                "the wrist longer (a full turn or more) or give the hand more texture: the tracking, more likely than "
-                "the joint angles, is at fault")
-    short = [k for k in bad if k in setup.short]
-    if short:
-        out += ". " + _short_words(setup, short)
-    return out
-
-
-def _short_words(setup: _Setup, ks) -> str:
-    """Words for measurements of many tracks whose arcs are all short: tracking is as likely a cause as joints."""
-    arcs = ", ".join(f"{_named(setup, [k])[0]}: {setup.short[k]:.0f}°" for k in ks)
-    return (f"The arcs of measurement(s) {arcs} (longest) are short: a tracker's drift along short arcs can put an "
-            "image axis off as far as a wrong joint angle does, so suspect the tracking as much as the joints (spin "
-            "longer, a full turn or more, or track features that can be followed further)")
-
-
-def _classify(setup: _Setup, stage1: list[_Stage1]) -> tuple[dict[int, str], dict[int, float]]:
-    """The measurements whose stage-1 evidence is weak (k -> its evidence in words) and those with enough tracks but
-    only short arcs (k -> the longest arc, deg): what the words of a refusal or a left-out measurement name."""
-    weak, short = {}, {}
-    for k, s in enumerate(stage1):
-        span, is_weak = _evidence(setup, s, k)
-        if not is_weak and setup.turning[k] < WEAK_ARC_DEG:
-            short[k] = setup.turning[k]
-        if is_weak:
-            arc = "" if span is None else f", longest arc {span:.0f}° (at most)"
-            weak[k] = f"{len(s.keys.tracks)} tracks{arc}"
-    return weak, short
-
-
-def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opinion=None, drop_weak: bool = False
-                     ) -> tuple[gtsam.Pose3, int, gtsam.NonlinearFactorGraph, list[int], dict[int, float]]:
+def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opinion=None,
+                     drop_weak: bool = False) -> _Stage2:
     """Weighted stage 2 that leaves out measurements whose image axis disagrees with the FK axis.
 
     At most ``(n - 3) // 2`` measurements are left out, so that the rest still over-determine the pose and
     the test stays meaningful; more disagreement than that is reported as a poor minimum. A measurement whose
-    linearised chi-square exceeds the limit gets a ``second_opinion(k, pose) -> (refit or None, statistic)``
-    (:func:`_second_opinion`) before it can be left out: a better stage-1 fit found from the estimate replaces its
-    own (``stage1`` is updated in place) and the likelihood-ratio statistic decides instead of the linearised one.
+    linearised chi-square exceeds the limit gets a ``second_opinion(k, pose, stage1) -> (refit or None,
+    statistic)`` (:func:`_second_opinion`) before it can be left out: a better stage-1 fit found from the estimate
+    replaces its own (in the returned ``stage1``; the one passed in is not changed) and the likelihood-ratio
+    statistic decides instead of the linearised one. With ``drop_weak``, weak measurements (their image axes need
+    not be Gaussian) are left out when enough strong ones remain.
     """
     n = len(stage1)
+    stage1 = list(stage1)
     limit = options.outlier_measurement_chi2
     iterations = 0
     refitted: set[int] = set()
-    setup.weak, setup.short = _classify(setup, stage1)
-    # with ``drop_weak``, weak measurements (their image axes need not be Gaussian) are left out when enough strong
-    # ones remain
-    strong = [k for k in range(n) if k not in setup.weak]
-    setup.dropped = set(setup.weak) if drop_weak and setup.weak and len(strong) >= MIN_STRONG else set()
-    used = [k for k in range(n) if k not in setup.dropped]
-    max_excluded = max(0, (len(used) - MIN_MEASUREMENTS) // 2) + len(setup.dropped)
+    evidence = classify(setup, stage1)
+    strong = [k for k in range(n) if k not in evidence.weak]
+    if drop_weak and evidence.weak and len(strong) >= MIN_STRONG:
+        evidence = evidence._replace(dropped=frozenset(evidence.weak))
+    used = [k for k in range(n) if k not in evidence.dropped]
+    max_excluded = max(0, (len(used) - MIN_MEASUREMENTS) // 2) + len(evidence.dropped)
     while True:
         pose, it, graph = _weighted_stage2(camera, setup, stage1, used, start, options, anchor)
         iterations += it
         chi2 = _chi2(camera, setup, stage1, pose)
         bad = [k for k in used if chi2[k] > limit]
         if bad and second_opinion is not None:
-            opinions = {k: second_opinion(k, pose) for k in bad}
+            opinions = {k: second_opinion(k, pose, stage1) for k in bad}
             new = [k for k, (refit, _) in opinions.items() if refit is not None and k not in refitted]
             for k in new:
                 stage1[k] = opinions[k][0]
@@ -383,8 +326,8 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opini
         if n - len(used) >= max_excluded:
             gone = _named(setup, sorted(set(range(n)) - set(used)))
             left_out = f", after leaving out {gone}" if len(used) < n else ""
-            raise _poor_minimum(chi2, limit, f"measurement(s) {_named(setup, bad)} disagree{left_out}", setup,
-                                bad)
+            raise poor_minimum(chi2, limit, f"measurement(s) {_named(setup, bad)} disagree{left_out}", setup,
+                               evidence, bad)
         # One at a time, by leave-one-out: a wrong measurement drags the pose, so the largest chi-square may
         # belong to a good one; leave out the one whose absence best reconciles the others.
         best = None
@@ -398,7 +341,7 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opini
                 best = (score, k, rest_pose)
         used.remove(best[1])
         start = best[2]
-    return pose, iterations, graph, used, {k: float(chi2[k]) for k in range(n)}
+    return _Stage2(pose, iterations, graph, used, {k: float(chi2[k]) for k in range(n)}, evidence, stage1)
 
 
 def _check_scale(result: CalibrationResult, setup: _Setup, stage1: list[_Stage1], options: CalibrationOptions) -> None:
@@ -463,55 +406,9 @@ def _finish(solved: _Solved, reports, sigma_px, *, info_scale: float = 1.0, dof:
                              reports, observability, float(sigma_px), dof, axis_consistency=consistency)
 
 
-def _reports(stage1: list[_Stage1], setup: _Setup, sigmas: dict[int, float], used: list[int], options,
-             chi2: dict[int, float] | None = None, tied: dict | None = None) -> list[MeasurementReport]:
-    median = float(np.median([sigmas[k] for k in used]))
-    reports = []
-    for k, s in enumerate(stage1):
-        rejected = {**s.keys.rejected, **s.outliers}
-        excluded = k not in used
-        sigma = sigmas.get(k, np.sqrt(s.sigma2))
-        reason = ""
-        span, weak = _evidence(setup, s, k, None if tied is None else tied.get(k))
-        weak = weak or k in setup.dropped
-        if excluded and k in setup.dropped:
-            reason = (f"left out: too little evidence for a reliable image axis ({setup.weak[k]}); the "
-                      f"{len(used)} stronger measurements determine the pose without it")
-        elif excluded:
-            reason = (f"left out: its image axis disagrees with the FK axis projected by the estimate (chi-square "
-                      f"{chi2[k]:.3g} > {options.outlier_measurement_chi2:g}, 2 dof); ")
-            if weak:
-                reason += ("its own evidence is thin (few tracks or short arcs): spin longer or add texture, and check "
-                           "its joint angles only if that does not help")
-            elif k in setup.short:
-                reason += "its tracks or its joint angles are off. " + _short_words(setup, [k])
-            else:
-                reason += "check its joint angles"
-        axis = setup.axes[k]
-        reports.append(MeasurementReport(
-            k, len(s.keys.tracks), s.n_points, float(sigma),
-            0.0 if excluded else median**2 / sigma**2, excluded, rejected, reason,
-            axis_point=[float(v) for v in axis.point], axis_direction=[float(v) for v in axis.direction],
-            image_axis=[float(v) for v in s.image_axis / np.hypot(s.image_axis[0], s.image_axis[1])],
-            axis_chi2=None if chi2 is None else float(chi2[k]), arc_span_deg=span, weak=weak))
-    _flag_outlier_measurements(reports, options)
-    return reports
-
-
-def _flag_outlier_measurements(reports: list[MeasurementReport], options: CalibrationOptions) -> None:
-    median = np.median([r.residual_rms_px for r in reports])
-    for r in reports:
-        if not r.outlier and r.residual_rms_px > options.outlier_measurement_ratio * median:
-            r.outlier = True
-            r.outlier_reason = (f"residual RMS {r.residual_rms_px:.2f} px > {options.outlier_measurement_ratio:g}x "
-                                f"the median {median:.2f} px")
-
-
 def _paper(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResult:
     """The seed's stage 2: unweighted, random restarts, covariance (J^T J)^-1 at unit noise."""
-    # its own evidence words, not those a joint fit of another start left in ``setup``; it leaves nothing out
-    setup.weak, setup.short = _classify(setup, stage1)
-    setup.dropped = set()
+    evidence = classify(setup, stage1)  # it leaves nothing out
     rng = np.random.default_rng(options.seed)
     noises = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(stage1)
     graph = _stage2_graph(setup.axes, [s.image_axis for s in stage1], camera.K, noises)
@@ -528,11 +425,11 @@ def _paper(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResu
                                      key=lambda m: _turned(m[0], init_pose))
     chi2 = _chi2(camera, setup, stage1, pose)
     if np.median(chi2) > options.outlier_measurement_chi2:  # the unweighted fit is suboptimal: judge loosely
-        raise _poor_minimum(chi2, options.outlier_measurement_chi2, "most measurements disagree", setup)
+        raise poor_minimum(chi2, options.outlier_measurement_chi2, "most measurements disagree", setup, evidence)
     values = gtsam.Values()
     values.insert(POSE_KEY, pose)
     sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
-    reports = _reports(stage1, setup, sigmas, list(range(len(stage1))), options)
+    reports = measurement_reports(stage1, setup, evidence, sigmas, list(range(len(stage1))), options)
     for r in reports:
         r.weight = 1.0
     # The paper's covariance assumes 1 px line errors; judge what is determined with the residual scale.

@@ -1,0 +1,145 @@
+"""What each measurement's stage-1 fit says of its evidence (weak: few tracks or short arcs), the measurements' reports
+and the words of a refusal that name them.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .options import CalibrationError, CalibrationOptions
+from .result import MeasurementReport
+from .setup import _Setup, circle_arc_span_deg
+from .stage1 import _Stage1
+from .tuning import WEAK_ARC_DEG, WEAK_MANY_TRACKS, WEAK_TRACKS
+
+
+class Evidence(NamedTuple):
+    """The measurements of thin evidence in one set of stage-1 fits (:func:`classify`), and the weak ones a fit left
+    out (``dropped``) because enough strong ones determine the pose without them."""
+
+    #: k -> the evidence in words of measurements whose stage-1 fit is weak (for the words of a refusal)
+    weak: dict[int, str]
+    #: k -> the longest arc (deg, ``setup.turning``) of measurements with enough tracks but none of WEAK_ARC_DEG: a
+    #: tracker's drift along short arcs can put their image axes off (for the words that name a likely cause)
+    short: dict[int, float]
+    dropped: frozenset[int] = frozenset()
+
+
+def _evidence(setup: _Setup, s: _Stage1, k: int, tied=None) -> tuple[float | None, bool]:
+    """(longest arc in deg, weak) of measurement k's kept tracks. Each arc is measured about its stage-1 circle and,
+    when ``tied = (line, circles)`` is given (the circles fitted with the line on the estimate's FK axis), about that
+    circle too, and the smaller is taken: a short arc fitted with a circle far too small wraps around it."""
+    spans = []
+    for j in s.keys.tracks:
+        ideal = setup.prepared[k].usable[j].ideal
+        span = circle_arc_span_deg(ideal, setup.K, s.rotation, s.circles[j]) if j in s.circles else np.inf
+        if tied is not None and j in tied[1]:
+            span = min(span, circle_arc_span_deg(ideal, setup.K, tied[0], tied[1][j]))
+        if np.isfinite(span):
+            spans.append(span)
+    longest = max(spans) if spans else None
+    n = len(s.keys.tracks)
+    return longest, n < WEAK_TRACKS or (n < WEAK_MANY_TRACKS and (longest is None or longest < WEAK_ARC_DEG))
+
+
+def classify(setup: _Setup, stage1: list[_Stage1]) -> Evidence:
+    """The measurements whose stage-1 evidence is weak (k -> its evidence in words) and those with enough tracks but
+    only short arcs (k -> the longest arc, deg): what the words of a refusal or a left-out measurement name."""
+    weak, short = {}, {}
+    for k, s in enumerate(stage1):
+        span, is_weak = _evidence(setup, s, k)
+        if not is_weak and setup.turning[k] < WEAK_ARC_DEG:
+            short[k] = setup.turning[k]
+        if is_weak:
+            arc = "" if span is None else f", longest arc {span:.0f}° (at most)"
+            weak[k] = f"{len(s.keys.tracks)} tracks{arc}"
+    return Evidence(weak, short)
+
+
+def _named(setup: _Setup, ks) -> list[int]:
+    """Internal measurement positions -> the caller's measurement indices."""
+    return [setup.index[k] for k in ks] if setup.index else list(ks)
+
+
+def poor_minimum(chi2: np.ndarray, limit: float, what: str, setup: _Setup | None = None,
+                 evidence: Evidence | None = None, bad=()) -> CalibrationError:
+    names = _named(setup, range(len(chi2))) if setup is not None else list(range(len(chi2)))
+    listing = ", ".join(f"{name}: {value:.3g}" for name, value in zip(names, chi2, strict=True))
+    return CalibrationError(
+        f"the estimate ended in a poor minimum or the data are inconsistent: {what} (chi-square of each "
+        f"measurement's image axis against the projected FK axis, 2 dof, limit {limit:g}: {listing}); check "
+        "the joint angles, the intrinsics and the wrist joint (if the kinematics are known to be inaccurate, "
+        "raise CalibrationOptions.outlier_measurement_chi2)" + weak_words(setup, evidence, bad))
+
+
+def weak_words(setup: _Setup | None, evidence: Evidence | None, bad=()) -> str:
+    """For a refusal: the measurements whose evidence is thin (``evidence.weak``), which come first, and those of
+    ``bad`` whose arcs are all short (``evidence.short``)."""
+    if setup is None or evidence is None:
+        return ""
+    out = ""
+    if evidence.weak:
+        named = "; ".join(f"measurement {_named(setup, [k])[0]}: {why}" for k, why in evidence.weak.items())
+        out += (f". But first: these measurements have too little evidence for a reliable image axis ({named}); spin "
+                "the wrist longer (a full turn or more) or give the hand more texture: the tracking, more likely than "
+                "the joint angles, is at fault")
+    short = [k for k in bad if k in evidence.short]
+    if short:
+        out += ". " + short_words(setup, evidence, short)
+    return out
+
+
+def short_words(setup: _Setup, evidence: Evidence, ks) -> str:
+    """Words for measurements of many tracks whose arcs are all short: tracking is as likely a cause as joints."""
+    arcs = ", ".join(f"{_named(setup, [k])[0]}: {evidence.short[k]:.0f}°" for k in ks)
+    return (f"The arcs of measurement(s) {arcs} (longest) are short: a tracker's drift along short arcs can put an "
+            "image axis off as far as a wrong joint angle does, so suspect the tracking as much as the joints (spin "
+            "longer, a full turn or more, or track features that can be followed further)")
+
+
+def measurement_reports(stage1: list[_Stage1], setup: _Setup, evidence: Evidence, sigmas: dict[int, float],
+                        used: list[int], options, chi2: dict[int, float] | None = None,
+                        tied: dict | None = None) -> list[MeasurementReport]:
+    """One report per measurement of a fit that used ``used`` (the others are left out, with why)."""
+    median = float(np.median([sigmas[k] for k in used]))
+    reports = []
+    for k, s in enumerate(stage1):
+        rejected = {**s.keys.rejected, **s.outliers}
+        excluded = k not in used
+        sigma = sigmas.get(k, np.sqrt(s.sigma2))
+        reason = ""
+        span, weak = _evidence(setup, s, k, None if tied is None else tied.get(k))
+        weak = weak or k in evidence.dropped
+        if excluded and k in evidence.dropped:
+            reason = (f"left out: too little evidence for a reliable image axis ({evidence.weak[k]}); the "
+                      f"{len(used)} stronger measurements determine the pose without it")
+        elif excluded:
+            reason = (f"left out: its image axis disagrees with the FK axis projected by the estimate (chi-square "
+                      f"{chi2[k]:.3g} > {options.outlier_measurement_chi2:g}, 2 dof); ")
+            if weak:
+                reason += ("its own evidence is thin (few tracks or short arcs): spin longer or add texture, and check "
+                           "its joint angles only if that does not help")
+            elif k in evidence.short:
+                reason += "its tracks or its joint angles are off. " + short_words(setup, evidence, [k])
+            else:
+                reason += "check its joint angles"
+        axis = setup.axes[k]
+        reports.append(MeasurementReport(
+            k, len(s.keys.tracks), s.n_points, float(sigma),
+            0.0 if excluded else median**2 / sigma**2, excluded, rejected, reason,
+            axis_point=[float(v) for v in axis.point], axis_direction=[float(v) for v in axis.direction],
+            image_axis=[float(v) for v in s.image_axis / np.hypot(s.image_axis[0], s.image_axis[1])],
+            axis_chi2=None if chi2 is None else float(chi2[k]), arc_span_deg=span, weak=weak))
+    _flag_outlier_measurements(reports, options)
+    return reports
+
+
+def _flag_outlier_measurements(reports: list[MeasurementReport], options: CalibrationOptions) -> None:
+    median = np.median([r.residual_rms_px for r in reports])
+    for r in reports:
+        if not r.outlier and r.residual_rms_px > options.outlier_measurement_ratio * median:
+            r.outlier = True
+            r.outlier_reason = (f"residual RMS {r.residual_rms_px:.2f} px > {options.outlier_measurement_ratio:g}x "
+                                f"the median {median:.2f} px")
