@@ -39,6 +39,7 @@ from .files import check_outputs, staged
 from .fits import TrackFit, fit_tracks  # noqa: F401 (re-export: plots draw what the calibration layer fits)
 from .geometry import ros_covariance
 from .report import CHI2_95_3DOF, Z95
+from .words import outlier_words
 
 #: 95 % point of the χ² distribution with 2 dof (2-D confidence ellipses).
 CHI2_95_2DOF = 5.991464547107979
@@ -104,7 +105,7 @@ def _measurement_title(result, k: int, what: str, fit: TrackFit, digits: int) ->
     title = f"measurement {k}: {what}"
     if report is not None:
         title += (f", residual RMS {report.residual_rms_px:.{digits}f} px, weight {report.weight:.2f}"
-                  + (f", OUTLIER ({report.outlier_reason})" if report.outlier else ""))
+                  + (f", OUTLIER ({outlier_words(report)})" if report.outlier else ""))
     if fit.problem:
         title += f"\n{fit.problem}"
     return title

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .calibration.evidence import short_arc_words
 from .calibration.options import MIN_MEASUREMENTS
-from .calibration.result import AMBIGUITY_CHI2, AxisConsistency, CalibrationResult, MeasurementReport
+from .calibration.result import AMBIGUITY_CHI2, AxisConsistency, CalibrationResult, MeasurementReport, OutlierKind
 from .calibration.tuning import (
     LONG_ARC_CONSISTENCY_P,
     MAX_CONSISTENCY_SCALE,
@@ -49,7 +50,7 @@ def summary(result: CalibrationResult) -> str:
     lines.append("  " + kinematics_words(result.joint_sigma_deg))
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
-        flag = f"  OUTLIER ({m.outlier_reason})" if m.outlier else ""
+        flag = f"  OUTLIER ({outlier_words(m)})" if m.outlier else ""
         n_rejected = len(m.rejected_tracks)
         lines.append(f"  measurement {m.index}: {m.n_tracks} tracks, {m.n_points} points, residual RMS "
                      f"{m.residual_rms_px:.3f} px, weight {m.weight:.2f}, {n_rejected} "
@@ -123,6 +124,32 @@ def evidence_words(m: MeasurementReport) -> str:
     """A measurement's evidence in words: tracks, points, the longest arc."""
     arc = "" if m.arc_span_deg is None else f", longest arc {m.arc_span_deg:.0f}°"
     return f"{m.n_tracks} track{'' if m.n_tracks == 1 else 's'}, {m.n_points} points{arc}"
+
+
+def outlier_words(m: MeasurementReport) -> str:
+    """Why a measurement is an outlier (its ``outlier_kind`` and ``outlier_values``) and what to do; "" when it is
+    not one."""
+    v = m.outlier_values
+    if not m.outlier:
+        return ""
+    if m.outlier_kind == OutlierKind.FEW_TRACKS:
+        return (f"left out: only {m.n_tracks} usable track(s), need at least 2 for an image axis; spin longer or give "
+                "the hand more texture")
+    if m.outlier_kind == OutlierKind.THIN:
+        return (f"left out: too little evidence for a reliable image axis ({evidence_words(m)}); the {v['used']:g} "
+                "stronger measurements determine the pose without it")
+    if m.outlier_kind == OutlierKind.DISAGREES:
+        chi2 = "" if m.axis_chi2 is None else f"chi-square {m.axis_chi2:.3g} > {v['limit']:g}, 2 dof"
+        words = f"left out: its image axis disagrees with the FK axis projected by the estimate ({chi2}); "
+        if m.weak:
+            return words + ("its own evidence is thin (few tracks or short arcs): spin longer or add texture, and "
+                            "check its joint angles only if that does not help")
+        if "short_arc_deg" in v:
+            return words + "its tracks or its joint angles are off. " + short_arc_words({m.index: v["short_arc_deg"]})
+        return words + "check its joint angles"
+    if m.outlier_kind == OutlierKind.RESIDUAL:
+        return f"residual RMS {m.residual_rms_px:.2f} px > {v['ratio']:g}x the median {v['median']:.2f} px"
+    return str(v.get("text", "")) or "flagged"
 
 
 def untrusted_words(result: CalibrationResult) -> list[str]:

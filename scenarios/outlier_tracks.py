@@ -37,6 +37,7 @@ from gtsam_rotid.dataset import Dataset, Measurement
 from gtsam_rotid.plots import plot_tracks
 from gtsam_rotid.report import make_report
 from gtsam_rotid.simulate import SceneConfig
+from gtsam_rotid.words import outlier_words
 
 NOISE_VAR = 1.5
 METHODS = ("joint", "weighted", "paper")
@@ -131,7 +132,7 @@ def main(argv=None) -> int:
               + ", ".join(f"{n}x '{why}'" for why, n in reasons.items()) + ")")
         for m in report.measurements:
             if m.outlier:
-                print(f"    measurement {m.index}: OUTLIER — {m.outlier_reason}")
+                print(f"    measurement {m.index}: OUTLIER — {outlier_words(m)}")
         if report.rejected_tracks:
             k, j, why = report.rejected_tracks[0]
             print(f"    e.g. measurement {k}, track {j}: {why}")
@@ -180,7 +181,7 @@ def main(argv=None) -> int:
             continue
         m = result.measurements[WRONG_MEASUREMENT]
         others = [r.index for r in result.measurements if r.weight == 0 and r.index != WRONG_MEASUREMENT]
-        verdict.check(m.outlier and m.weight == 0 and "joint angles" in m.outlier_reason and not others,
+        verdict.check(m.outlier and m.weight == 0 and "joint angles" in outlier_words(m) and not others,
                       f"{method}, wrong joint reading: measurement {WRONG_MEASUREMENT} (only it) left out, the "
                       f"report says to check its joint angles")
     paper = results.get(("wrong joint reading", "paper"))

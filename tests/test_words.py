@@ -27,6 +27,7 @@ from gtsam_rotid.words import (
     evidence_words,
     kinematics_words,
     observability_words,
+    outlier_words,
     summary,
     tracking_words,
     untrusted_words,
@@ -287,7 +288,7 @@ def test_thin_evidence_with_nothing_to_test_the_axes_says_so():
 
 def test_thin_evidence_with_too_few_strong_measurements_counts_them():
     ms = [measurement(0), measurement(1), measurement(2, 3, weak=True), measurement(3, 5, arc_span_deg=60.0, weak=True),
-          measurement(4, outlier=True, weight=0.0, outlier_reason="far from the others")]
+          measurement(4, outlier=True, weight=0.0, outlier_kind="disagrees", outlier_values={"limit": 13.8})]
     c = AxisConsistency(2.0, 4, 0.74, 1.0)
     assert c.p_value >= RESTART_P
     words = untrusted_words(thin(c, ms))
@@ -333,7 +334,7 @@ SETUP = SimpleNamespace(axes=[SimpleNamespace(point=np.zeros(3))])
 def left_out(index: int, n_tracks: int = 2, **kw) -> MeasurementReport:
     """A weak measurement the estimate did not use (an outlier, weight 0)."""
     return measurement(index, n_tracks, weak=True, outlier=True, weight=0.0, arc_span_deg=20.0,
-                       outlier_reason="left out: too little evidence for a reliable image axis", **kw)
+                       outlier_kind="thin", outlier_values={"used": 4}, **kw)
 
 
 def test_thin_evidence_names_the_weak_measurements_used_not_the_weak_ones_left_out():
@@ -356,7 +357,7 @@ def test_thin_evidence_is_set_as_before_and_never_with_an_empty_list(c):
     kinds = {"strong": lambda k: measurement(k), "weak": lambda k: measurement(k, 3, weak=True),
              "weak out": left_out, "strong out": lambda k: measurement(k, outlier=True, weight=0.0),
              "weak rms": lambda k: measurement(k, 3, weak=True, outlier=True, weight=0.3,
-                                               outlier_reason="residual RMS 4.0 px > 3x the median 1.2 px")}
+                                               outlier_kind="residual", outlier_values={"ratio": 3.0, "median": 1.2})}
     for combo in itertools.product(kinds, repeat=5):
         r = result(measurements=[kinds[kind](k) for k, kind in enumerate(combo)], axis_consistency=c)
         weak_used = [k for k, kind in enumerate(combo) if kind in ("weak", "weak rms")]
@@ -543,7 +544,8 @@ def test_summary_prints_the_pose_its_sigma_and_each_measurement():
     ms = [measurement(0, 14, n_points=1730, residual_rms_px=1.2291, weight=0.994),
           measurement(1, 12, n_points=1598, residual_rms_px=1.2049, weight=1.031, rejected_tracks={3: "short"}),
           measurement(2, 12, rejected_tracks={1: "a", 4: "b"}),
-          measurement(3, 1, outlier=True, weight=0.0, outlier_reason="axis far from the others")]
+          measurement(3, 1, outlier=True, weight=0.0, outlier_kind="disagrees", outlier_values={"limit": 13.8},
+                      axis_chi2=40.0)]
     r = result(measurements=ms, iterations=17, sigma_px=1.2214)
     text = summary(r)
     head = text.splitlines()[0]
@@ -566,7 +568,8 @@ def test_summary_prints_the_pose_its_sigma_and_each_measurement():
     assert floats(lines[0]) == [0, 14, 1730, 1.229, 0.99, 0]
     assert floats(lines[1]) == [1, 12, 1598, 1.205, 1.03, 1]
     assert "1 track rejected" in lines[1] and "2 tracks rejected" in lines[2]
-    assert "OUTLIER (axis far from the others)" in lines[3]
+    assert ("OUTLIER (left out: its image axis disagrees with the FK axis projected by the estimate (chi-square 40 > "
+            "13.8, 2 dof); check its joint angles)") in lines[3]
     assert not any("OUTLIER" in lines[k] for k in range(3))
 
 
@@ -634,3 +637,38 @@ def test_summary_of_a_calibration_prints_its_numbers(reference_weighted):
     for m in r.measurements:
         line = line_starting(text, f"measurement {m.index}:")
         assert floats(line)[:4] == [m.index, m.n_tracks, m.n_points, round(m.residual_rms_px, 3)]
+
+
+@pytest.mark.parametrize("kind, values, extra, expected, blames_joints", [
+    ("few_tracks", {}, {}, "left out: only 1 usable track(s), need at least 2", False),
+    ("thin", {"used": 5}, {"weak": True, "arc_span_deg": 41.0},
+     "left out: too little evidence for a reliable image axis (1 track, 100 points, longest arc 41°); the 5 stronger",
+     False),
+    ("disagrees", {"limit": 13.8}, {"axis_chi2": 52.0}, "(chi-square 52 > 13.8, 2 dof); check its joint angles", True),
+    ("disagrees", {"limit": 13.8}, {"axis_chi2": 52.0, "weak": True}, "its own evidence is thin", False),
+    ("disagrees", {"limit": 13.8, "short_arc_deg": 48.0}, {"axis_chi2": 52.0},
+     "its tracks or its joint angles are off. The arcs of measurement(s) 3: 48° (longest) are short", True),
+    ("residual", {"ratio": 3.0, "median": 1.2}, {"residual_rms_px": 4.0}, "residual RMS 4.00 px > 3x the median 1.20",
+     False),
+    ("text", {"text": "an older file's words"}, {}, "an older file's words", False),
+])
+def test_outlier_words_say_each_kind_with_its_numbers(kind, values, extra, expected, blames_joints):
+    m = measurement(3, 1, n_points=100, outlier=True, weight=0.0, outlier_kind=kind, outlier_values=values, **extra)
+    words = outlier_words(m)
+    assert expected in words
+    assert ("joint angles" in words and "only if that does not help" not in words) is blames_joints
+    assert outlier_words(measurement(3)) == ""
+
+
+def test_a_result_file_of_before_the_outlier_kinds_keeps_its_words():
+    ms = [measurement(0), measurement(1, outlier=True, weight=0.0, outlier_kind="disagrees",
+                                      outlier_values={"limit": 13.8}, axis_chi2=40.0)]
+    data = result(measurements=ms).to_dict()
+    again = CalibrationResult.from_dict(data)
+    assert again.measurements[1].outlier_kind == "disagrees" and outlier_words(again.measurements[1]) == outlier_words(
+        ms[1])
+    for m in data["measurements"]:  # as version 1 files of before the kinds wrote them
+        m.pop("outlier_kind"), m.pop("outlier_values")
+        m["outlier_reason"] = "axis far from the others" if m["outlier"] else ""
+    old = CalibrationResult.from_dict(data)
+    assert outlier_words(old.measurements[1]) == "axis far from the others" and old.measurements[0].outlier_kind == ""

@@ -9,7 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .options import CalibrationError, CalibrationOptions
-from .result import MeasurementReport
+from .result import MeasurementReport, OutlierKind
 from .setup import _Setup, circle_arc_span_deg
 from .stage1 import _Stage1
 from .tuning import WEAK_ARC_DEG, WEAK_MANY_TRACKS, WEAK_TRACKS
@@ -93,7 +93,13 @@ def weak_words(setup: _Setup | None, evidence: Evidence | None, bad=()) -> str:
 
 def short_words(setup: _Setup, evidence: Evidence, ks) -> str:
     """Words for measurements of many tracks whose arcs are all short: tracking is as likely a cause as joints."""
-    arcs = ", ".join(f"{_named(setup, [k])[0]}: {evidence.short[k]:.0f}°" for k in ks)
+    return short_arc_words({_named(setup, [k])[0]: evidence.short[k] for k in ks})
+
+
+def short_arc_words(longest_deg: dict[int, float]) -> str:
+    """The short-arc sentence for measurements (caller's index -> longest arc, deg), shared with the report's
+    words (:func:`gtsam_rotid.words.outlier_words`)."""
+    arcs = ", ".join(f"{k}: {deg:.0f}°" for k, deg in longest_deg.items())
     return (f"The arcs of measurement(s) {arcs} (longest) are short: a tracker's drift along short arcs can put an "
             "image axis off as far as a wrong joint angle does, so suspect the tracking as much as the joints (spin "
             "longer, a full turn or more, or track features that can be followed further)")
@@ -109,26 +115,19 @@ def measurement_reports(stage1: list[_Stage1], setup: _Setup, evidence: Evidence
         rejected = {**s.keys.rejected, **s.outliers}
         excluded = k not in used
         sigma = sigmas.get(k, np.sqrt(s.sigma2))
-        reason = ""
         span, weak = _evidence(setup, s, k, None if tied is None else tied.get(k))
         weak = weak or k in evidence.dropped
+        kind, values = "", {}
         if excluded and k in evidence.dropped:
-            reason = (f"left out: too little evidence for a reliable image axis ({evidence.weak[k]}); the "
-                      f"{len(used)} stronger measurements determine the pose without it")
+            kind, values = OutlierKind.THIN.value, {"used": len(used)}
         elif excluded:
-            reason = (f"left out: its image axis disagrees with the FK axis projected by the estimate (chi-square "
-                      f"{chi2[k]:.3g} > {options.outlier_measurement_chi2:g}, 2 dof); ")
-            if weak:
-                reason += ("its own evidence is thin (few tracks or short arcs): spin longer or add texture, and check "
-                           "its joint angles only if that does not help")
-            elif k in evidence.short:
-                reason += "its tracks or its joint angles are off. " + short_words(setup, evidence, [k])
-            else:
-                reason += "check its joint angles"
+            kind, values = OutlierKind.DISAGREES.value, {"limit": float(options.outlier_measurement_chi2)}
+            if not weak and k in evidence.short:
+                values["short_arc_deg"] = float(evidence.short[k])
         axis = setup.axes[k]
         reports.append(MeasurementReport(
             k, len(s.keys.tracks), s.n_points, float(sigma),
-            0.0 if excluded else median**2 / sigma**2, excluded, rejected, reason,
+            0.0 if excluded else median**2 / sigma**2, excluded, rejected, kind, values,
             axis_point=[float(v) for v in axis.point], axis_direction=[float(v) for v in axis.direction],
             image_axis=[float(v) for v in s.image_axis / np.hypot(s.image_axis[0], s.image_axis[1])],
             axis_chi2=None if chi2 is None else float(chi2[k]), arc_span_deg=span, weak=weak))
@@ -141,5 +140,5 @@ def _flag_outlier_measurements(reports: list[MeasurementReport], options: Calibr
     for r in reports:
         if not r.outlier and r.residual_rms_px > options.outlier_measurement_ratio * median:
             r.outlier = True
-            r.outlier_reason = (f"residual RMS {r.residual_rms_px:.2f} px > {options.outlier_measurement_ratio:g}x "
-                                f"the median {median:.2f} px")
+            r.outlier_kind = OutlierKind.RESIDUAL.value
+            r.outlier_values = {"ratio": float(options.outlier_measurement_ratio), "median": float(median)}

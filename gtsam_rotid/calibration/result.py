@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import asdict, dataclass, field
+from enum import StrEnum
 
 import gtsam
 import numpy as np
@@ -18,6 +19,24 @@ from ..uncertainty import (
 )
 
 
+class OutlierKind(StrEnum):
+    """Why a measurement is an outlier (``MeasurementReport.outlier_kind``); the numbers the words need are in
+    ``MeasurementReport.outlier_values`` (:func:`gtsam_rotid.words.outlier_words` says it)."""
+
+    #: left out before stage 1: fewer than two usable tracks (no image axis)
+    FEW_TRACKS = "few_tracks"
+    #: left out: too little evidence for a Gaussian image axis, and enough strong measurements without it
+    #: (values: ``used``, how many measurements the estimate used)
+    THIN = "thin"
+    #: left out: its image axis disagrees with the FK axis projected by the estimate (values: ``limit``, the
+    #: chi-square limit; ``short_arc_deg`` when all its arcs are short and its evidence is not thin)
+    DISAGREES = "disagrees"
+    #: still used: its residual RMS exceeds ``ratio`` times the ``median`` of the measurements' (values)
+    RESIDUAL = "residual"
+    #: a result file written before the kinds existed: its words (values: ``text``)
+    TEXT = "text"
+
+
 @dataclass
 class MeasurementReport:
     index: int
@@ -27,8 +46,10 @@ class MeasurementReport:
     weight: float  # 1 / sigma^2 applied to its pixels (joint) or its line (two-stage), relative to the median
     outlier: bool
     rejected_tracks: dict[int, str] = field(default_factory=dict)
-    #: why the measurement is an outlier ("" when it is not)
-    outlier_reason: str = ""
+    #: why the measurement is an outlier (an :class:`OutlierKind` value, "" when it is not) and the numbers that the
+    #: words of that reason need
+    outlier_kind: str = ""
+    outlier_values: dict[str, float | str] = field(default_factory=dict)
     #: the FK wrist axis of this arm pose (arm frame, m): a point on it and its unit direction
     axis_point: list[float] | None = None
     axis_direction: list[float] | None = None
@@ -228,12 +249,7 @@ class CalibrationResult:
             final_error=data["final_error"],
             sigma_px=data["sigma_px"],
             dof=data.get("dof"),
-            measurements=[
-                MeasurementReport(**{**m, "rejected_tracks": {int(k): v for k, v in m["rejected_tracks"].items()},
-                                     "residual_rms_px": np.nan if m["residual_rms_px"] is None
-                                     else m["residual_rms_px"]})
-                for m in data["measurements"]
-            ],
+            measurements=[_measurement_from_dict(m) for m in data["measurements"]],
             observability=Observability.from_dict(data["observability"]),
             alternatives=[Alternative.from_dict(a) for a in data.get("alternatives", [])],
             axis_consistency=None if data.get("axis_consistency") is None
@@ -259,3 +275,13 @@ UNTRUSTED_KINDS = {
     "too_uncertain": "the uncertainty is too large to be a calibration",
     "unmeasured_scatter": "the measurements disagree beyond their noise and are too few to measure by how much",
 }
+
+
+def _measurement_from_dict(m: dict) -> MeasurementReport:
+    """A measurement's report from a result file; a file of before the outlier kinds keeps its words (TEXT)."""
+    m = dict(m)
+    text = m.pop("outlier_reason", None)
+    if text and not m.get("outlier_kind"):
+        m["outlier_kind"], m["outlier_values"] = OutlierKind.TEXT.value, {"text": str(text)}
+    return MeasurementReport(**{**m, "rejected_tracks": {int(k): v for k, v in m["rejected_tracks"].items()},
+                                "residual_rms_px": np.nan if m["residual_rms_px"] is None else m["residual_rms_px"]})

@@ -17,7 +17,7 @@ from .initial import _initial, axis_miss_rms, poor_start
 from .joint import Fitted, _joint, _weighted
 from .lm import _builder
 from .options import MIN_MEASUREMENTS, CalibrationOptions, Method
-from .result import CalibrationResult, MeasurementReport
+from .result import CalibrationResult, MeasurementReport, OutlierKind
 from .setup import _Setup, arc_span_deg
 from .stage2 import _check_scale, _paper, _refined_stage1
 from .tuning import (
@@ -77,8 +77,7 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
         spans = [arc_span_deg(t.ideal, t.ellipse) for t in p.usable.values()]
         reports.append(MeasurementReport(
             k, len(p.usable), sum(len(t.ideal) for t in p.usable.values()), float("nan"), 0.0, True,
-            dict(p.rejected), f"left out: only {len(p.usable)} usable track(s), need at least 2 for an image axis; "
-            "spin longer or give the hand more texture", axis_point=[float(v) for v in axis.point],
+            dict(p.rejected), OutlierKind.FEW_TRACKS.value, axis_point=[float(v) for v in axis.point],
             axis_direction=[float(v) for v in axis.direction], arc_span_deg=max(spans) if spans else None, weak=True))
     result = replace(result, measurements=sorted(reports, key=lambda r: r.index))
     return replace(result, untrusted=_untrusted(result, setup))

@@ -7,9 +7,10 @@ import pytest
 from thin_tracks import _thin
 
 from gtsam_rotid import Camera, Dataset, InputError, Measurement, simulate
+from gtsam_rotid.calibration.result import OutlierKind
 from gtsam_rotid.estimate import CalibrationError, CalibrationOptions, CalibrationResult, calibrate
 from gtsam_rotid.simulate import SceneConfig
-from gtsam_rotid.words import observability_words, summary
+from gtsam_rotid.words import observability_words, outlier_words, summary
 
 METHODS = ["joint", "weighted", "paper"]
 
@@ -131,8 +132,9 @@ def test_a_measurement_without_usable_tracks_is_left_out_and_named(noise_free_sc
     result = calibrate(dataset.arm, dataset.camera, [measurements[0], short, *measurements[2:]])
     assert [m.index for m in result.measurements] == list(range(len(measurements)))
     left = result.measurements[1]
-    assert left.outlier and left.weight == 0.0 and "only 0 usable track(s)" in left.outlier_reason
-    assert "joint angles" not in left.outlier_reason  # the evidence, not the kinematics, is at fault
+    assert left.outlier and left.weight == 0.0 and left.outlier_kind == OutlierKind.FEW_TRACKS
+    assert "only 0 usable track(s)" in outlier_words(left)
+    assert "joint angles" not in outlier_words(left)  # the evidence, not the kinematics, is at fault
     assert all("too short (5 < 10 points)" in why for why in left.rejected_tracks.values())
     assert not any(m.outlier for k, m in enumerate(result.measurements) if k != 1)
     error = result.error_to(truth.arm_T_camera)  # the others still calibrate (noise-free)
@@ -171,8 +173,8 @@ def test_thin_evidence_is_flagged_or_holds_its_covariance(seed):
         assert "COVARIANCE UNUSABLE" in text and "not the joint angles" in text
         for m in result.measurements:
             if m.outlier and m.weak:  # a weak measurement left out is not blamed on its joint angles first
-                assert ("check its joint angles" not in m.outlier_reason
-                        or "spin longer or add texture" in m.outlier_reason), m.outlier_reason
+                words = outlier_words(m)
+                assert "check its joint angles" not in words or "spin longer or add texture" in words, words
         again = CalibrationResult.from_dict(result.to_dict())
         assert again.untrusted == result.untrusted and not again.covariance_usable
 

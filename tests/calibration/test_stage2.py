@@ -7,10 +7,11 @@ from thin_tracks import _thin
 
 from gtsam_rotid import Dataset, Measurement, Track, simulate
 from gtsam_rotid.calibration import stage2
+from gtsam_rotid.calibration.result import OutlierKind
 from gtsam_rotid.estimate import CalibrationError, CalibrationResult, calibrate
 from gtsam_rotid.report import make_report
 from gtsam_rotid.uncertainty import loewner_max
-from gtsam_rotid.words import summary, untrusted_words
+from gtsam_rotid.words import outlier_words, summary, untrusted_words
 
 
 @pytest.mark.parametrize("method", ["joint", "weighted"])
@@ -24,7 +25,8 @@ def test_a_wrong_joint_reading_is_left_out(method):
     flagged = [m.index for m in result.measurements if m.outlier]
     assert flagged == [2]
     assert result.measurements[2].weight == 0.0
-    assert "disagrees with the FK axis" in result.measurements[2].outlier_reason
+    assert result.measurements[2].outlier_kind == OutlierKind.DISAGREES
+    assert "disagrees with the FK axis" in outlier_words(result.measurements[2])
     assert "OUTLIER (left out" in summary(result)
     error = result.error_to(truth.arm_T_camera)
     assert np.all(np.abs(error) < 4.0 * np.sqrt(np.diag(result.covariance)))
