@@ -230,7 +230,12 @@ def load_camera(path: str | os.PathLike) -> Camera:
     extra coefficients are zero), unreadable or malformed files.
     """
     path = Path(path)
-    document = _read_camera_document(path)
+    return camera_from_document(_read_camera_document(path), path)
+
+
+def camera_from_document(document: Any, path: Path | str) -> Camera:
+    """A :class:`Camera` from a camera file's parsed contents (or a ``CameraInfo`` message's fields as a mapping:
+    ``width``, ``height``, ``k``, ``d``, ``distortion_model``); ``path`` names where it came from in errors."""
     if not isinstance(document, Mapping):
         raise CameraError(f"{path}: a camera file must hold a mapping of keys (camera_matrix, image_width, ...), "
                           f"got {type(document).__name__}")

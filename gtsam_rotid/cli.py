@@ -12,6 +12,8 @@ from typing import Any
 
 from . import __version__
 from .arm import Arm
+from .bagdataset import dataset_from_bag
+from .dataset import Dataset
 from .demo import DEMO_COVERING
 from .errors import DatasetExistsError, InputError, OutputError, OutputExistsError, RotIdError
 from .export import DEFAULT_CHILD, JOINT_NAME, PARENT_FRAME, CameraFrame, Format, export_result, load_result
@@ -103,8 +105,6 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
-    from .dataset import Dataset
-
     path = Path(args.dataset)
     output = Path(args.output) if args.output else None
     if output is not None:
@@ -306,6 +306,49 @@ def cmd_track(args: argparse.Namespace) -> int:
     output = Path(args.output)
     if os.path.lexists(output) and not args.overwrite:
         raise DatasetExistsError(f"{output} exists; {OVERWRITE_HINT}")
+    arm = Arm.from_urdf(args.urdf, wrist_joint=args.wrist_joint) if args.urdf else \
+        Arm.from_robot(args.robot, wrist_joint=args.wrist_joint)
+    settings = dict(features=args.features, max_corners=args.max_corners, min_length=args.min_track_length)
+    params = None   # the tracker's defaults
+    if args.tracker_params is not None or any(v is not None for v in settings.values()):
+        params = load_tracker_params(args.tracker_params, **settings)
+    if args.bag is not None:
+        dataset = _track_bag(args, arm, params)
+    else:
+        dataset = _track_videos(args, arm, params)
+    dataset.save(output, overwrite=args.overwrite)
+    print(dataset.summary())
+    print(f"wrote {output}")
+    return 0
+
+
+def _track_bag(args: argparse.Namespace, arm: Arm, params) -> Dataset:
+    """``track --bag``: the spins, joints and camera from a ROS bag."""
+    given = [flag for flag, value in (("--joints", args.joints), ("--frames", args.frames), ("--spans", args.spans),
+                                      ("--degrees", args.degrees), ("--ignore-joints", args.ignore_joints))
+             if value]
+    if given:
+        raise InputError(f"{', '.join(given)} do(es) not apply to --bag: the bag's joint states give the spins and "
+                         "the joint angles (radians, matched by name)")
+    print(f"bag {args.bag}; {arm!r}" + ("" if params is None else f"; features: {params.features}"), flush=True)
+    dataset = dataset_from_bag(args.bag, arm, image_topic=args.image_topic, joint_topic=args.joint_topic,
+                               camera_info_topic=args.camera_info_topic, camera=args.camera, tracker_params=params,
+                               still_tolerance_deg=args.still_tolerance, min_spin_deg=args.min_spin,
+                               progress=not args.no_progress)
+    recording = dataset.metadata["recording"]
+    offset, applied = recording["time_offset_s"], "applied" if recording["time_offset_applied"] else "NOT applied"
+    print(f"topics: images {recording['topics']['image']}, joint states {recording['topics']['joints']}, camera "
+          f"{recording['camera_from']}; {len(dataset)} spin(s); camera-to-joint-state time offset "
+          + ("not measured" if offset is None else f"{1000 * offset:+.1f} ms (correlation "
+             f"{recording['time_offset_correlation']:.2f}, {applied})"))
+    return dataset
+
+
+def _track_videos(args: argparse.Namespace, arm: Arm, params) -> Dataset:
+    """``track --video/--videos-dir``: one video per measurement, a joint file and a camera file."""
+    missing = [flag for flag, value in (("--joints", args.joints), ("--camera", args.camera)) if value is None]
+    if missing:
+        raise InputError(f"videos need {' and '.join(missing)} (a bag gives both: --bag)")
     videos = [Path(v) for v in args.videos] if args.videos else videos_in(Path(args.videos_dir))
     frame_ranges = None
     if args.frames:
@@ -318,39 +361,39 @@ def cmd_track(args: argparse.Namespace) -> int:
         spans = [_parse_pair(text, "--spans", float) for text in args.spans]
         if any(a is None or b is None for a, b in spans):
             raise InputError("each --spans entry needs both its first and last stamp, T0:T1")
-    arm = Arm.from_urdf(args.urdf, wrist_joint=args.wrist_joint) if args.urdf else \
-        Arm.from_robot(args.robot, wrist_joint=args.wrist_joint)
     joint_options = {"degrees": bool(args.degrees), "spans": spans, "still_tolerance_deg": args.still_tolerance,
                      "min_spin_deg": args.min_spin, "ignore_joints": list(args.ignore_joints)}
-    settings = dict(features=args.features, max_corners=args.max_corners, min_length=args.min_track_length)
-    params = None   # the tracker's defaults
-    if args.tracker_params is not None or any(v is not None for v in settings.values()):
-        params = load_tracker_params(args.tracker_params, **settings)
     print(f"{len(videos)} video(s); {arm!r}" + ("" if params is None else f"; features: {params.features}"),
           flush=True)
-    dataset = make_dataset(videos, args.joints, args.camera, arm, frame_ranges=frame_ranges,
-                           progress=not args.no_progress, joint_options=joint_options, tracker_params=params)
-    dataset.save(output, overwrite=args.overwrite)
-    print(dataset.summary())
-    print(f"wrote {output}")
-    return 0
+    return make_dataset(videos, args.joints, args.camera, arm, frame_ranges=frame_ranges,
+                        progress=not args.no_progress, joint_options=joint_options, tracker_params=params)
 
 
 def add_track_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``track`` command to an ``argparse`` subparsers object; returns its parser (func = cmd_track)."""
     p = subparsers.add_parser(
-        "track", help="make a dataset from recorded videos, joint angles and a camera file",
-        description="Track features in one video (or image folder) per arm pose and write a dataset. The joint "
-                    "file is CSV or JSON: one row of angles per video, or a time series of joint states "
-                    "(a time/stamp column) from which each spin's still joints are read.")
+        "track", help="make a dataset from a ROS bag, or from recorded videos, joint angles and a camera file",
+        description="Track features in each wrist spin and write a dataset. From a ROS bag (ROS 1 .bag, ROS 2 "
+                    "sqlite3 or mcap): the spins are found in the joint states, the camera read from CameraInfo "
+                    "and the camera-to-joint-state time offset measured. From videos: one video (or image folder) "
+                    "per arm pose; the joint file is CSV or JSON: one row of angles per video, or a time series of "
+                    "joint states (a time/stamp column) from which each spin's still joints are read.")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--video", "--videos", dest="videos", nargs="+", metavar="VIDEO",
                         help="one video file or image folder per measurement, in the joint file's order")
+    source.add_argument("--bag", metavar="PATH",
+                        help="a ROS 1 .bag file or a ROS 2 bag directory (sqlite3 or mcap): images, joint states "
+                             "and CameraInfo")
     source.add_argument("--videos-dir", metavar="DIR",
                         help="a directory whose videos and image folders (sorted by name) are the measurements")
-    p.add_argument("--joints", required=True, metavar="FILE", help="joint-angle file (CSV or JSON)")
-    p.add_argument("--camera", required=True, metavar="CAMERA_YAML",
-                   help="OpenCV calibration YAML or ROS camera_info YAML")
+    p.add_argument("--joints", metavar="FILE", help="joint-angle file (CSV or JSON; videos only)")
+    p.add_argument("--camera", metavar="CAMERA_YAML",
+                   help="OpenCV calibration YAML or ROS camera_info YAML (videos: required; a bag: instead of its "
+                        "CameraInfo)")
+    p.add_argument("--image-topic", metavar="TOPIC", help="the bag's image topic (default: the only one)")
+    p.add_argument("--joint-topic", metavar="TOPIC", help="the bag's JointState topic (default: the only one)")
+    p.add_argument("--camera-info-topic", metavar="TOPIC",
+                   help="the bag's CameraInfo topic (default: the one beside the images, or the only one)")
     robot = p.add_mutually_exclusive_group(required=True)
     robot.add_argument("--robot", metavar="NAME", help="example-robot-data arm (kinova, ur5, ur10, panda, xarm7)")
     robot.add_argument("--urdf", metavar="FILE", help="the arm's URDF")

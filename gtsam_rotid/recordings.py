@@ -26,7 +26,7 @@ import json
 import math
 import os
 import sys
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,6 +41,7 @@ from .dataset import Dataset, Measurement, Track
 from .errors import ArmError, InputError, RecordingError
 from .files import VIDEO_SUFFIXES, image_files, natural_key
 from .frames import checked_range, frames_of, open_source, read_frames  # noqa: F401 (read_frames: re-export)
+from .trackrun import default_tracker, tracked_frames, tracker_description
 
 #: Column names (case-insensitive) that make a joint CSV a time series.
 TIME_COLUMNS = ("time", "stamp", "stamps", "timestamp", "t", "%time")
@@ -380,36 +381,7 @@ def load_joints(path: str | os.PathLike, arm: Arm, n_measurements: int | None = 
                                  min_spin_deg) for k, inside in enumerate(selections)])
 
 
-def _checked_size(frames: Iterable[np.ndarray], camera: Camera, path: Path) -> Iterator[np.ndarray]:
-    for i, frame in enumerate(frames):
-        if i == 0 and (frame.shape[1], frame.shape[0]) != (camera.width, camera.height):
-            raise RecordingError(f"{path}: the frames are {frame.shape[1]}x{frame.shape[0]} pixels but the camera "
-                                 f"is {camera.width}x{camera.height}; the camera file must describe this video")
-        yield frame
-
-
-def _counted(frames: Iterable[np.ndarray], bar: tqdm) -> Iterator[np.ndarray]:
-    """``frames``, advancing ``bar`` by one per frame (a plain generator: no ``len``, as a tracker may ask)."""
-    for frame in frames:
-        yield frame
-        bar.update(1)
-
-
 # ---------------------------------------------------------------------------------------------- dataset
-def _tracker_description(tracker: Callable, params: Any) -> dict:
-    description: dict[str, Any] = {"function": f"{getattr(tracker, '__module__', '?')}."
-                                               f"{getattr(tracker, '__qualname__', type(tracker).__name__)}"}
-    if params is not None:
-        value = dataclasses.asdict(params) if dataclasses.is_dataclass(params) and not isinstance(params, type) \
-            else params
-        try:
-            json.dumps(value, allow_nan=False)
-        except (TypeError, ValueError):
-            value = repr(params)
-        description["params"] = value
-    return description
-
-
 def _joint_rows(joints, arm: Arm, labels: list[str], joint_options: Mapping | None) -> list[np.ndarray]:
     """One joint-angle vector per video (``joints``: rows, or a joint-angle file read with ``joint_options``)."""
     n = len(labels)
@@ -435,22 +407,7 @@ def _tracked(source, frame_range, camera: Camera, tracker: Callable, tracker_par
              progress: bool) -> list[Track]:
     """The tracks of one video (frame indices the video's own), at least 2, or a RecordingError naming it."""
     frames, expected, first = frames_of(source, frame_range)
-    frames = _checked_size(frames, camera, source.path)
-    with tqdm(total=expected, desc=source.path.name, unit="frame", leave=False, disable=not progress,
-              file=sys.stderr) as frame_bar:
-        found = tracker(_counted(frames, frame_bar), params=tracker_params)
-    if found is None or isinstance(found, (Track, np.ndarray)):
-        raise InputError(f"the tracker must return a list of Track for {source.path}, got {type(found).__name__}")
-    tracks = []
-    for j, item in enumerate(found):
-        track = Track.from_any(item, measurement=k, track=j)
-        if track.frames is not None and first:
-            track = Track(track.pixels, track.frames + first)
-        tracks.append(track)
-    if len(tracks) < 2:
-        raise RecordingError(f"{label}: the tracker found {len(tracks)} track(s) in {source.path}; a measurement "
-                             f"needs at least 2 (are features on the spinning end effector visible and in focus?)")
-    return tracks
+    return tracked_frames(frames, expected, first, source.path, camera, tracker, tracker_params, k, label, progress)
 
 
 def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | str | os.PathLike, arm: Arm, *,
@@ -503,17 +460,8 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
     angles = _joint_rows(joints, arm, labels, joint_options)
     sources = [open_source(v) for v in videos]  # fail fast, before the slow tracking
     checked_ranges = [checked_range(r, v) for r, v in zip(frame_ranges, videos, strict=True)]
-    from .tracking import Tracker, track
-    from .trackparams import TrackerParams, tracker_metadata
-    tracker = track if tracker is None else tracker
-    corner_tracks, described = None, tracker
-    if tracker is track and (tracker_params is None or isinstance(tracker_params, TrackerParams)):
-        corner_tracks = []  # the default tracker: the dataset states its features' image axes' floor
-
-        def tracker(frames, params=None):
-            result = Tracker(params).run(frames)
-            corner_tracks.append(result.n_corner_tracks)
-            return result.tracks
+    from .trackparams import tracker_metadata
+    tracker, described, corner_tracks = default_tracker(tracker, tracker_params)
     measurements = []
     with tqdm(total=n, desc="videos", unit="video", disable=not progress, file=sys.stderr) as bar:
         for k, (source, frame_range) in enumerate(zip(sources, checked_ranges, strict=True)):
@@ -527,7 +475,7 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
         "joints_file": joints_file,
         "joint_options": dict(joint_options or {}),
         "camera_file": camera_file,
-        "tracker": _tracker_description(described, tracker_params),
+        "tracker": tracker_description(described, tracker_params),
     }
     extra = {"recording": recording}
     if corner_tracks is not None:

@@ -1,0 +1,115 @@
+"""A :class:`Dataset` from a ROS bag (:mod:`gtsam_rotid.bags`): the spins found in the joint states (only the
+spinning joint moves), each spin's still joints, the camera from ``CameraInfo`` (or a camera file), the
+camera-to-joint-state time offset measured and applied, and the tracker run on each spin's images.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from .arm import Arm
+from .bags import Bag, BagError, estimate_time_offset
+from .camera import Camera
+from .camerafiles import load_camera
+from .dataset import Dataset, Measurement
+from .recordings import MIN_SPIN_DEG, STILL_TOLERANCE_DEG, JointFile, _spin_runs, _still_pose
+from .trackrun import default_tracker, tracked_frames, tracker_description
+
+#: Below this correlation between image motion and joint speed the time offset is not trusted (and not applied).
+MIN_OFFSET_CORRELATION = 0.5
+#: Images this close (s) to a spin's first or last joint state are left out (the stamps' own jitter).
+SPIN_MARGIN_S = 0.1
+
+
+def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | None = None,
+                     joint_topic: str | None = None, camera_info_topic: str | None = None,
+                     camera: Camera | str | os.PathLike | None = None, tracker: Callable | None = None,
+                     tracker_params: Any = None, still_tolerance_deg: float = STILL_TOLERANCE_DEG,
+                     min_spin_deg: float = MIN_SPIN_DEG, max_offset_s: float = 1.0, progress: bool = True,
+                     metadata: Mapping | None = None) -> Dataset:
+    """One measurement per spin of ``arm.wrist_joint`` found in the bag's joint states.
+
+    Args:
+        path: a ROS 1 ``.bag`` file or a ROS 2 bag directory (sqlite3 or mcap storage; its storage file works too).
+        arm: the robot; its joint names must appear in the joint states.
+        image_topic, joint_topic, camera_info_topic: found by message type when not given and unambiguous.
+        camera: a :class:`Camera` or camera file, used instead of the bag's ``CameraInfo``.
+        tracker, tracker_params: as :func:`gtsam_rotid.recordings.make_dataset`.
+        still_tolerance_deg, min_spin_deg: what counts as a spin (:func:`gtsam_rotid.recordings.find_spins`).
+        max_offset_s: the largest camera-to-joint-state time offset searched.
+
+    The offset (camera clock minus joint-state clock) is read off when the images start and stop moving against
+    when the joints do (:func:`gtsam_rotid.bags.estimate_time_offset`); it is applied, and recorded with its
+    correlation in ``metadata["recording"]``, when the correlation is at least MIN_OFFSET_CORRELATION (else it is
+    recorded, not applied, and a warning printed). Track frame indices are the images' positions on the topic.
+    Raises :class:`BagError` naming the bag and topic: no spin, a spin without images, images of another size.
+    """
+    with Bag(path) as bag:
+        topics = bag.choose_topics(image_topic, joint_topic, camera_info_topic)
+        where = f"{bag.path}, topic {topics.image}"
+        camera_from = "given"
+        if camera is None:
+            if topics.camera_info is None:
+                raise BagError(f"the bag {bag.path} has no CameraInfo topic: give the camera (--camera FILE)")
+            camera, camera_from = bag.camera(topics.camera_info), topics.camera_info
+        elif not isinstance(camera, Camera):
+            camera_from = os.fspath(camera)
+            camera = load_camera(camera)
+        stamps, positions = bag.joint_states(topics.joints, arm.joint_names)
+        unwrapped = np.unwrap(positions, axis=0)
+        runs = _spin_runs(unwrapped, arm.wrist_index, still_tolerance_deg, min_spin_deg)
+        if not runs:
+            raise BagError(f"{bag.path}, topic {topics.joints}: no spin of {arm.wrist_joint!r} (at least "
+                           f"{min_spin_deg:g} deg while no other joint moves by more than {still_tolerance_deg:g} deg)"
+                           " in the joint states")
+        image_stamps, motion = bag.image_motion(topics.image)
+        offset, correlation = estimate_time_offset(image_stamps, motion, stamps, positions, max_offset_s)
+        applied = bool(np.isfinite(offset) and correlation >= MIN_OFFSET_CORRELATION)
+        if not applied:
+            print(f"warning: {where}: the camera-to-joint-state time offset could not be measured (correlation "
+                  f"{correlation:.2f} of image motion and joint speed); the stamps are taken as they are",
+                  file=sys.stderr)
+        shift = offset if applied else 0.0
+        joint_file = JointFile(Path(f"{bag.path}:{topics.joints}"), positions, stamps)
+        tracker, described, corner_tracks = default_tracker(tracker, tracker_params)
+        measurements, spans = [], []
+        with tqdm(total=len(runs), desc="spins", unit="spin", disable=not progress, file=sys.stderr) as bar:
+            for k, (a, b) in enumerate(runs):
+                label = f"spin {k} (joint stamps {stamps[a]:.3f} to {stamps[b - 1]:.3f} s)"
+                angles = _still_pose(joint_file, unwrapped, np.arange(a, b), arm, label, still_tolerance_deg,
+                                     min_spin_deg)
+                start, stop = stamps[a] + shift + SPIN_MARGIN_S, stamps[b - 1] + shift - SPIN_MARGIN_S
+                inside = np.flatnonzero((image_stamps >= start) & (image_stamps <= stop))
+                if len(inside) < 2:
+                    raise BagError(f"{label}: {len(inside)} image(s) on {topics.image} between the camera stamps "
+                                   f"{start:.3f} and {stop:.3f} s (images span {image_stamps.min():.3f} to "
+                                   f"{image_stamps.max():.3f} s)")
+                frames = (image for _, _, image in bag.images(topics.image, image_stamps[inside[0]],
+                                                              image_stamps[inside[-1]]))
+                tracks = tracked_frames(frames, len(inside), int(inside[0]), Path(where), camera, tracker,
+                                        tracker_params, k, label, progress)
+                measurements.append(Measurement(angles, tracks, name=f"spin {k}"))
+                spans.append([float(stamps[a]), float(stamps[b - 1])])
+                bar.update(1)
+    recording = {
+        "bag": os.fspath(path),
+        "topics": {"image": topics.image, "joints": topics.joints, "camera_info": topics.camera_info},
+        "camera_from": camera_from,
+        "spans": spans,
+        "time_offset_s": None if not np.isfinite(offset) else float(offset),
+        "time_offset_correlation": float(correlation),
+        "time_offset_applied": applied,
+        "tracker": tracker_description(described, tracker_params),
+    }
+    extra: dict[str, Any] = {"recording": recording}
+    if corner_tracks is not None:
+        from .trackparams import tracker_metadata
+        extra["tracker"] = tracker_metadata(tracker_params, sum(corner_tracks))
+    return Dataset(arm, camera, measurements, metadata={**extra, **dict(metadata or {})})

@@ -1,0 +1,310 @@
+"""ROS bags as recordings: ROS 1 ``.bag`` and ROS 2 bags (sqlite3 ``.db3`` and ``.mcap``), read through the
+pure-Python ``rosbags`` package (no ROS installation). What calibration needs of them: the topics (found by message
+type when that is unambiguous), the joint states as a time series in the model's joint order, the camera from
+``CameraInfo``, the images (``Image`` in the common encodings and ``CompressedImage``) as uint8 arrays with their
+stamps, and the camera-to-joint-state time offset, read off when the image starts and stops moving.
+
+Times are the messages' header stamps (seconds), or the bag's receive time where a header stamp is zero.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from .camera import Camera
+from .camerafiles import camera_from_document
+from .errors import CameraError, RecordingError
+
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+#: the suffixes of bag files (a ROS 2 bag is also a directory with ``metadata.yaml``)
+BAG_SUFFIXES = (".bag", ".db3", ".mcap")
+
+#: ROS image encodings -> (channels, OpenCV conversion to BGR or None); 16-bit ones are scaled to 8 bits
+_ENCODINGS: dict[str, tuple[int, int | None]] = {
+    "mono8": (1, None), "8uc1": (1, None), "mono16": (1, None), "16uc1": (1, None),
+    "bgr8": (3, None), "8uc3": (3, None), "rgb8": (3, cv2.COLOR_RGB2BGR),
+    "bgra8": (4, cv2.COLOR_BGRA2BGR), "8uc4": (4, cv2.COLOR_BGRA2BGR), "rgba8": (4, cv2.COLOR_RGBA2BGR),
+    # as cv_bridge converts them (OpenCV names a Bayer pattern by its second row)
+    "bayer_rggb8": (1, cv2.COLOR_BayerBG2BGR), "bayer_bggr8": (1, cv2.COLOR_BayerRG2BGR),
+    "bayer_gbrg8": (1, cv2.COLOR_BayerGR2BGR), "bayer_grbg8": (1, cv2.COLOR_BayerGB2BGR),
+}
+
+
+class BagError(RecordingError):
+    """A bag that cannot be read or used: missing, unreadable, without the topics calibration needs, or with
+    messages it cannot decode (the message names the bag and the topic)."""
+
+
+@dataclass(frozen=True)
+class BagTopics:
+    """The topics a recording is read from: images, joint states, and the camera's ``CameraInfo`` (None: none)."""
+
+    image: str
+    joints: str
+    camera_info: str | None
+
+
+def _seconds(stamp) -> float:
+    return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+
+
+def _time(message, bag_time_ns: int) -> float:
+    """The message's header stamp in seconds, or the bag's receive time where there is none (or it is zero)."""
+    header = getattr(message, "header", None)
+    if header is not None:
+        stamp = _seconds(header.stamp)
+        if stamp > 0.0:
+            return stamp
+    return 1e-9 * bag_time_ns
+
+
+def decode_image(message, msgtype: str, where: str) -> np.ndarray:
+    """A ``sensor_msgs`` Image or CompressedImage as a uint8 array: (H, W) grey or (H, W, 3) BGR."""
+    data = np.frombuffer(message.data, dtype=np.uint8)
+    if msgtype == COMPRESSED_IMAGE:
+        image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+        if image is None:
+            raise BagError(f"{where}: a CompressedImage ({message.format!r}) that OpenCV cannot decode")
+        if image.dtype == np.uint16:
+            image = (image >> 8).astype(np.uint8)
+        if image.ndim == 3 and image.shape[2] == 4:
+            image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+        return image
+    encoding = str(message.encoding).lower()
+    if encoding not in _ENCODINGS:
+        raise BagError(f"{where}: the image encoding {message.encoding!r} is not supported (supported: "
+                       f"{', '.join(_ENCODINGS)}, and CompressedImage)")
+    channels, conversion = _ENCODINGS[encoding]
+    height, width, step = int(message.height), int(message.width), int(message.step)
+    wide = encoding in ("mono16", "16uc1")
+    row_bytes = width * channels * (2 if wide else 1)
+    if height <= 0 or width <= 0 or step < row_bytes or data.size < height * step:
+        raise BagError(f"{where}: an Image of {width}x{height} ({message.encoding}, step {step}) holds "
+                       f"{data.size} bytes; expected at least {height * max(step, row_bytes)}")
+    rows = data[:height * step].reshape(height, step)[:, :row_bytes]
+    if wide:
+        order = ">" if message.is_bigendian else "<"
+        return (np.ascontiguousarray(rows).view(f"{order}u2") >> 8).astype(np.uint8).reshape(height, width)
+    image = np.ascontiguousarray(rows).reshape(height, width, channels) if channels > 1 else rows.copy()
+    return image if conversion is None else cv2.cvtColor(image, conversion)
+
+
+class Bag:
+    """An open bag (a context manager): its topics, joint states, camera and images.
+
+    Raises :class:`BagError` naming the bag when it is missing or cannot be read.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        from rosbags.highlevel import AnyReader, AnyReaderError  # imported here: only bag users pay for it
+        from rosbags.typesys import Stores, get_typestore
+
+        self.path = Path(path)
+        if not self.path.exists():
+            raise BagError(f"no bag at {self.path}")
+        if self.path.is_file() and self.path.suffix.lower() in (".db3", ".mcap"):
+            self.path = self.path.parent  # a ROS 2 bag is its directory (metadata.yaml beside the storage file)
+        try:
+            self._reader = AnyReader([self.path], default_typestore=get_typestore(Stores.LATEST))
+            self._reader.open()
+        except (AnyReaderError, OSError, ValueError, KeyError) as exc:
+            raise BagError(f"cannot read the bag {path}: {exc} (ROS 1 .bag files and ROS 2 bag directories with "
+                           "sqlite3 or mcap storage are supported)") from None
+
+    def __enter__(self) -> Bag:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._reader.close()
+
+    @property
+    def topics(self) -> dict[str, str]:
+        """Topic -> message type (ROS 2 style names, e.g. ``sensor_msgs/msg/Image``, for ROS 1 bags too)."""
+        return {c.topic: c.msgtype for c in self._reader.connections}
+
+    def count(self, topic: str) -> int:
+        return sum(c.msgcount for c in self._reader.connections if c.topic == topic)
+
+    def messages(self, topic: str) -> Iterator[tuple[float, Any, str]]:
+        """(time in seconds, message, message type) of every message on ``topic``, in the bag's order."""
+        connections = [c for c in self._reader.connections if c.topic == topic]
+        if not connections:
+            raise BagError(f"the bag {self.path} has no topic {topic!r} (it has: {_listing(self.topics)})")
+        for connection, bag_time_ns, raw in self._reader.messages(connections=connections):
+            try:
+                message = self._reader.deserialize(raw, connection.msgtype)
+            except Exception as exc:  # rosbags raises several types for a corrupt message
+                raise BagError(f"{self.path}, topic {topic}: a message that cannot be read ({exc})") from None
+            yield _time(message, bag_time_ns), message, connection.msgtype
+
+    def choose_topics(self, image: str | None = None, joints: str | None = None,
+                      camera_info: str | None = None) -> BagTopics:
+        """The topics to read: each one given is checked, each one not given is found by its message type when
+        exactly one topic has it (the camera's ``CameraInfo`` beside the image topic first). Raises
+        :class:`BagError` naming the candidates when a choice is needed."""
+        image = self._topic(image, (IMAGE, COMPRESSED_IMAGE), "image", "--image-topic")
+        joints = self._topic(joints, (JOINT_STATE,), "joint state", "--joint-topic")
+        if camera_info is None:
+            infos = [t for t, kind in self.topics.items() if kind == CAMERA_INFO]
+            beside = image.rsplit("/", 1)[0] + "/camera_info"
+            if beside in infos:
+                camera_info = beside
+            elif len(infos) == 1:
+                camera_info = infos[0]
+            elif infos:
+                raise BagError(f"the bag {self.path} has several CameraInfo topics ({', '.join(infos)}) and none "
+                               f"beside the images ({beside}): choose one with --camera-info-topic, or give "
+                               "--camera")
+        else:
+            camera_info = self._topic(camera_info, (CAMERA_INFO,), "CameraInfo", "--camera-info-topic")
+        return BagTopics(image, joints, camera_info)
+
+    def _topic(self, given: str | None, kinds: tuple[str, ...], what: str, flag: str) -> str:
+        topics = self.topics
+        if given is not None:
+            if given not in topics:
+                raise BagError(f"the bag {self.path} has no topic {given!r} ({flag}); it has: {_listing(topics)}")
+            if topics[given] not in kinds:
+                raise BagError(f"{flag} {given} in {self.path} carries {topics[given]}, not {' or '.join(kinds)}")
+            return given
+        found = [t for t, kind in topics.items() if kind in kinds]
+        if not found:
+            raise BagError(f"the bag {self.path} has no {what} topic ({' or '.join(kinds)}); it has: "
+                           f"{_listing(topics)}")
+        if len(found) > 1:
+            raise BagError(f"the bag {self.path} has several {what} topics ({', '.join(sorted(found))}): choose one "
+                           f"with {flag}")
+        return found[0]
+
+    def joint_states(self, topic: str, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+        """(stamps (N,), positions (N, len(names)) radians in ``names`` order) from a JointState topic.
+
+        Messages may carry other joints (grippers) or only some joints (several publishers on one topic): each
+        joint keeps its last position, and a row is made at every message that carries one of ``names`` once all
+        of them are known. Raises :class:`BagError` naming joints that never appear."""
+        index = {name: i for i, name in enumerate(names)}
+        last = np.full(len(names), np.nan)
+        stamps, rows, seen = [], [], set()
+        for stamp, message, _ in self.messages(topic):
+            position = np.asarray(message.position, dtype=float)
+            carried = False
+            for name, value in zip(message.name, position, strict=False):
+                if name in index:
+                    last[index[name]] = value
+                    carried = True
+                seen.add(name)
+            if carried and np.all(np.isfinite(last)):
+                stamps.append(stamp)
+                rows.append(last.copy())
+        missing = [name for name in names if name not in seen]
+        if missing:
+            raise BagError(f"{self.path}, topic {topic}: the joint state never names the model's joint(s) "
+                           f"{', '.join(missing)} (it names: {', '.join(sorted(seen)) or 'nothing'}); is this the "
+                           "right robot model?")
+        if len(rows) < 2:
+            raise BagError(f"{self.path}, topic {topic}: {len(rows)} complete joint state(s); need a time series")
+        stamps = np.asarray(stamps)
+        order = np.argsort(stamps, kind="stable")
+        return stamps[order], np.asarray(rows)[order]
+
+    def camera(self, topic: str) -> Camera:
+        """The camera of the first ``CameraInfo`` message on ``topic`` (plumb_bob distortion, as a camera file)."""
+        where = f"{self.path}, topic {topic}"
+        for _, message, _ in self.messages(topic):
+            document = {
+                "width": int(message.width), "height": int(message.height),
+                "k": [float(v) for v in (message.k if hasattr(message, "k") else message.K)],
+                "d": [float(v) for v in (message.d if hasattr(message, "d") else message.D)],
+                "distortion_model": str(message.distortion_model),
+            }
+            try:
+                return camera_from_document(document, where)
+            except CameraError as exc:
+                raise BagError(f"{exc} (an uncalibrated camera publishes zeros: give --camera)") from None
+        raise BagError(f"{where}: no CameraInfo message")
+
+    def images(self, topic: str, start: float = -np.inf, stop: float = np.inf,
+               ) -> Iterator[tuple[int, float, np.ndarray]]:
+        """(index on the topic, stamp, uint8 image) of the images stamped in ``[start, stop]``."""
+        for i, (stamp, message, msgtype) in enumerate(self.messages(topic)):
+            if start <= stamp <= stop:
+                yield i, stamp, decode_image(message, msgtype, f"{self.path}, topic {topic}, image {i}")
+
+    def image_motion(self, topic: str, size: int = 64) -> tuple[np.ndarray, np.ndarray]:
+        """(stamps, motion) of every image on ``topic``: motion is the mean absolute difference (grey levels) of
+        each image from the one before, at ``size`` pixels across (0 for the first)."""
+        stamps, motion, previous = [], [], None
+        for _, stamp, image in self.images(topic):
+            grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+            small = cv2.resize(grey, (size, max(1, round(size * grey.shape[0] / grey.shape[1]))),
+                               interpolation=cv2.INTER_AREA).astype(np.float32)
+            motion.append(0.0 if previous is None or previous.shape != small.shape
+                          else float(np.mean(np.abs(small - previous))))
+            stamps.append(stamp)
+            previous = small
+        return np.asarray(stamps), np.asarray(motion)
+
+
+def _listing(topics: dict[str, str]) -> str:
+    return ", ".join(f"{t} ({kind})" for t, kind in sorted(topics.items())) or "no topics"
+
+
+def estimate_time_offset(image_stamps: np.ndarray, motion: np.ndarray, joint_stamps: np.ndarray,
+                         positions: np.ndarray, max_offset_s: float = 1.0) -> tuple[float, float]:
+    """The camera clock minus the joint-state clock (s) for the same instant, and the correlation (0-1) it was
+    found at: the offset that best lines up how much each image differs from the one before (``motion``,
+    :meth:`Bag.image_motion`) with how far the joints moved between the two images' times, searched within
+    ``max_offset_s`` at a quarter of the frame period, then at 1/64 of it about the best. NaN with a correlation of
+    0 when the joints never move or the images never change."""
+    stamps = np.asarray(joint_stamps, dtype=float)
+    q = np.unwrap(np.asarray(positions, dtype=float), axis=0)
+    image_stamps = np.asarray(image_stamps, dtype=float)
+    if len(stamps) < 2 or len(image_stamps) < 3:
+        return float("nan"), 0.0
+    period = float(np.median(np.diff(image_stamps)))
+    moving = np.asarray(motion, dtype=float)[1:]
+    if not np.isfinite(period) or period <= 0 or np.ptp(moving) <= 0 or not np.any(np.ptp(q, axis=0) > 0):
+        return float("nan"), 0.0
+
+    # pairs of images further apart than 1.5 frame periods (the camera stopped, frames dropped) are not compared:
+    # the arm may have moved far in between, and one such pair would outweigh every spin's start and stop
+    paired = np.diff(image_stamps) <= 1.5 * period
+
+    def score(offset: float) -> float:
+        times = image_stamps - offset  # each image's instant on the joint clock
+        inside = (times >= stamps[0]) & (times <= stamps[-1])
+        at = np.stack([np.interp(times, stamps, q[:, j]) for j in range(q.shape[1])], axis=1)
+        travel = np.linalg.norm(np.diff(at, axis=0), axis=1)
+        return _correlation(moving, np.where(inside[1:] & inside[:-1] & paired, travel, np.nan))
+
+    coarse = np.arange(-max_offset_s, max_offset_s + 0.125 * period, 0.25 * period)
+    scores = np.array([score(offset) for offset in coarse])
+    if not np.any(np.isfinite(scores)):
+        return float("nan"), 0.0
+    # the peak is a kink (a spin's start or stop falls between two frames), steep on one side: search it finely
+    # about the best coarse offset rather than fit a parabola, which the gentle side drags
+    centre = float(coarse[int(np.nanargmax(scores))])
+    fine = centre + np.linspace(-0.25 * period, 0.25 * period, 33)
+    fine_scores = np.array([score(offset) for offset in fine])
+    best = int(np.nanargmax(fine_scores))
+    return float(fine[best]), float(max(fine_scores[best], 0.0))
+
+
+def _correlation(a: np.ndarray, b: np.ndarray) -> float:
+    ok = np.isfinite(b)
+    if ok.sum() < 3 or np.ptp(a[ok]) <= 0 or np.ptp(b[ok]) <= 0:
+        return float("nan")
+    return float(np.corrcoef(a[ok], b[ok])[0, 1])
