@@ -16,7 +16,16 @@ from .bagdataset import dataset_from_bag
 from .dataset import Dataset
 from .demo import DEMO_COVERING
 from .errors import DatasetExistsError, InputError, OutputError, OutputExistsError, RotIdError
-from .export import DEFAULT_CHILD, JOINT_NAME, PARENT_FRAME, CameraFrame, Format, export_result, load_result
+from .export import (
+    DEFAULT_CHILD,
+    JOINT_NAME,
+    PARENT_FRAME,
+    CameraFrame,
+    Format,
+    export_problems,
+    export_result,
+    load_result,
+)
 from .files import OVERWRITE_HINT, check_output, check_outputs, write_text
 from .meshrender import COVERINGS
 from .recordings import MIN_SPIN_DEG, STILL_TOLERANCE_DEG, load_tracker_params, make_dataset, videos_in
@@ -211,6 +220,9 @@ def add_export_parser(subparsers) -> argparse.ArgumentParser:
                    help="optical (default): the estimated OpenCV frame, z forward; body: turned to ROS's x-forward "
                         "camera_link convention (REP 103)")
     p.add_argument("--joint-name", default=JOINT_NAME, help=f"URDF joint name (default {JOINT_NAME})")
+    p.add_argument("--force", action="store_true",
+                   help="export a result that is not fit to export (undetermined, ambiguous, not trusted, NaN, "
+                        "not converged) anyway; the file carries the warning")
     p.set_defaults(func=cmd_export)
     return p
 
@@ -220,11 +232,9 @@ def cmd_export(args) -> int:
     result = load_result(args.result)
     fmt = Format(args.to)
     text = export_result(result, fmt, parent_frame=args.parent, child_frame=args.child,
-                         camera_frame=args.camera_frame, joint_name=args.joint_name)
-    if fmt in (Format.YAML, Format.JSON) and not result.covariance_usable:
-        print("gtsam-rotid export: warning: the covariance is unusable (the arm poses do not determine the "
-              "calibration; see `gtsam-rotid report`); it is exported with covariance_usable: false",
-              file=sys.stderr)
+                         camera_frame=args.camera_frame, joint_name=args.joint_name, force=args.force)
+    for problem in export_problems(result):  # only with --force: export_result refuses otherwise
+        print(f"gtsam-rotid export: warning: exported although {problem} (the file says so)", file=sys.stderr)
     _emit(text if text.endswith("\n") else text + "\n", output, args.overwrite)
     return 0
 

@@ -57,6 +57,10 @@ COVARIANCE_CONVENTION = (
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_./-]*$")
 
 
+class ExportRefused(InputError):
+    """A result not fit to export (:func:`export_problems`) and no ``force``; the message says why."""
+
+
 class Format(StrEnum):
     YAML = "yaml"
     JSON = "json"
@@ -107,10 +111,13 @@ class Transform:
     camera_frame: CameraFrame = CameraFrame.OPTICAL
     covariance_usable: bool = True
     method: str = ""
+    #: why the result was not fit to export, when it was exported anyway (``force``): every format carries them
+    warnings: tuple[str, ...] = ()
 
     @classmethod
     def from_result(cls, result, *, parent_frame: str = PARENT_FRAME, child_frame: str | None = None,
-                    camera_frame: str | CameraFrame = CameraFrame.OPTICAL) -> Transform:
+                    camera_frame: str | CameraFrame = CameraFrame.OPTICAL, warnings: tuple[str, ...] = ()
+                    ) -> Transform:
         """From a :class:`gtsam_rotid.estimate.CalibrationResult` (or anything with ``arm_T_camera`` and
         ``covariance``). ``camera_frame="body"`` turns the child to ROS's x-forward body convention."""
         try:
@@ -129,7 +136,8 @@ class Transform:
         if camera_frame is CameraFrame.BODY:
             pose = arm_T_camera.compose(gtsam.Pose3(gtsam.Rot3(OPTICAL_R_BODY), np.zeros(3)))
         return cls(pose, covariance, parent_frame, child_frame, camera_frame,
-                   bool(getattr(result, "covariance_usable", True)), str(getattr(result, "method", "")))
+                   bool(getattr(result, "covariance_usable", True)), str(getattr(result, "method", "")),
+                   tuple(warnings))
 
     @property
     def translation(self) -> np.ndarray:
@@ -175,6 +183,7 @@ class Transform:
             "covariance": [float(v) for v in self.covariance.ravel()],
             "covariance_usable": self.covariance_usable,
             "covariance_convention": COVARIANCE_CONVENTION,
+            **({"warnings": self._warning_lines()} if self.warnings else {}),
         }
 
     def to_json(self) -> str:
@@ -187,7 +196,7 @@ class Transform:
         is a flow sequence of 36 numbers, one row per line.
         """
         data = self.to_dict()
-        lines = [f"# {data['description']}",
+        lines = [*self._warning_lines("# "), f"# {data['description']}",
                  f"# covariance: {COVARIANCE_CONVENTION}"]
         for key, value in data.items():
             if key == "covariance":
@@ -210,7 +219,8 @@ class Transform:
         _checked_name(joint_name, "joint name")
         xyz = " ".join(_num(v) for v in self.translation)
         rpy = " ".join(_num(v) for v in self.rpy)
-        return (f"<!-- {self._describe()} -->\n"
+        warnings = "".join(f"<!-- {line.replace('--', '- -')} -->\n" for line in self._warning_lines())
+        return (warnings + f"<!-- {self._describe()} -->\n"
                 f'<joint name="{joint_name}" type="fixed">\n'
                 f'  <parent link="{self.parent_frame}"/>\n'
                 f'  <child link="{self.child_frame}"/>\n'
@@ -225,14 +235,18 @@ class Transform:
                 "--x", _num(x), "--y", _num(y), "--z", _num(z),
                 "--qx", _num(qx), "--qy", _num(qy), "--qz", _num(qz), "--qw", _num(qw),
                 "--frame-id", self.parent_frame, "--child-frame-id", self.child_frame]
-        return " ".join(shlex.quote(a) for a in args) + "\n"
+        warnings = "".join(line + "\n" for line in self._warning_lines("# "))
+        return warnings + " ".join(shlex.quote(a) for a in args) + "\n"
 
     def to_matrix_text(self) -> str:
         """The 4x4 homogeneous matrix (metres), one row per line; ``numpy.loadtxt`` reads it back."""
         rows = "\n".join(" ".join(f"{_num(v):>20}" for v in row) for row in self.matrix)
-        return (f"# {self._describe()}\n"
+        return ("".join(line + "\n" for line in self._warning_lines("# ")) + f"# {self._describe()}\n"
                 f"# maps {self.child_frame} coordinates to {self.parent_frame} coordinates: "
                 f"x_{self.parent_frame} = M x_{self.child_frame} (metres)\n{rows}\n")
+
+    def _warning_lines(self, prefix: str = "") -> list[str]:
+        return [f"{prefix}WARNING: exported although {w}" for w in self.warnings]
 
     def to_text(self, fmt: str | Format, joint_name: str = JOINT_NAME) -> str:
         fmt = _format(fmt)
@@ -275,11 +289,45 @@ def _yaml_scalar(value) -> str:
     return json.dumps(str(value), ensure_ascii=False)  # a double-quoted YAML string
 
 
+def export_problems(result) -> list[str]:
+    """Why ``result`` is not fit to export (empty when it is): a pose or covariance that is not finite, poses that
+    do not determine the calibration, another pose that fits nearly as well, a covariance not to be trusted, a
+    solver that did not converge. Each is said so that "exported although ..." reads as a sentence."""
+    problems = []
+    if not np.all(np.isfinite(result.arm_T_camera.matrix())):
+        problems.append("the pose is not finite")
+    covariance = np.asarray(result.covariance, dtype=float)
+    if covariance.shape != (6, 6) or not np.all(np.isfinite(covariance)):
+        problems.append("the covariance has NaN or infinite entries")
+    observability = getattr(result, "observability", None)
+    if observability is not None and not observability.is_observable:
+        problems.append(f"the arm poses do not determine the calibration ({len(observability.unobservable_directions)}"
+                        " undetermined direction(s); see `gtsam-rotid report`)")
+    if getattr(result, "ambiguous", False):
+        problems.append("another pose fits the pixels nearly as well (ambiguous; see `gtsam-rotid report`)")
+    untrusted = getattr(result, "untrusted", {})
+    if untrusted:
+        kinds = "; ".join(f"{kind}: measurement(s) {', '.join(map(str, ks))}" if ks else kind
+                          for kind, ks in untrusted.items())
+        problems.append(f"its covariance is not to be trusted ({kinds}; see `gtsam-rotid report`)")
+    if not getattr(result, "converged", True):
+        problems.append("the solver did not converge")
+    return problems
+
+
 def export_result(result, to: str | Format, *, parent_frame: str = PARENT_FRAME, child_frame: str | None = None,
-                  camera_frame: str | CameraFrame = CameraFrame.OPTICAL, joint_name: str = JOINT_NAME) -> str:
-    """The result's ``arm_T_camera`` (and covariance where the format has one) as text in format ``to``."""
+                  camera_frame: str | CameraFrame = CameraFrame.OPTICAL, joint_name: str = JOINT_NAME,
+                  force: bool = False) -> str:
+    """The result's ``arm_T_camera`` (and covariance where the format has one) as text in format ``to``.
+
+    A result not fit to export (:func:`export_problems`) raises :class:`ExportRefused` naming why, unless
+    ``force``: then the text carries each reason as a warning (comments, and a ``warnings`` list in YAML/JSON)."""
+    problems = export_problems(result)
+    if problems and not force:
+        raise ExportRefused("the result is not fit to export: " + "; ".join(problems)
+                            + ". Export it anyway with --force (force=True): the file then says so")
     transform = Transform.from_result(result, parent_frame=parent_frame, child_frame=child_frame,
-                                      camera_frame=camera_frame)
+                                      camera_frame=camera_frame, warnings=tuple(problems))
     return transform.to_text(to, joint_name)
 
 

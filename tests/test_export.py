@@ -5,17 +5,22 @@ import json
 import re
 import shlex
 import xml.etree.ElementTree as ET
+from dataclasses import replace
 
 import gtsam
 import numpy as np
 import pytest
+import yaml
 
 from gtsam_rotid import InputError, OutputError, RotIdError
-from gtsam_rotid.cli import add_export_parser
+from gtsam_rotid.calibration.result import Alternative, CalibrationResult
+from gtsam_rotid.cli import add_export_parser, main
 from gtsam_rotid.export import (
+    ExportRefused,
     Transform,
     export_result,
     gtsam_covariance,
+    load_result,
     ros_covariance,
 )
 
@@ -318,3 +323,52 @@ def test_cli_export_errors_are_typed(tmp_path):
         run_export([str(other), "--to", "json"])
     with pytest.raises(OutputError, match="does not exist"):
         run_export([str(other), "--to", "json", "-o", str(tmp_path / "no" / "x.json")])
+
+
+def unfit(result):
+    """Results not fit to export, each with the words its refusal must use."""
+    return {
+        "untrusted": (replace(result, untrusted={"thin_evidence": [2]}), "not to be trusted (thin_evidence: "
+                      "measurement(s) 2"),
+        "nan": (replace(result, covariance=np.full((6, 6), np.nan)), "the covariance has NaN or infinite entries"),
+        "ambiguous": (replace(result, alternatives=[Alternative(result.arm_T_camera, 0.5)]), "ambiguous"),
+        "not converged": (replace(result, converged=False), "the solver did not converge"),
+    }
+
+
+@pytest.mark.parametrize("case", ["untrusted", "nan", "ambiguous", "not converged"])
+def test_a_result_unfit_to_export_is_refused_unless_forced_and_then_says_so(result, case, tmp_path, capsys):
+    bad, words = unfit(result)[case]
+    for fmt in ("yaml", "json", "urdf", "ros2", "matrix"):
+        with pytest.raises(ExportRefused, match=re.escape(words) + ".*--force"):
+            export_result(bad, fmt)
+        text = export_result(bad, fmt, force=True)
+        assert "WARNING: exported although " in text and words in text
+    assert any(words in w for w in json.loads(export_result(bad, "json", force=True))["warnings"])
+    assert any(words in w for w in yaml.safe_load(export_result(bad, "yaml", force=True))["warnings"])
+    if case != "nan":  # the forced files still read back
+        np.testing.assert_allclose(np.loadtxt(export_result(bad, "matrix", force=True).splitlines()),
+                                   result.arm_T_camera.matrix(), atol=1e-11)
+        ET.fromstring("<robot>" + export_result(bad, "urdf", force=True) + "</robot>")
+    assert "warnings" not in json.loads(export_result(result, "json"))  # a fit result carries none
+    path, out = tmp_path / "result.json", tmp_path / "camera.yaml"
+    bad.save(path)
+    assert main(["export", str(path), "--to", "yaml", "-o", str(out)]) == 1
+    assert "--force" in capsys.readouterr().err and not out.exists()  # nothing written
+    assert main(["export", str(path), "--to", "yaml", "-o", str(out), "--force"]) == 0
+    assert "warning: exported although" in capsys.readouterr().err and "WARNING" in out.read_text()
+
+
+@pytest.mark.parametrize("change, words", [
+    (lambda M: M @ np.diag([1.1, 1.0, 1.0, 1.0]), "not orthonormal"),
+    (lambda M: M @ np.diag([-1.0, 1.0, 1.0, 1.0]), "reflection"),
+    (lambda M: M + np.array([[0, 0, 0, 0]] * 3 + [[0, 0, 0.5, 0]]), "last row"),
+])
+def test_a_result_file_whose_pose_is_not_rigid_is_refused_by_name(result, tmp_path, change, words):
+    data = result.to_dict()
+    data["arm_T_camera"] = change(np.array(data["arm_T_camera"])).tolist()
+    path = tmp_path / "result.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(InputError, match=f"result.json: arm_T_camera is not a rigid transform: .*{words}"):
+        load_result(path)
+    assert CalibrationResult.from_dict(result.to_dict()).arm_T_camera.equals(result.arm_T_camera, 1e-12)

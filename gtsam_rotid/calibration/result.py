@@ -241,7 +241,7 @@ class CalibrationResult:
         if data.get("format") != "gtsam_rotid.calibration":
             raise InputError("not a gtsam_rotid calibration result (missing format marker)")
         return cls(
-            arm_T_camera=gtsam.Pose3(np.array(data["arm_T_camera"])),
+            arm_T_camera=gtsam.Pose3(_rigid(data["arm_T_camera"])),
             covariance=np.array(data["covariance"]),
             method=data["method"],
             converged=data["converged"],
@@ -285,3 +285,24 @@ def _measurement_from_dict(m: dict) -> MeasurementReport:
         m["outlier_kind"], m["outlier_values"] = OutlierKind.TEXT.value, {"text": str(text)}
     return MeasurementReport(**{**m, "rejected_tracks": {int(k): v for k, v in m["rejected_tracks"].items()},
                                 "residual_rms_px": np.nan if m["residual_rms_px"] is None else m["residual_rms_px"]})
+
+
+def _rigid(matrix) -> np.ndarray:
+    """A result file's ``arm_T_camera`` as a 4x4 array, or an InputError saying how it is not a rigid transform (a
+    rotation and a translation): gtsam would take a scaled or sheared matrix without a word."""
+    M = np.array(matrix, dtype=float)
+    if M.shape != (4, 4):
+        raise InputError(f"arm_T_camera must be a 4x4 matrix, got shape {M.shape}")
+    if not np.all(np.isfinite(M)):
+        raise InputError("arm_T_camera has NaN or infinite entries")
+    R = M[:3, :3]
+    problems = []
+    if not np.allclose(M[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+        problems.append(f"its last row is {M[3].tolist()}, not [0, 0, 0, 1]")
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6):
+        problems.append(f"its 3x3 block is not orthonormal (R^T R - I up to {np.max(np.abs(R.T @ R - np.eye(3))):.3g})")
+    elif np.linalg.det(R) < 0:
+        problems.append("its 3x3 block is a reflection (determinant -1)")
+    if problems:
+        raise InputError("arm_T_camera is not a rigid transform: " + "; ".join(problems))
+    return M
