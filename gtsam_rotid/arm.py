@@ -11,6 +11,7 @@ are [linear; angular]; this module returns plain 3-vectors and ``gtsam.Pose3`` p
 
 from __future__ import annotations
 
+import hashlib
 import os
 from collections.abc import Mapping, Sequence
 
@@ -112,7 +113,9 @@ class Arm:
                 xml = handle.read()
         except OSError as exc:
             raise ArmError(f"cannot read URDF {os.fspath(path)!r}: {exc}") from None
-        return cls.from_urdf_string(xml, wrist_joint=wrist_joint)
+        arm = cls.from_urdf_string(xml, wrist_joint=wrist_joint)
+        arm._source["urdf_path"] = os.path.abspath(os.fspath(path))
+        return arm
 
     @classmethod
     def from_urdf_string(cls, xml: str, wrist_joint: str | None = None) -> Arm:
@@ -134,11 +137,38 @@ class Arm:
 
     def to_dict(self) -> dict:
         """``{"robot": name}`` or ``{"urdf_xml": text}``, plus ``wrist_joint`` and ``joint_names``."""
-        return {**self._source, "wrist_joint": self.wrist_joint, "joint_names": list(self.joint_names)}
+        source = {k: v for k, v in self._source.items() if k != "urdf_path"}  # the text makes it self-contained
+        return {**source, "wrist_joint": self.wrist_joint, "joint_names": list(self.joint_names)}
 
     @property
     def name(self) -> str:
         return self._source.get("robot", self.model.name or "urdf")
+
+    @property
+    def root_link(self) -> str:
+        """The URDF's root link: the arm frame (``arm_T_camera``'s parent) is its frame."""
+        for frame in self.model.frames:
+            if frame.type == pin.FrameType.BODY and frame.parentJoint == 0:
+                return frame.name
+        return "universe"
+
+    def static_links(self) -> dict[str, gtsam.Pose3]:
+        """``root_T_link`` of every link fixed to the root (no joint between them): the links a camera fixed in the
+        arm's base can be given in."""
+        return {f.name: _pose3(f.placement) for f in self.model.frames
+                if f.type == pin.FrameType.BODY and f.parentJoint == 0}
+
+    def description(self) -> dict:
+        """What a calibration result records of the robot: its name, root link, spinning joint, the links fixed to
+        the root (``root_T_link`` as 4x4 lists) and, for a URDF, the SHA-256 of its text."""
+        out = {"name": self.name, "root_link": self.root_link, "wrist_joint": self.wrist_joint,
+               "end_effector": self.end_effector_frame,
+               "static_links": {name: pose.matrix().tolist() for name, pose in self.static_links().items()}}
+        if "urdf_xml" in self._source:
+            out["urdf_sha256"] = hashlib.sha256(self._source["urdf_xml"].encode("utf-8")).hexdigest()
+        if "urdf_path" in self._source:
+            out["urdf_path"] = self._source["urdf_path"]
+        return out
 
     def __repr__(self) -> str:
         return f"Arm({self.name!r}, {len(self.joint_names)} revolute joints, wrist={self.wrist_joint!r})"

@@ -10,6 +10,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import gtsam
+import numpy as np
+
 from . import __version__
 from .arm import Arm
 from .bagdataset import dataset_from_bag
@@ -200,25 +203,31 @@ def _emit(text: str, output, overwrite: bool) -> None:
 def add_export_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``export`` command to an ``argparse`` subparsers object."""
     p = subparsers.add_parser(
-        "export", help="write arm_T_camera (and its covariance) as YAML, JSON, URDF, a ROS 2 command or a matrix",
+        "export", help="write arm_T_camera (and its covariance) as YAML, JSON, URDF, a ROS 2 command or launch "
+                       "file, easy_handeye's YAML or a matrix",
         description="Export a calibration result. yaml/json: pose (position, quaternion x y z w) and the covariance "
                     "in ROS's geometry_msgs/PoseWithCovariance layout (6x6 row-major; x, y, z, rotation about X, Y, "
                     "Z of the parent frame; metres, radians). urdf: a fixed <joint>. ros2: a tf2_ros "
-                    "static_transform_publisher command line (Humble+ flags). matrix: the 4x4 matrix. The child "
-                    "frame is the camera's OpenCV optical frame (x right, y down, z forward) unless "
-                    "--camera-frame body.")
+                    "static_transform_publisher command line (Humble+ flags); launch: a ROS 2 launch file "
+                    "running it. easy_handeye: its calibration YAML (eye on base). matrix: the 4x4 matrix. The "
+                    "parent is the robot's root link recorded in the result. The child frame is the camera's "
+                    "OpenCV optical frame (x right, y down, z forward) unless --camera-frame body or --driver.")
     p.add_argument("result", metavar="RESULT_JSON", help="result file written by `calibrate -o`")
     p.add_argument("--to", required=True, choices=[f.value for f in Format], help="output format")
     p.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of standard output")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
-    p.add_argument("--parent", default=PARENT_FRAME, metavar="FRAME",
-                   help=f"parent frame / link: the arm base, i.e. the URDF's root link (default {PARENT_FRAME})")
+    p.add_argument("--parent", metavar="LINK",
+                   help="parent link: the robot's root link recorded in the result (default), or another link fixed "
+                        f"to it (results that record no robot: default {PARENT_FRAME})")
     p.add_argument("--child", metavar="FRAME",
                    help=f"child frame / link (default {DEFAULT_CHILD[CameraFrame.OPTICAL]}, or "
                         f"{DEFAULT_CHILD[CameraFrame.BODY]} with --camera-frame body)")
     p.add_argument("--camera-frame", choices=[f.value for f in CameraFrame], default=CameraFrame.OPTICAL.value,
                    help="optical (default): the estimated OpenCV frame, z forward; body: turned to ROS's x-forward "
                         "camera_link convention (REP 103)")
+    p.add_argument("--driver", nargs=8, metavar=("LINK", "X", "Y", "Z", "QX", "QY", "QZ", "QW"),
+                   help="the camera driver publishes LINK -> the optical frame with this transform (metres, "
+                        "quaternion): export parent -> LINK instead, so that the two compose to the calibration")
     p.add_argument("--joint-name", default=JOINT_NAME, help=f"URDF joint name (default {JOINT_NAME})")
     p.add_argument("--force", action="store_true",
                    help="export a result that is not fit to export (undetermined, ambiguous, not trusted, NaN, "
@@ -231,8 +240,18 @@ def cmd_export(args) -> int:
     output = None if args.output is None else check_output(args.output, args.overwrite)
     result = load_result(args.result)
     fmt = Format(args.to)
+    driver = None
+    if args.driver is not None:
+        link, *numbers = args.driver
+        values = [_parse_float(v, "--driver") for v in numbers]
+        quaternion = np.array(values[3:])
+        if not np.isclose(np.linalg.norm(quaternion), 1.0, atol=1e-3):
+            raise InputError(f"--driver: the quaternion (qx qy qz qw) {values[3:]} is not of unit length "
+                             f"({np.linalg.norm(quaternion):.4g})")
+        qx, qy, qz, qw = quaternion / np.linalg.norm(quaternion)
+        driver = (link, gtsam.Pose3(gtsam.Rot3.Quaternion(qw, qx, qy, qz), np.array(values[:3])))
     text = export_result(result, fmt, parent_frame=args.parent, child_frame=args.child,
-                         camera_frame=args.camera_frame, joint_name=args.joint_name, force=args.force)
+                         camera_frame=args.camera_frame, joint_name=args.joint_name, force=args.force, driver=driver)
     for problem in export_problems(result):  # only with --force: export_result refuses otherwise
         print(f"gtsam-rotid export: warning: exported although {problem} (the file says so)", file=sys.stderr)
     _emit(text if text.endswith("\n") else text + "\n", output, args.overwrite)
@@ -272,11 +291,7 @@ def cmd_report(args) -> int:
             raise OutputError(f"cannot write plots into {plots_dir}: the directory {plots_dir.parent} does not "
                                   "exist")
     result = load_result(args.result)
-    dataset = None
-    if args.dataset is not None:
-        from .dataset import Dataset
-
-        dataset = Dataset.load(args.dataset)
+    dataset = Dataset.load(args.dataset) if args.dataset is not None else _recorded_dataset(result)
     if plots_dir is not None:
         from .plots import plot_files
 
@@ -298,8 +313,38 @@ def cmd_report(args) -> int:
     return 0
 
 
+def _recorded_dataset(result) -> Dataset | None:
+    """The dataset the result records it was calibrated from, if it is still there and unchanged (a note on
+    standard error says which, or why it is not used)."""
+    from .dataset import dataset_digest
+
+    path = result.dataset.get("path")
+    if not path:
+        return None
+    if not (Path(path) / "dataset.json").is_file():
+        print(f"gtsam-rotid report: note: the dataset the result was calibrated from ({path}) is not there; give "
+              "--dataset", file=sys.stderr)
+        return None
+    if result.dataset.get("sha256") != dataset_digest(path):
+        print(f"gtsam-rotid report: note: the dataset at {path} changed since the calibration; not used (give "
+              "--dataset to use it anyway)", file=sys.stderr)
+        return None
+    print(f"gtsam-rotid report: dataset {path} (recorded in the result)", file=sys.stderr)
+    return Dataset.load(path)
+
+
 # ---------------------------------------------------------------------------------------------------
 # ``gtsam-rotid track``
+
+def _parse_float(text: str, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputError(f"{what}: {text!r} is not a number") from None
+    if not np.isfinite(value):
+        raise InputError(f"{what}: {text!r} is not a finite number")
+    return value
+
 
 def _parse_pair(text: str, what: str, convert: Callable[[str], Any]) -> tuple[Any, Any]:
     if text.count(":") != 1:

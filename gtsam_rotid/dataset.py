@@ -18,6 +18,7 @@ half-written directory, and an unrelated file or directory is never replaced.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -200,6 +201,9 @@ class Dataset:
         self.camera = camera
         self.measurements: tuple[Measurement, ...] = measurements
         self.metadata: dict = _normalised_metadata({} if metadata is None else metadata)
+        #: where the dataset was read from (:meth:`load`): ``{"path", "sha256"}`` (:func:`dataset_digest`); None
+        #: for one made in memory. A calibration result records it.
+        self.source: dict | None = None
         self._joint_angle_vectors = tuple(self._validated(k, m) for k, m in enumerate(measurements))
 
     def _validated(self, k: int, measurement: Measurement) -> np.ndarray:
@@ -395,7 +399,23 @@ class Dataset:
         except CameraError as exc:
             raise ValidationError(f"camera in {DATASET_FILE}: {exc}") from None
         measurements = _load_measurements(root / TRACKS_FILE, document["measurements"])
-        return cls(arm, camera, measurements, metadata=document["metadata"])
+        dataset = cls(arm, camera, measurements, metadata=document["metadata"])
+        dataset.source = {"path": os.fspath(root.resolve()), "sha256": dataset_digest(root)}
+        return dataset
+
+
+def dataset_digest(root: str | os.PathLike) -> str:
+    """SHA-256 over a dataset directory's files (dataset.json, tracks.npz and, if there, the arm's URDF), in that
+    order: whether a dataset is still the one a result was calibrated from."""
+    digest = hashlib.sha256()
+    for name in (DATASET_FILE, TRACKS_FILE, URDF_FILE):
+        path = Path(root) / name
+        if path.is_file():
+            digest.update(name.encode("utf-8") + b"\0")
+            with open(path, "rb") as handle:
+                for block in iter(lambda handle=handle: handle.read(1 << 20), b""):
+                    digest.update(block)
+    return digest.hexdigest()
 
 
 def _load_arm(root: Path, description: dict) -> Arm:

@@ -67,6 +67,10 @@ class Format(StrEnum):
     URDF = "urdf"
     ROS2 = "ros2"
     MATRIX = "matrix"
+    #: easy_handeye's calibration YAML (eye on base), which its publisher reads
+    EASY_HANDEYE = "easy_handeye"
+    #: a ROS 2 Python launch file with a static_transform_publisher node
+    LAUNCH = "launch"
 
 
 class CameraFrame(StrEnum):
@@ -113,31 +117,58 @@ class Transform:
     method: str = ""
     #: why the result was not fit to export, when it was exported anyway (``force``): every format carries them
     warnings: tuple[str, ...] = ()
+    #: the robot's end-effector frame (for easy_handeye's file), "" when the result does not record it
+    end_effector: str = ""
 
     @classmethod
-    def from_result(cls, result, *, parent_frame: str = PARENT_FRAME, child_frame: str | None = None,
-                    camera_frame: str | CameraFrame = CameraFrame.OPTICAL, warnings: tuple[str, ...] = ()
-                    ) -> Transform:
+    def from_result(cls, result, *, parent_frame: str | None = None, child_frame: str | None = None,
+                    camera_frame: str | CameraFrame = CameraFrame.OPTICAL, warnings: tuple[str, ...] = (),
+                    driver: tuple[str, gtsam.Pose3] | None = None) -> Transform:
         """From a :class:`gtsam_rotid.estimate.CalibrationResult` (or anything with ``arm_T_camera`` and
-        ``covariance``). ``camera_frame="body"`` turns the child to ROS's x-forward body convention."""
+        ``covariance``).
+
+        ``parent_frame`` defaults to the robot's root link recorded in the result (``base_link`` for results that
+        record none); another link fixed to the root is accepted (the pose is re-expressed in it), a link the
+        model lacks or one that moves with a joint is refused. ``camera_frame="body"`` turns the child to ROS's
+        x-forward body convention. ``driver = (link, link_T_optical)``: the camera driver already publishes
+        ``link -> optical frame``; the export is then ``parent -> link`` (child ``link``), so that the two compose
+        to the calibration, with the covariance carried through the driver's transform."""
         try:
             camera_frame = CameraFrame(camera_frame)
         except ValueError:
             raise InputError(f"unknown camera frame {camera_frame!r}; choose one of "
                              f"{[f.value for f in CameraFrame]}") from None
-        child_frame = DEFAULT_CHILD[camera_frame] if child_frame is None else child_frame
+        robot = getattr(result, "robot", None) or {}
+        parent_frame = robot.get("root_link", PARENT_FRAME) if parent_frame is None else parent_frame
         _checked_name(parent_frame, "parent frame")
+        pose, covariance = result.arm_T_camera, np.asarray(result.covariance, dtype=float)
+        static = robot.get("static_links")
+        if static:
+            if parent_frame not in static:
+                raise InputError(
+                    f"the robot {robot.get('name', '?')!r} has no link {parent_frame!r} fixed to its root "
+                    f"{robot.get('root_link')!r}: the camera's parent must be one of {', '.join(sorted(static))} "
+                    "(a link after a joint moves with the arm; --parent)")
+            pose = gtsam.Pose3(np.array(static[parent_frame], dtype=float)).between(pose)
+        if driver is not None:
+            if camera_frame is CameraFrame.BODY or child_frame is not None:
+                raise InputError("with the camera driver's transform the child frame is its link: do not give a "
+                                 "child frame or the body convention as well")
+            child_frame, link_T_optical = _checked_name(driver[0], "driver link"), driver[1]
+            # parent_T_link = parent_T_optical * optical_T_link; a right perturbation of the optical frame is
+            # Ad(link_T_optical) of one of the link's
+            adjoint = link_T_optical.AdjointMap()
+            pose, covariance = pose.compose(link_T_optical.inverse()), adjoint @ covariance @ adjoint.T
+        child_frame = DEFAULT_CHILD[camera_frame] if child_frame is None else child_frame
         _checked_name(child_frame, "child frame")
         if parent_frame == child_frame:
             raise InputError(f"the parent and child frames must differ, both are {parent_frame!r}")
-        arm_T_camera = result.arm_T_camera
-        covariance = ros_covariance(arm_T_camera, result.covariance)  # the same for both child conventions
-        pose = arm_T_camera
+        ros = ros_covariance(pose, covariance)  # the same for both child conventions
         if camera_frame is CameraFrame.BODY:
-            pose = arm_T_camera.compose(gtsam.Pose3(gtsam.Rot3(OPTICAL_R_BODY), np.zeros(3)))
-        return cls(pose, covariance, parent_frame, child_frame, camera_frame,
+            pose = pose.compose(gtsam.Pose3(gtsam.Rot3(OPTICAL_R_BODY), np.zeros(3)))
+        return cls(pose, ros, parent_frame, child_frame, camera_frame,
                    bool(getattr(result, "covariance_usable", True)), str(getattr(result, "method", "")),
-                   tuple(warnings))
+                   tuple(warnings), str(robot.get("end_effector", "")))
 
     @property
     def translation(self) -> np.ndarray:
@@ -245,6 +276,44 @@ class Transform:
                 f"# maps {self.child_frame} coordinates to {self.parent_frame} coordinates: "
                 f"x_{self.parent_frame} = M x_{self.child_frame} (metres)\n{rows}\n")
 
+    def to_easy_handeye(self) -> str:
+        """easy_handeye's calibration YAML for an eye-on-base camera (its ``publish.launch`` reads it from
+        ``~/.ros/easy_handeye/<namespace>.yaml``): ``robot_base_frame -> tracking_base_frame``. No marker frame:
+        the calibration used none."""
+        x, y, z = self.translation
+        qx, qy, qz, qw = self.quaternion
+        parameters = {"namespace": "/gtsam_rotid_eye_on_base/", "move_group_namespace": "/",
+                      "move_group": "manipulator", "eye_on_hand": False, "robot_base_frame": self.parent_frame,
+                      "robot_effector_frame": self.end_effector, "tracking_base_frame": self.child_frame,
+                      "tracking_marker_frame": ""}
+        transformation = {"x": x, "y": y, "z": z, "qx": qx, "qy": qy, "qz": qz, "qw": qw}
+        lines = [*self._warning_lines("# "), f"# {self._describe()}", "parameters:"]
+        lines.extend(f"  {key}: {_yaml_scalar(value)}" for key, value in parameters.items())
+        lines.append("transformation:")
+        lines.extend(f"  {key}: {_yaml_scalar(float(value))}" for key, value in transformation.items())
+        return "\n".join(lines) + "\n"
+
+    def to_launch(self) -> str:
+        """A ROS 2 Python launch file that publishes the transform (``tf2_ros`` static_transform_publisher)."""
+        x, y, z = self.translation
+        qx, qy, qz, qw = self.quaternion
+        args = ["--x", _num(x), "--y", _num(y), "--z", _num(z), "--qx", _num(qx), "--qy", _num(qy),
+                "--qz", _num(qz), "--qw", _num(qw), "--frame-id", self.parent_frame,
+                "--child-frame-id", self.child_frame]
+        listed = ",\n                ".join(json.dumps(a) for a in args)
+        return ("".join(line + "\n" for line in self._warning_lines("# ")) + f"# {self._describe()}\n"
+                "from launch import LaunchDescription\n"
+                "from launch_ros.actions import Node\n\n\n"
+                "def generate_launch_description():\n"
+                "    return LaunchDescription([\n"
+                "        Node(\n"
+                '            package="tf2_ros",\n'
+                '            executable="static_transform_publisher",\n'
+                '            name="gtsam_rotid_camera_tf",\n'
+                f"            arguments=[\n                {listed},\n            ],\n"
+                "        ),\n"
+                "    ])\n")
+
     def _warning_lines(self, prefix: str = "") -> list[str]:
         return [f"{prefix}WARNING: exported although {w}" for w in self.warnings]
 
@@ -258,6 +327,10 @@ class Transform:
             return self.to_urdf(joint_name)
         if fmt is Format.ROS2:
             return self.to_ros2_command()
+        if fmt is Format.EASY_HANDEYE:
+            return self.to_easy_handeye()
+        if fmt is Format.LAUNCH:
+            return self.to_launch()
         return self.to_matrix_text()
 
 
@@ -315,9 +388,9 @@ def export_problems(result) -> list[str]:
     return problems
 
 
-def export_result(result, to: str | Format, *, parent_frame: str = PARENT_FRAME, child_frame: str | None = None,
+def export_result(result, to: str | Format, *, parent_frame: str | None = None, child_frame: str | None = None,
                   camera_frame: str | CameraFrame = CameraFrame.OPTICAL, joint_name: str = JOINT_NAME,
-                  force: bool = False) -> str:
+                  force: bool = False, driver: tuple[str, gtsam.Pose3] | None = None) -> str:
     """The result's ``arm_T_camera`` (and covariance where the format has one) as text in format ``to``.
 
     A result not fit to export (:func:`export_problems`) raises :class:`ExportRefused` naming why, unless
@@ -327,7 +400,7 @@ def export_result(result, to: str | Format, *, parent_frame: str = PARENT_FRAME,
         raise ExportRefused("the result is not fit to export: " + "; ".join(problems)
                             + ". Export it anyway with --force (force=True): the file then says so")
     transform = Transform.from_result(result, parent_frame=parent_frame, child_frame=child_frame,
-                                      camera_frame=camera_frame, warnings=tuple(problems))
+                                      camera_frame=camera_frame, warnings=tuple(problems), driver=driver)
     return transform.to_text(to, joint_name)
 
 

@@ -1,6 +1,7 @@
 """Exports of arm_T_camera: the covariance conversion (checked by sampling) and a round trip per format."""
 
 import argparse
+import ast
 import json
 import re
 import shlex
@@ -13,6 +14,7 @@ import pytest
 import yaml
 
 from gtsam_rotid import InputError, OutputError, RotIdError
+from gtsam_rotid.arm import Arm
 from gtsam_rotid.calibration.result import Alternative, CalibrationResult
 from gtsam_rotid.cli import add_export_parser, main
 from gtsam_rotid.export import (
@@ -29,8 +31,15 @@ YAML11_FLOAT = re.compile(r"^[-+]?([0-9][0-9_]*)?\.[0-9.]*([eE][-+][0-9]+)?$")
 
 
 @pytest.fixture(scope="module")
-def result(reference_weighted):
+def recorded(reference_weighted):
+    """A result that records its robot (the Jaco2: root link ``base``)."""
     return reference_weighted[2]
+
+
+@pytest.fixture(scope="module")
+def result(recorded):
+    """The same as a result file of before the robot was recorded: any parent frame name is taken as given."""
+    return replace(recorded, robot={})
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -372,3 +381,87 @@ def test_a_result_file_whose_pose_is_not_rigid_is_refused_by_name(result, tmp_pa
     with pytest.raises(InputError, match=f"result.json: arm_T_camera is not a rigid transform: .*{words}"):
         load_result(path)
     assert CalibrationResult.from_dict(result.to_dict()).arm_T_camera.equals(result.arm_T_camera, 1e-12)
+
+
+def test_the_parent_is_the_robots_root_link_or_a_link_fixed_to_it(recorded):
+    arm = Arm.from_robot("kinova")
+    assert recorded.robot["root_link"] == arm.root_link == "base" and recorded.robot["name"] == "kinova"
+    data = json.loads(export_result(recorded, "json"))
+    assert data["parent_frame"] == "base"
+    R, t, _ = pose_and_covariance_from_dict(data)
+    np.testing.assert_allclose(t, recorded.arm_T_camera.translation(), atol=1e-12)
+    # the arm's base link is turned 90 degrees about z from the root: the pose is re-expressed in it
+    link = json.loads(export_result(recorded, "json", parent_frame="j2s6s200_link_base"))
+    R_link, t_link, _ = pose_and_covariance_from_dict(link)
+    root_T_link = arm.static_links()["j2s6s200_link_base"]
+    np.testing.assert_allclose(root_T_link.compose(gtsam.Pose3(gtsam.Rot3(R_link), t_link)).matrix(),
+                               recorded.arm_T_camera.matrix(), atol=1e-10)
+    assert not np.allclose(R_link, R, atol=1e-3)
+    with pytest.raises(InputError, match="no link 'base_link' fixed to its root 'base'.*j2s6s200_link_base"):
+        export_result(recorded, "yaml", parent_frame="base_link")
+    with pytest.raises(InputError, match="moves with the arm"):
+        export_result(recorded, "yaml", parent_frame="j2s6s200_link_3")
+    assert json.loads(export_result(recorded.from_dict({**recorded.to_dict(), "robot": {}}), "json"))[
+        "parent_frame"] == "base_link"  # a result file that records no robot
+
+
+def test_the_camera_drivers_transform_is_composed_with_its_covariance(recorded):
+    rng = np.random.default_rng(7)
+    link_T_optical = gtsam.Pose3(gtsam.Rot3.RzRyRx(-1.2, 0.3, -1.4), np.array([0.3, -0.2, 0.4]))  # a long lever
+    covariance = random_covariance(rng, np.array([2e-3, 1e-3, 3e-3, 2e-3, 4e-3, 1e-3]))
+    wide = replace(recorded, covariance=covariance)
+    data = json.loads(export_result(wide, "json", driver=("camera_link", link_T_optical)))
+    assert (data["parent_frame"], data["child_frame"]) == ("base", "camera_link")
+    R, t, ros = pose_and_covariance_from_dict(data)
+    parent_T_link = gtsam.Pose3(gtsam.Rot3(R), t)
+    np.testing.assert_allclose(parent_T_link.compose(link_T_optical).matrix(), recorded.arm_T_camera.matrix(),
+                               atol=1e-10)
+    errors = sampled_ros_errors(recorded.arm_T_camera, covariance, rng, 20000, child=link_T_optical.inverse())
+    assert_covariance_close(np.cov(errors.T), ros, 0.05)
+    with pytest.raises(AssertionError):  # the driver's lever arm and turn matter: not the optical frame's
+        assert_covariance_close(np.cov(errors.T), ros_covariance(recorded.arm_T_camera, covariance), 0.05)
+    with pytest.raises(InputError, match="child frame is its link"):
+        export_result(wide, "json", driver=("camera_link", link_T_optical), camera_frame="body")
+
+
+def test_easy_handeye_and_launch_files(recorded):
+    data = yaml.safe_load(export_result(recorded, "easy_handeye"))
+    p, tr = data["parameters"], data["transformation"]
+    assert p["eye_on_hand"] is False and p["robot_base_frame"] == "base"
+    assert p["tracking_base_frame"] == "camera_optical_frame" and p["robot_effector_frame"] == "j2s6s200_end_effector"
+    np.testing.assert_allclose([tr["x"], tr["y"], tr["z"]], recorded.arm_T_camera.translation(), atol=1e-11)
+    np.testing.assert_allclose(rotation_from_quaternion(tr["qx"], tr["qy"], tr["qz"], tr["qw"]),
+                               recorded.arm_T_camera.rotation().matrix(), atol=1e-10)
+    text = export_result(recorded, "launch")
+    tree = ast.parse(text)  # a Python launch file
+    call = next(n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "Node")
+    keywords = {k.arg: ast.literal_eval(k.value) for k in call.keywords}
+    assert keywords["package"] == "tf2_ros" and keywords["executable"] == "static_transform_publisher"
+    args = keywords["arguments"]
+    values = {args[i]: args[i + 1] for i in range(0, len(args), 2)}
+    assert (values["--frame-id"], values["--child-frame-id"]) == ("base", "camera_optical_frame")
+    np.testing.assert_allclose([float(values[k]) for k in ("--x", "--y", "--z")],
+                               recorded.arm_T_camera.translation(), atol=1e-11)
+
+
+def test_the_command_line_takes_the_driver_and_the_report_finds_the_dataset(noisy_scene, tmp_path, capsys):
+    dataset, _ = noisy_scene
+    folder = tmp_path / "ds"
+    dataset.save(folder)
+    result_path = tmp_path / "result.json"
+    assert main(["calibrate", str(folder), "-o", str(result_path)]) == 0
+    saved = load_result(result_path)
+    assert saved.dataset["path"] == str(folder.resolve()) and len(saved.dataset["sha256"]) == 64
+    capsys.readouterr()
+    assert main(["export", str(result_path), "--to", "urdf", "--driver", "camera_link", "0.01", "0", "0.02",
+                 "0", "0", "0", "1"]) == 0
+    assert 'child link="camera_link"' in capsys.readouterr().out
+    assert main(["export", str(result_path), "--to", "urdf", "--driver", "camera_link", "0", "0", "0",
+                 "0", "0", "0", "2"]) == 1
+    assert "not of unit length" in capsys.readouterr().err
+    assert main(["report", str(result_path)]) == 0
+    assert f"dataset {folder.resolve()} (recorded in the result)" in capsys.readouterr().err
+    with open(folder / "dataset.json", "a") as handle:
+        handle.write(" ")
+    assert main(["report", str(result_path)]) == 0
+    assert "changed since the calibration; not used" in capsys.readouterr().err

@@ -176,6 +176,11 @@ class CalibrationResult:
     #: why the covariance cannot be trusted although the poses determine the calibration (kind -> measurement
     #: indices involved); see :data:`UNTRUSTED_KINDS` and :func:`gtsam_rotid.words.untrusted_words`
     untrusted: dict[str, list[int]] = field(default_factory=dict)
+    #: the robot calibrated (:meth:`gtsam_rotid.arm.Arm.description`: name, root link, spinning joint, the links
+    #: fixed to the root, a URDF's hash); {} in files written before it was recorded
+    robot: dict = field(default_factory=dict)
+    #: the dataset calibrated (``path``, ``sha256`` of its files), when it was read from disk ({} otherwise)
+    dataset: dict = field(default_factory=dict)
 
     @property
     def ambiguous(self) -> bool:
@@ -234,6 +239,8 @@ class CalibrationResult:
             "joint_sigma_deg": self.joint_sigma_deg,
             "axis_floor_px": self.axis_floor_px,
             "untrusted": self.untrusted,
+            "robot": self.robot,
+            "dataset": self.dataset,
         }
 
     @classmethod
@@ -257,6 +264,8 @@ class CalibrationResult:
             joint_sigma_deg=float(data.get("joint_sigma_deg", 0.0)),
             axis_floor_px=float(data.get("axis_floor_px", 0.0)),
             untrusted={str(k): [int(i) for i in v] for k, v in data.get("untrusted", {}).items()},
+            robot=dict(data.get("robot") or {}),
+            dataset=dict(data.get("dataset") or {}),
         )
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:

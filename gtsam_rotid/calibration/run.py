@@ -79,7 +79,8 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
             k, len(p.usable), sum(len(t.ideal) for t in p.usable.values()), float("nan"), 0.0, True,
             dict(p.rejected), OutlierKind.FEW_TRACKS.value, axis_point=[float(v) for v in axis.point],
             axis_direction=[float(v) for v in axis.direction], arc_span_deg=max(spans) if spans else None, weak=True))
-    result = replace(result, measurements=sorted(reports, key=lambda r: r.index))
+    result = replace(result, measurements=sorted(reports, key=lambda r: r.index), robot=arm.description(),
+                     dataset=dict(getattr(dataset, "source", None) or {}))
     return replace(result, untrusted=_untrusted(result, setup))
 
 
