@@ -333,6 +333,33 @@ def _recorded_dataset(result) -> Dataset | None:
     return Dataset.load(path)
 
 
+def add_check_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``check`` command: re-check a calibration against new spins."""
+    p = subparsers.add_parser(
+        "check", help="re-check an existing calibration against new spins: still valid, or moved by how much",
+        description="Test a calibration (a result of ours, one of our exports, easy_handeye's YAML, or a 4x4 "
+                    "matrix of the camera's optical frame in the arm's root frame) against the spins of a dataset "
+                    "(one spin is enough). Exit code 0: still valid; 3: moved; 1: an error.")
+    p.add_argument("calibration", metavar="CALIBRATION", help="result JSON, export YAML/JSON, easy_handeye YAML or "
+                                                             "a 4x4 matrix text file")
+    p.add_argument("dataset", metavar="DATASET", help="dataset directory of the new spins (`track` or `simulate`)")
+    p.set_defaults(func=cmd_check)
+    return p
+
+
+def cmd_check(args) -> int:
+    from .calibration.check import check_calibration
+    from .posefiles import load_pose
+    from .words import check_words
+
+    dataset = Dataset.load(args.dataset)
+    pose = load_pose(args.calibration, dataset.arm)
+    print(f"checking {pose.kind} against {len(dataset)} spin(s) of {args.dataset}", flush=True)
+    check = check_calibration(pose.arm_T_camera, dataset, covariance=pose.covariance)
+    print("\n".join(check_words(check)))
+    return 0 if check.still_valid else 3
+
+
 # ---------------------------------------------------------------------------------------------------
 # ``gtsam-rotid track``
 
@@ -542,6 +569,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_track_parser(sub)
     add_report_parser(sub)
     add_export_parser(sub)
+    add_check_parser(sub)
     return parser
 
 

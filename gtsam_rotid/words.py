@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .calibration.check import CheckResult
 from .calibration.evidence import short_arc_words
 from .calibration.options import MIN_MEASUREMENTS
 from .calibration.result import AMBIGUITY_CHI2, AxisConsistency, CalibrationResult, MeasurementReport, OutlierKind
@@ -256,3 +257,30 @@ def ambiguity_words(result: CalibrationResult) -> str:
                "have several exact solutions" if used == MIN_MEASUREMENTS else
                "The chosen wrist axes do not single one out")
             + "; add arm poses whose wrist axes are tilted from the others and miss their common point")
+
+
+def check_words(check: CheckResult) -> list[str]:
+    """A calibration re-checked against new spins (:func:`gtsam_rotid.calibration.check.check_calibration`): the
+    verdict first, then each spin."""
+    n = len(check.spins)
+    spins = f"{n} new spin{'' if n == 1 else 's'}"
+    test = f"χ² {check.chi2:.3g} for {check.dof} dof, p = {check.p_value:.2g}"
+    mm, deg = check.move_mm, check.move_deg
+    sigma_mm, sigma_deg = check.move_sigma
+    k = len(check.determined)
+    along = ("in every direction" if k == 6 else f"along the {k} of 6 directions they determine"
+             + ("; one spin cannot tell a shift of the camera from a turn" if n == 1 else ""))
+    basis = "" if check.had_covariance else " (the calibration came without a covariance: taken as exact)"
+    if check.still_valid:
+        lines = [f"STILL VALID: the {spins} agree with the calibration ({test}){basis}. They would place the "
+                 f"camera {mm:.2f} mm and {deg:.3f}° from it (1σ {sigma_mm:.2f} mm, {sigma_deg:.3f}°, {along}, the "
+                 "calibration's own uncertainty included): within the noise."]
+    else:
+        lines = [f"MOVED: the {spins} disagree with the calibration ({test}){basis}: the camera moved by about "
+                 f"{mm:.2f} mm and {deg:.3f}° (1σ {sigma_mm:.2f} mm, {sigma_deg:.3f}°, {along}, the calibration's "
+                 "own uncertainty included). Recalibrate: spin "
+                 "the wrist at three or more poses whose axes do not meet in one point (or check that the camera "
+                 "mount, the joint readings and the intrinsics are as they were)."]
+    lines.extend(f"  spin {s.index}{f' ({s.name})' if s.name else ''}: {s.n_tracks} tracks, χ² {s.chi2:.3g} (2 dof)"
+                 for s in check.spins)
+    return lines

@@ -70,9 +70,9 @@ class _Setup:
 
 
 def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: CalibrationOptions,
-           index: list[int] | None = None) -> _Setup:
-    if len(measurements) < MIN_MEASUREMENTS:
-        raise InputError(f"need at least {MIN_MEASUREMENTS} measurements (arm poses) to calibrate, "
+           index: list[int] | None = None, minimum: int = MIN_MEASUREMENTS) -> _Setup:
+    if len(measurements) < minimum:
+        raise InputError(f"need at least {minimum} measurements (arm poses) to calibrate, "
                          f"got {len(measurements)}")
     builder = _builder(arm, camera, options)
     axes, prepared, lines = [], [], []

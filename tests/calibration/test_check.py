@@ -1,0 +1,116 @@
+"""calibration.check and posefiles: a calibration re-checked against new spins (recorded later, other arm poses, the
+same camera) is still valid; a camera that moved is called moved, by about the right amount, also from one spin; the
+calibration can come from any file that holds one."""
+
+import json
+
+import gtsam
+import numpy as np
+import pytest
+
+from gtsam_rotid import Dataset, simulate
+from gtsam_rotid.calibration.check import check_calibration
+from gtsam_rotid.cli import main
+from gtsam_rotid.errors import InputError
+from gtsam_rotid.estimate import calibrate
+from gtsam_rotid.export import export_result
+from gtsam_rotid.posefiles import load_pose
+from gtsam_rotid.words import check_words
+
+
+@pytest.fixture(scope="module")
+def sessions():
+    """A calibration session and a later one with other arm poses, the camera where it was."""
+    first, truth = simulate.reference_scene(seed=1, duration=12.0, noise_var=1.5)
+    later, truth_later = simulate.reference_scene(seed=5, duration=12.0, noise_var=1.5)
+    assert truth_later.arm_T_camera.equals(truth.arm_T_camera, 1e-12)
+    return first, later, truth.arm_T_camera, calibrate(first)
+
+
+def shifted(pose, mm=(0.0, 0.0, 0.0), deg=0.0):
+    return pose.compose(gtsam.Pose3(gtsam.Rot3.Rx(np.radians(deg)), 1e-3 * np.array(mm)))
+
+
+def mahalanobis(check, truth):
+    error = truth.localCoordinates(check.moved_camera)
+    return float(error @ np.linalg.solve(check.move_covariance, error))
+
+
+def test_a_calibration_that_holds_is_still_valid(sessions):
+    _, later, truth, result = sessions
+    check = check_calibration(result.arm_T_camera, later, covariance=result.covariance)
+    assert check.still_valid and check.dof == 12 and len(check.determined) == 6
+    assert mahalanobis(check, truth) < 22.46  # where it puts the camera holds its covariance
+    words = check_words(check)
+    assert words[0].startswith("STILL VALID: the 6 new spins agree") and len(words) == 7
+    assert check_calibration(truth, later).still_valid  # the truth itself, as another tool's exact pose
+
+
+@pytest.mark.parametrize("mm, deg", [((5.0, 0.0, 0.0), 0.0), ((0.0, 0.0, 0.0), 0.5), ((0.0, -3.0, 2.0), 0.2)])
+def test_a_camera_that_moved_is_called_moved_and_found(sessions, mm, deg):
+    _, later, truth, result = sessions
+    old = shifted(truth, mm, deg)  # the calibration of before the camera moved to ``truth``
+    for covariance in (None, result.covariance):
+        check = check_calibration(old, later, covariance=covariance)
+        assert not check.still_valid and check.p_value < 1e-3
+        assert mahalanobis(check, truth) < 22.46  # it moves the calibration to where the camera is now
+        assert check_words(check)[0].startswith("MOVED: the 6 new spins disagree")
+
+
+def test_one_spin_is_enough(sessions):
+    _, later, truth, _ = sessions
+    one = Dataset(later.arm, later.camera, [list(later)[0]], metadata=later.metadata)
+    assert check_calibration(truth, one).still_valid
+    check = check_calibration(shifted(truth, (10.0, 0.0, 0.0)), one)
+    assert not check.still_valid and check.dof == 2 and len(check.determined) == 2
+    assert "one spin cannot tell a shift of the camera from a turn" in check_words(check)[0]
+
+
+def test_the_calibration_is_read_from_any_file_that_holds_one(sessions, tmp_path):
+    first, _, _, result = sessions
+    path = tmp_path / "result.json"
+    result.save(path)
+    read = load_pose(path, first.arm)
+    assert read.kind == "a gtsam_rotid result" and read.arm_T_camera.equals(result.arm_T_camera, 1e-12)
+    np.testing.assert_allclose(read.covariance, result.covariance)
+    for fmt, frame, kind, has_covariance in [("yaml", "optical", "export", True), ("json", "body", "export", True),
+                                             ("easy_handeye", "optical", "easy_handeye", False),
+                                             ("matrix", "optical", "matrix", False)]:
+        out = tmp_path / f"c_{fmt}_{frame}.txt"
+        out.write_text(export_result(result, fmt, camera_frame=frame))
+        read = load_pose(out, first.arm)
+        assert kind in read.kind and read.arm_T_camera.equals(result.arm_T_camera, 1e-9), fmt
+        assert (read.covariance is not None) is has_covariance
+        if has_covariance:
+            np.testing.assert_allclose(read.covariance, result.covariance, rtol=1e-6, atol=1e-15)
+    link = tmp_path / "link.json"  # given in a link fixed to the root: re-expressed in the root
+    link.write_text(export_result(result, "json", parent_frame="j2s6s200_link_base"))
+    assert load_pose(link, first.arm).arm_T_camera.equals(result.arm_T_camera, 1e-9)
+    eye_in_hand = tmp_path / "hand.yaml"
+    eye_in_hand.write_text(export_result(result, "easy_handeye").replace("eye_on_hand: false", "eye_on_hand: true"))
+    with pytest.raises(InputError, match="eye-in-hand"):
+        load_pose(eye_in_hand)
+    junk = tmp_path / "junk.txt"
+    junk.write_text("1 2 3\n4 5 6\n")
+    with pytest.raises(InputError, match="junk.txt is neither .* nor a 4x4 matrix"):
+        load_pose(junk)
+    sheared = tmp_path / "sheared.txt"
+    sheared.write_text("1 0.2 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n")
+    with pytest.raises(InputError, match="sheared.txt: arm_T_camera is not a rigid transform"):
+        load_pose(sheared)
+
+
+def test_the_check_command_says_it_and_exits_by_its_verdict(sessions, tmp_path, capsys):
+    _, later, truth, result = sessions
+    folder = tmp_path / "later"
+    later.save(folder)
+    good, moved = tmp_path / "good.txt", tmp_path / "moved.json"
+    np.savetxt(good, truth.matrix())
+    moved_result = result.from_dict({**result.to_dict(), "arm_T_camera": shifted(truth, (5.0, 0, 0)).matrix().tolist()})
+    moved.write_text(json.dumps(moved_result.to_dict()))
+    assert main(["check", str(good), str(folder)]) == 0
+    assert "STILL VALID" in capsys.readouterr().out
+    assert main(["check", str(moved), str(folder)]) == 3
+    out = capsys.readouterr().out
+    assert "checking a gtsam_rotid result against 6 spin(s)" in out and "MOVED" in out
+    assert main(["check", str(tmp_path / "missing.json"), str(folder)]) == 1
