@@ -12,6 +12,7 @@ are [linear; angular]; this module returns plain 3-vectors and ``gtsam.Pose3`` p
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 from collections.abc import Mapping, Sequence
 
@@ -21,6 +22,9 @@ import pinocchio as pin
 
 from .errors import ArmError
 from .geometry import Line3, unit
+
+#: Joint readings may pass a model's limits by this much (encoder noise, soft limits) before they are refused.
+LIMIT_TOLERANCE_DEG = 1.0
 
 #: Pinocchio joint models that are 1-DoF revolute joints (bounded or continuous).
 _REVOLUTE = {
@@ -159,11 +163,13 @@ class Arm:
                 if f.type == pin.FrameType.BODY and f.parentJoint == 0}
 
     def description(self) -> dict:
-        """What a calibration result records of the robot: its name, root link, spinning joint, the links fixed to
-        the root (``root_T_link`` as 4x4 lists) and, for a URDF, the SHA-256 of its text."""
+        """What a calibration result records of the robot: its name, root link, spinning joint, end effector, the
+        links fixed to the root (``root_T_link`` as 4x4 lists), every link's name and, for a URDF, the SHA-256 of its
+        text."""
         out = {"name": self.name, "root_link": self.root_link, "wrist_joint": self.wrist_joint,
                "end_effector": self.end_effector_frame,
-               "static_links": {name: pose.matrix().tolist() for name, pose in self.static_links().items()}}
+               "static_links": {name: pose.matrix().tolist() for name, pose in self.static_links().items()},
+               "links": [f.name for f in self.model.frames if f.type == pin.FrameType.BODY]}
         if "urdf_xml" in self._source:
             out["urdf_sha256"] = hashlib.sha256(self._source["urdf_xml"].encode("utf-8")).hexdigest()
         if "urdf_path" in self._source:
@@ -204,6 +210,24 @@ class Arm:
         if bad:
             raise ArmError(f"joint angle of {', '.join(bad)} is NaN or infinite")
         return angles
+
+    def limit_problem(self, joint_angles, tolerance_deg: float = LIMIT_TOLERANCE_DEG) -> str | None:
+        """Words for the joints (bounded ones; continuous joints wrap) outside the model's limits by more than
+        ``tolerance_deg``, with a hint when the values read as degrees would fit; None when all are inside."""
+        angles = self.joint_angle_vector(joint_angles)
+        tolerance = math.radians(tolerance_deg)
+        bounded = ~np.array(self._continuous)
+        outside = bounded & ((angles < self.lower_limits - tolerance) | (angles > self.upper_limits + tolerance))
+        if not np.any(outside):
+            return None
+        listed = ", ".join(f"{self.joint_names[j]} = {angles[j]:.4g} rad (limits {self.lower_limits[j]:.4g} to "
+                           f"{self.upper_limits[j]:.4g})" for j in np.flatnonzero(outside))
+        as_radians = np.radians(angles)
+        fits = np.all(~bounded | ((as_radians >= self.lower_limits - tolerance)
+                                  & (as_radians <= self.upper_limits + tolerance)))
+        hint = ("; the values fit the limits if they are degrees: read them as degrees (--degrees, degrees=True)"
+                if fits else "; is this the right robot model, and are the angles in radians?")
+        return f"joint angle(s) outside the model's limits: {listed}{hint}"
 
     def within_limits(self, joint_angles, tolerance: float = 1e-9) -> bool:
         q = self.joint_angle_vector(joint_angles)

@@ -15,15 +15,17 @@ import numpy as np
 from tqdm import tqdm
 
 from .arm import Arm
-from .bags import Bag, BagError, estimate_time_offset
+from .bags import Bag, BagError, estimate_time_offset, is_rectified
 from .camera import Camera
 from .camerafiles import load_camera
 from .dataset import Dataset, Measurement
 from .recordings import MIN_SPIN_DEG, STILL_TOLERANCE_DEG, JointFile, _spin_runs, _still_pose
 from .trackrun import default_tracker, tracked_frames, tracker_description
 
-#: Below this correlation between image motion and joint speed the time offset is not trusted (and not applied).
-MIN_OFFSET_CORRELATION = 0.5
+#: Below this score (the correlation of image change and joint travel times the fraction of the recording it lines
+#: up, :class:`gtsam_rotid.bags.TimeOffset`) the time offset is not trusted (and not applied): one spin later, a
+#: repeating recording scores about (n - 1) / n of the true offset's (0.66 of 0.98 with three spins).
+MIN_OFFSET_CORRELATION = 0.8
 #: Images this close (s) to a spin's first or last joint state are left out (the stamps' own jitter).
 SPIN_MARGIN_S = 0.1
 
@@ -32,7 +34,8 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
                      joint_topic: str | None = None, camera_info_topic: str | None = None,
                      camera: Camera | str | os.PathLike | None = None, tracker: Callable | None = None,
                      tracker_params: Any = None, still_tolerance_deg: float = STILL_TOLERANCE_DEG,
-                     min_spin_deg: float = MIN_SPIN_DEG, max_offset_s: float = 1.0, progress: bool = True,
+                     min_spin_deg: float = MIN_SPIN_DEG, max_offset_s: float = 1.0,
+                     time_offset_s: float | None = None, progress: bool = True,
                      metadata: Mapping | None = None) -> Dataset:
     """One measurement per spin of ``arm.wrist_joint`` found in the bag's joint states.
 
@@ -44,21 +47,27 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
         tracker, tracker_params: as :func:`gtsam_rotid.recordings.make_dataset`.
         still_tolerance_deg, min_spin_deg: what counts as a spin (:func:`gtsam_rotid.recordings.find_spins`).
         max_offset_s: the largest camera-to-joint-state time offset searched.
+        time_offset_s: the offset (camera clock minus joint-state clock, s) when it is known: then it is applied as
+            given, and only measured for the record.
 
-    The offset (camera clock minus joint-state clock) is read off when the images start and stop moving against
-    when the joints do (:func:`gtsam_rotid.bags.estimate_time_offset`); it is applied, and recorded with its
-    correlation in ``metadata["recording"]``, when the correlation is at least MIN_OFFSET_CORRELATION (else it is
-    recorded, not applied, and a warning printed). Track frame indices are the images' positions on the topic.
-    Raises :class:`BagError` naming the bag and topic: no spin, a spin without images, images of another size.
+    The offset is read off when the images start and stop moving against when the joints do
+    (:func:`gtsam_rotid.bags.estimate_time_offset`); it is applied, and recorded with its score in
+    ``metadata["recording"]``, when its score is at least MIN_OFFSET_CORRELATION, no other offset scores nearly as
+    well and it is not at the edge of the search (else it is recorded, not applied, and a warning printed). Track
+    frame indices are the images' positions on the topic. Images of ``image_rect*`` topics get CameraInfo's
+    projection matrix without distortion. Raises :class:`BagError` naming the bag and topic: no spin, a spin
+    without images, images of another size.
     """
     with Bag(path) as bag:
-        topics = bag.choose_topics(image_topic, joint_topic, camera_info_topic)
+        topics = bag.choose_topics(image_topic, joint_topic, camera_info_topic, with_camera_info=camera is None)
         where = f"{bag.path}, topic {topics.image}"
         camera_from = "given"
         if camera is None:
             if topics.camera_info is None:
                 raise BagError(f"the bag {bag.path} has no CameraInfo topic: give the camera (--camera FILE)")
-            camera, camera_from = bag.camera(topics.camera_info), topics.camera_info
+            rectified = is_rectified(topics.image)
+            camera = bag.camera(topics.camera_info, rectified=rectified)
+            camera_from = topics.camera_info + (" (P, rectified images)" if rectified else "")
         elif not isinstance(camera, Camera):
             camera_from = os.fspath(camera)
             camera = load_camera(camera)
@@ -70,13 +79,21 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
                            f"{min_spin_deg:g} deg while no other joint moves by more than {still_tolerance_deg:g} deg)"
                            " in the joint states")
         image_stamps, motion = bag.image_motion(topics.image)
-        offset, correlation = estimate_time_offset(image_stamps, motion, stamps, positions, max_offset_s)
-        applied = bool(np.isfinite(offset) and correlation >= MIN_OFFSET_CORRELATION)
-        if not applied:
-            print(f"warning: {where}: the camera-to-joint-state time offset could not be measured (correlation "
-                  f"{correlation:.2f} of image motion and joint speed); the stamps are taken as they are",
-                  file=sys.stderr)
-        shift = offset if applied else 0.0
+        offset, correlation, rival = estimate_time_offset(image_stamps, motion, stamps, positions, max_offset_s)
+        at_edge = bool(np.isfinite(offset) and abs(offset) > max_offset_s - 0.5 * _period(image_stamps))
+        applied = bool(np.isfinite(offset) and correlation >= MIN_OFFSET_CORRELATION and not at_edge
+                       and rival is None)
+        if time_offset_s is not None:
+            shift = float(time_offset_s)
+        else:
+            shift = offset if applied else 0.0
+            if not applied:
+                why = (f"the best offset, {offset:+.3f} s, is at the edge of the search (+-{max_offset_s:g} s): the "
+                       "clocks may differ by more (--max-time-offset)" if at_edge else
+                       f"{offset:+.3f} s and {rival:+.3f} s fit about as well: the spins repeat with one rhythm"
+                       if rival is not None else f"image motion and joint motion correlate only {correlation:.2f}")
+                print(f"warning: {where}: the camera-to-joint-state time offset could not be measured ({why}); the "
+                      "stamps are taken as they are (give it with --time-offset if known)", file=sys.stderr)
         joint_file = JointFile(Path(f"{bag.path}:{topics.joints}"), positions, stamps)
         tracker, described, corner_tracks = default_tracker(tracker, tracker_params)
         measurements, spans = [], []
@@ -90,10 +107,12 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
                 if len(inside) < 2:
                     raise BagError(f"{label}: {len(inside)} image(s) on {topics.image} between the camera stamps "
                                    f"{start:.3f} and {stop:.3f} s (images span {image_stamps.min():.3f} to "
-                                   f"{image_stamps.max():.3f} s)")
-                frames = (image for _, _, image in bag.images(topics.image, image_stamps[inside[0]],
-                                                              image_stamps[inside[-1]]))
-                tracks = tracked_frames(frames, len(inside), int(inside[0]), Path(where), camera, tracker,
+                                   f"{image_stamps.max():.3f} s): if the camera's and the joint states' clocks "
+                                   "differ by more than the search (--max-time-offset), give the offset "
+                                   "(--time-offset)")
+                first, last = int(inside[0]), int(inside[-1])  # every image between, in the bag's order
+                frames = (image for _, _, image in bag.images(topics.image, first, last))
+                tracks = tracked_frames(frames, last - first + 1, first, Path(where), camera, tracker,
                                         tracker_params, k, label, progress)
                 measurements.append(Measurement(angles, tracks, name=f"spin {k}"))
                 spans.append([float(stamps[a]), float(stamps[b - 1])])
@@ -105,7 +124,9 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
         "spans": spans,
         "time_offset_s": None if not np.isfinite(offset) else float(offset),
         "time_offset_correlation": float(correlation),
-        "time_offset_applied": applied,
+        "time_offset_rival_s": rival,
+        "time_offset_applied": bool(time_offset_s is None and applied),
+        "time_offset_given_s": None if time_offset_s is None else float(time_offset_s),
         "tracker": tracker_description(described, tracker_params),
     }
     extra: dict[str, Any] = {"recording": recording}
@@ -113,3 +134,8 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
         from .trackparams import tracker_metadata
         extra["tracker"] = tracker_metadata(tracker_params, sum(corner_tracks))
     return Dataset(arm, camera, measurements, metadata={**extra, **dict(metadata or {})})
+
+
+def _period(stamps: np.ndarray) -> float:
+    steps = np.diff(stamps)
+    return float(np.median(steps)) if steps.size else 0.0

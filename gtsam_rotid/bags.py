@@ -13,7 +13,7 @@ import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -31,7 +31,7 @@ BAG_SUFFIXES = (".bag", ".db3", ".mcap")
 
 #: ROS image encodings -> (channels, OpenCV conversion to BGR or None); 16-bit ones are scaled to 8 bits
 _ENCODINGS: dict[str, tuple[int, int | None]] = {
-    "mono8": (1, None), "8uc1": (1, None), "mono16": (1, None), "16uc1": (1, None),
+    "mono8": (1, None), "8uc1": (1, None), "mono16": (1, None),
     "bgr8": (3, None), "8uc3": (3, None), "rgb8": (3, cv2.COLOR_RGB2BGR),
     "bgra8": (4, cv2.COLOR_BGRA2BGR), "8uc4": (4, cv2.COLOR_BGRA2BGR), "rgba8": (4, cv2.COLOR_RGBA2BGR),
     # as cv_bridge converts them (OpenCV names a Bayer pattern by its second row)
@@ -76,17 +76,20 @@ def decode_image(message, msgtype: str, where: str) -> np.ndarray:
         if image is None:
             raise BagError(f"{where}: a CompressedImage ({message.format!r}) that OpenCV cannot decode")
         if image.dtype == np.uint16:
-            image = (image >> 8).astype(np.uint8)
+            image = _to_8_bits(image)
         if image.ndim == 3 and image.shape[2] == 4:
             image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
         return image
     encoding = str(message.encoding).lower()
+    if encoding in ("16uc1", "32fc1"):
+        raise BagError(f"{where}: {message.encoding} images are depth images, not intensity: give the colour or "
+                       "grey image topic (--image-topic)")
     if encoding not in _ENCODINGS:
         raise BagError(f"{where}: the image encoding {message.encoding!r} is not supported (supported: "
                        f"{', '.join(_ENCODINGS)}, and CompressedImage)")
     channels, conversion = _ENCODINGS[encoding]
     height, width, step = int(message.height), int(message.width), int(message.step)
-    wide = encoding in ("mono16", "16uc1")
+    wide = encoding == "mono16"
     row_bytes = width * channels * (2 if wide else 1)
     if height <= 0 or width <= 0 or step < row_bytes or data.size < height * step:
         raise BagError(f"{where}: an Image of {width}x{height} ({message.encoding}, step {step}) holds "
@@ -94,9 +97,18 @@ def decode_image(message, msgtype: str, where: str) -> np.ndarray:
     rows = data[:height * step].reshape(height, step)[:, :row_bytes]
     if wide:
         order = ">" if message.is_bigendian else "<"
-        return (np.ascontiguousarray(rows).view(f"{order}u2") >> 8).astype(np.uint8).reshape(height, width)
+        return _to_8_bits(np.ascontiguousarray(rows).view(f"{order}u2").reshape(height, width))
     image = np.ascontiguousarray(rows).reshape(height, width, channels) if channels > 1 else rows.copy()
     return image if conversion is None else cv2.cvtColor(image, conversion)
+
+
+def _to_8_bits(image: np.ndarray) -> np.ndarray:
+    """A 16-bit image as 8 bits, shifted by its own bit depth: 10- and 12-bit sensors write mono16 images whose
+    values stay below 1024 or 4096, which a fixed shift by 8 bits would turn almost black."""
+    top = int(image.max()) if image.size else 0
+    bits = top.bit_length() + top.bit_length() % 2  # 10, 12, 14 or 16 bits: one shift for a sensor's frames
+    shift = max(0, bits - 8)
+    return (image >> shift).astype(np.uint8)
 
 
 class Bag:
@@ -112,6 +124,7 @@ class Bag:
         self.path = Path(path)
         if not self.path.exists():
             raise BagError(f"no bag at {self.path}")
+        self._receive: dict[str, np.ndarray] = {}  # per image topic, each image's receive time (ns), bag order
         if self.path.is_file() and self.path.suffix.lower() in (".db3", ".mcap"):
             self.path = self.path.parent  # a ROS 2 bag is its directory (metadata.yaml beside the storage file)
         try:
@@ -138,32 +151,46 @@ class Bag:
     def count(self, topic: str) -> int:
         return sum(c.msgcount for c in self._reader.connections if c.topic == topic)
 
-    def messages(self, topic: str) -> Iterator[tuple[float, Any, str]]:
-        """(time in seconds, message, message type) of every message on ``topic``, in the bag's order."""
+    def messages(self, topic: str, start_ns: int | None = None, stop_ns: int | None = None,
+                 ) -> Iterator[tuple[float, Any, str, int]]:
+        """(time in seconds, message, message type, receive time in ns) of the messages on ``topic``, in the bag's
+        order (received in ``[start_ns, stop_ns)`` when given)."""
         connections = [c for c in self._reader.connections if c.topic == topic]
         if not connections:
             raise BagError(f"the bag {self.path} has no topic {topic!r} (it has: {_listing(self.topics)})")
-        for connection, bag_time_ns, raw in self._reader.messages(connections=connections):
+        raw_messages = self._reader.messages(connections=connections, start=start_ns, stop=stop_ns)
+        while True:
+            try:
+                connection, bag_time_ns, raw = next(raw_messages)
+            except StopIteration:
+                return
+            except Exception as exc:  # rosbags raises several types for a damaged chunk or index
+                raise BagError(f"{self.path}, topic {topic}: the bag is damaged ({type(exc).__name__}: {exc}); "
+                               "`rosbag reindex` (ROS 1) or `ros2 bag reindex` (ROS 2) may repair it") from None
             try:
                 message = self._reader.deserialize(raw, connection.msgtype)
             except Exception as exc:  # rosbags raises several types for a corrupt message
                 raise BagError(f"{self.path}, topic {topic}: a message that cannot be read ({exc})") from None
-            yield _time(message, bag_time_ns), message, connection.msgtype
+            yield _time(message, bag_time_ns), message, connection.msgtype, bag_time_ns
 
     def choose_topics(self, image: str | None = None, joints: str | None = None,
-                      camera_info: str | None = None) -> BagTopics:
+                      camera_info: str | None = None, *, with_camera_info: bool = True) -> BagTopics:
         """The topics to read: each one given is checked, each one not given is found by its message type when
-        exactly one topic has it (the camera's ``CameraInfo`` beside the image topic first). Raises
-        :class:`BagError` naming the candidates when a choice is needed."""
+        exactly one topic has it (the camera's ``CameraInfo`` beside the image topic first; the bag's only one
+        when its frame is the images'). No CameraInfo is looked for without ``with_camera_info`` (a camera file is
+        given). Raises :class:`BagError` naming the candidates when a choice is needed."""
         image = self._topic(image, (IMAGE, COMPRESSED_IMAGE), "image", "--image-topic")
         joints = self._topic(joints, (JOINT_STATE,), "joint state", "--joint-topic")
+        if not with_camera_info:
+            return BagTopics(image, joints, None)
         if camera_info is None:
             infos = [t for t, kind in self.topics.items() if kind == CAMERA_INFO]
-            beside = image.rsplit("/", 1)[0] + "/camera_info"
+            beside = _camera_namespace(image) + "/camera_info"
             if beside in infos:
                 camera_info = beside
             elif len(infos) == 1:
                 camera_info = infos[0]
+                self._same_camera(image, camera_info)
             elif infos:
                 raise BagError(f"the bag {self.path} has several CameraInfo topics ({', '.join(infos)}) and none "
                                f"beside the images ({beside}): choose one with --camera-info-topic, or give "
@@ -171,6 +198,17 @@ class Bag:
         else:
             camera_info = self._topic(camera_info, (CAMERA_INFO,), "CameraInfo", "--camera-info-topic")
         return BagTopics(image, joints, camera_info)
+
+    def _same_camera(self, image: str, camera_info: str) -> None:
+        """Refuse a CameraInfo topic found only because it is the bag's one, when its frame is not the images'."""
+        frames = []
+        for topic in (image, camera_info):
+            first = next(self.messages(topic), None)
+            frames.append("" if first is None else str(getattr(first[1].header, "frame_id", "")))
+        if frames[0] and frames[1] and frames[0] != frames[1]:
+            raise BagError(f"the bag's only CameraInfo topic {camera_info} is for the frame {frames[1]!r}, the images "
+                           f"on {image} for {frames[0]!r}: it may be another camera's. Give --camera-info-topic "
+                           f"{camera_info} to use it anyway, or --camera FILE")
 
     def _topic(self, given: str | None, kinds: tuple[str, ...], what: str, flag: str) -> str:
         topics = self.topics
@@ -193,91 +231,142 @@ class Bag:
         """(stamps (N,), positions (N, len(names)) radians in ``names`` order) from a JointState topic.
 
         Messages may carry other joints (grippers) or only some joints (several publishers on one topic): each
-        joint keeps its last position, and a row is made at every message that carries one of ``names`` once all
-        of them are known. Raises :class:`BagError` naming joints that never appear."""
+        joint's positions are interpolated on its own stamps at every stamp that carries one of ``names``, within
+        the span where every joint has been seen. Raises :class:`BagError` naming joints that never appear."""
         index = {name: i for i, name in enumerate(names)}
-        last = np.full(len(names), np.nan)
-        stamps, rows, seen = [], [], set()
-        for stamp, message, _ in self.messages(topic):
-            position = np.asarray(message.position, dtype=float)
+        series: list[list[tuple[float, float]]] = [[] for _ in names]
+        stamps, seen = [], set()
+        for stamp, message, _, _ in self.messages(topic):
             carried = False
-            for name, value in zip(message.name, position, strict=False):
-                if name in index:
-                    last[index[name]] = value
-                    carried = True
+            for name, value in zip(message.name, np.asarray(message.position, dtype=float), strict=False):
                 seen.add(name)
-            if carried and np.all(np.isfinite(last)):
+                if name in index and np.isfinite(value):
+                    series[index[name]].append((stamp, float(value)))
+                    carried = True
+            if carried:
                 stamps.append(stamp)
-                rows.append(last.copy())
-        missing = [name for name in names if name not in seen]
+        missing = [name for name, s in zip(names, series, strict=True) if not s]
         if missing:
             raise BagError(f"{self.path}, topic {topic}: the joint state never names the model's joint(s) "
                            f"{', '.join(missing)} (it names: {', '.join(sorted(seen)) or 'nothing'}); is this the "
                            "right robot model?")
-        if len(rows) < 2:
-            raise BagError(f"{self.path}, topic {topic}: {len(rows)} complete joint state(s); need a time series")
-        stamps = np.asarray(stamps)
-        order = np.argsort(stamps, kind="stable")
-        return stamps[order], np.asarray(rows)[order]
+        stamps = np.unique(np.asarray(stamps))
+        first = max(min(t for t, _ in s) for s in series)
+        last = min(max(t for t, _ in s) for s in series)
+        stamps = stamps[(stamps >= first) & (stamps <= last)]
+        if len(stamps) < 2:
+            raise BagError(f"{self.path}, topic {topic}: {len(stamps)} joint state(s) in which every joint of the "
+                           "model is known; need a time series")
+        columns = []
+        for s in series:
+            t, v = np.array(sorted(s)).T
+            columns.append(np.interp(stamps, t, np.unwrap(v)))
+        return stamps, np.stack(columns, axis=1)
 
-    def camera(self, topic: str) -> Camera:
-        """The camera of the first ``CameraInfo`` message on ``topic`` (plumb_bob distortion, as a camera file)."""
+    def camera(self, topic: str, *, rectified: bool = False) -> Camera:
+        """The camera of the first ``CameraInfo`` message on ``topic`` (plumb_bob distortion, as a camera file).
+        For ``rectified`` images (``image_rect``) the projection matrix P without distortion: K and D describe
+        the raw images."""
         where = f"{self.path}, topic {topic}"
-        for _, message, _ in self.messages(topic):
-            document = {
-                "width": int(message.width), "height": int(message.height),
-                "k": [float(v) for v in (message.k if hasattr(message, "k") else message.K)],
-                "d": [float(v) for v in (message.d if hasattr(message, "d") else message.D)],
-                "distortion_model": str(message.distortion_model),
-            }
+        for _, message, _, _ in self.messages(topic):
+            K = [float(v) for v in (message.k if hasattr(message, "k") else message.K)]
+            D = [float(v) for v in (message.d if hasattr(message, "d") else message.D)]
+            if rectified:
+                P = np.array([float(v) for v in (message.p if hasattr(message, "p") else message.P)]).reshape(3, 4)
+                K, D = P[:, :3].ravel().tolist(), []
+            document = {"width": int(message.width), "height": int(message.height), "k": K, "d": D,
+                        "distortion_model": "plumb_bob" if rectified else str(message.distortion_model)}
             try:
                 return camera_from_document(document, where)
             except CameraError as exc:
                 raise BagError(f"{exc} (an uncalibrated camera publishes zeros: give --camera)") from None
         raise BagError(f"{where}: no CameraInfo message")
 
-    def images(self, topic: str, start: float = -np.inf, stop: float = np.inf,
+    def images(self, topic: str, first: int = 0, last: int | None = None,
                ) -> Iterator[tuple[int, float, np.ndarray]]:
-        """(index on the topic, stamp, uint8 image) of the images stamped in ``[start, stop]``."""
-        for i, (stamp, message, msgtype) in enumerate(self.messages(topic)):
-            if start <= stamp <= stop:
-                yield i, stamp, decode_image(message, msgtype, f"{self.path}, topic {topic}, image {i}")
+        """(index on the topic, stamp, uint8 image) of the images ``first`` to ``last`` (inclusive; None: to the
+        end) in the bag's order. After :meth:`image_motion` only that stretch of the bag is read."""
+        receive = self._receive.get(topic)
+        start_ns = stop_ns = None
+        offset = 0
+        if receive is not None and len(receive):
+            offset = int(np.searchsorted(receive, receive[first], side="left"))
+            start_ns = int(receive[first])
+            stop_ns = None if last is None or last + 1 >= len(receive) else int(receive[last]) + 1
+        for i, (stamp, message, msgtype, _) in enumerate(self.messages(topic, start_ns, stop_ns), start=offset):
+            if i < first:
+                continue
+            if last is not None and i > last:
+                return
+            yield i, stamp, decode_image(message, msgtype, f"{self.path}, topic {topic}, image {i}")
 
     def image_motion(self, topic: str, size: int = 64) -> tuple[np.ndarray, np.ndarray]:
-        """(stamps, motion) of every image on ``topic``: motion is the mean absolute difference (grey levels) of
-        each image from the one before, at ``size`` pixels across (0 for the first)."""
-        stamps, motion, previous = [], [], None
-        for _, stamp, image in self.images(topic):
+        """(stamps, motion) of every image on ``topic``, in the bag's order: motion is the mean absolute difference
+        (grey levels) of each image from the one before, at ``size`` pixels across (0 for the first)."""
+        stamps, motion, receive, previous = [], [], [], None
+        for i, (stamp, message, msgtype, received) in enumerate(self.messages(topic)):
+            image = decode_image(message, msgtype, f"{self.path}, topic {topic}, image {i}")
             grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
             small = cv2.resize(grey, (size, max(1, round(size * grey.shape[0] / grey.shape[1]))),
                                interpolation=cv2.INTER_AREA).astype(np.float32)
             motion.append(0.0 if previous is None or previous.shape != small.shape
                           else float(np.mean(np.abs(small - previous))))
             stamps.append(stamp)
+            receive.append(received)
             previous = small
+        self._receive[topic] = np.asarray(receive, dtype=np.int64)
         return np.asarray(stamps), np.asarray(motion)
+
+
+def _camera_namespace(image_topic: str) -> str:
+    """The camera's namespace of an image topic: ``/cam`` of ``/cam/image_raw`` and of
+    ``/cam/image_raw/compressed`` (image_transport's sub-topic)."""
+    parts = image_topic.rstrip("/").split("/")
+    if parts and parts[-1] in ("compressed", "theora", "compressedDepth"):
+        parts = parts[:-1]
+    return "/".join(parts[:-1])
+
+
+def is_rectified(image_topic: str) -> bool:
+    """``image_rect``, ``image_rect_color``, ...: images that image_proc already undistorted."""
+    return any(part.startswith("image_rect") for part in image_topic.split("/"))
 
 
 def _listing(topics: dict[str, str]) -> str:
     return ", ".join(f"{t} ({kind})" for t, kind in sorted(topics.items())) or "no topics"
 
 
+class TimeOffset(NamedTuple):
+    """The camera clock minus the joint-state clock (s), the score it was found at (the correlation of image change
+    and joint travel times the fraction of image pairs inside the joint states, 0-1), and another offset, at least
+    AMBIGUOUS_S away, that scores within AMBIGUOUS_RATIO of it (None when there is none): recordings whose spins
+    repeat with one rhythm and no images between them line up as well one spin later."""
+
+    offset: float
+    score: float
+    rival: float | None = None
+
+
+#: Offsets this far apart (s) are distinct answers; a second one within this ratio of the best score makes it ambiguous.
+AMBIGUOUS_S = 0.5
+AMBIGUOUS_RATIO = 0.9
+
+
 def estimate_time_offset(image_stamps: np.ndarray, motion: np.ndarray, joint_stamps: np.ndarray,
-                         positions: np.ndarray, max_offset_s: float = 1.0) -> tuple[float, float]:
-    """The camera clock minus the joint-state clock (s) for the same instant, and the correlation (0-1) it was
-    found at: the offset that best lines up how much each image differs from the one before (``motion``,
-    :meth:`Bag.image_motion`) with how far the joints moved between the two images' times, searched within
-    ``max_offset_s`` at a quarter of the frame period, then at 1/64 of it about the best. NaN with a correlation of
-    0 when the joints never move or the images never change."""
+                         positions: np.ndarray, max_offset_s: float = 1.0) -> TimeOffset:
+    """The camera-to-joint-state time offset (:class:`TimeOffset`): the offset that best lines up how much each
+    image differs from the one before (``motion``, :meth:`Bag.image_motion`) with how far the joints moved between
+    the two images' times, searched within ``max_offset_s`` at a quarter of the frame period, then at 1/64 of it
+    about the best. NaN with a score of 0 when the joints never move or the images never change."""
     stamps = np.asarray(joint_stamps, dtype=float)
     q = np.unwrap(np.asarray(positions, dtype=float), axis=0)
     image_stamps = np.asarray(image_stamps, dtype=float)
     if len(stamps) < 2 or len(image_stamps) < 3:
-        return float("nan"), 0.0
+        return TimeOffset(float("nan"), 0.0)
     period = float(np.median(np.diff(image_stamps)))
     moving = np.asarray(motion, dtype=float)[1:]
     if not np.isfinite(period) or period <= 0 or np.ptp(moving) <= 0 or not np.any(np.ptp(q, axis=0) > 0):
-        return float("nan"), 0.0
+        return TimeOffset(float("nan"), 0.0)
 
     # pairs of images further apart than 1.5 frame periods (the camera stopped, frames dropped) are not compared:
     # the arm may have moved far in between, and one such pair would outweigh every spin's start and stop
@@ -288,19 +377,29 @@ def estimate_time_offset(image_stamps: np.ndarray, motion: np.ndarray, joint_sta
         inside = (times >= stamps[0]) & (times <= stamps[-1])
         at = np.stack([np.interp(times, stamps, q[:, j]) for j in range(q.shape[1])], axis=1)
         travel = np.linalg.norm(np.diff(at, axis=0), axis=1)
-        return _correlation(moving, np.where(inside[1:] & inside[:-1] & paired, travel, np.nan))
+        used = inside[1:] & inside[:-1] & paired
+        # weighted by the pairs it can compare: an offset that leaves a spin's images outside the joint states
+        # lines up less of the recording
+        return _correlation(moving, np.where(used, travel, np.nan)) * used.sum() / max(paired.sum(), 1)
 
     coarse = np.arange(-max_offset_s, max_offset_s + 0.125 * period, 0.25 * period)
     scores = np.array([score(offset) for offset in coarse])
     if not np.any(np.isfinite(scores)):
-        return float("nan"), 0.0
+        return TimeOffset(float("nan"), 0.0)
     # the peak is a kink (a spin's start or stop falls between two frames), steep on one side: search it finely
     # about the best coarse offset rather than fit a parabola, which the gentle side drags
-    centre = float(coarse[int(np.nanargmax(scores))])
+    top = int(np.nanargmax(scores))
+    centre = float(coarse[top])
     fine = centre + np.linspace(-0.25 * period, 0.25 * period, 33)
     fine_scores = np.array([score(offset) for offset in fine])
     best = int(np.nanargmax(fine_scores))
-    return float(fine[best]), float(max(fine_scores[best], 0.0))
+    far = np.abs(coarse - centre) >= AMBIGUOUS_S
+    rival = None
+    if np.any(far & np.isfinite(scores)):
+        other = int(np.nanargmax(np.where(far, scores, -np.inf)))
+        if scores[other] >= AMBIGUOUS_RATIO * scores[top]:
+            rival = float(coarse[other])
+    return TimeOffset(float(fine[best]), float(max(fine_scores[best], 0.0)), rival)
 
 
 def _correlation(a: np.ndarray, b: np.ndarray) -> float:

@@ -409,6 +409,11 @@ def _track_bag(args: argparse.Namespace, arm: Arm, params) -> Dataset:
     given = [flag for flag, value in (("--joints", args.joints), ("--frames", args.frames), ("--spans", args.spans),
                                       ("--degrees", args.degrees), ("--ignore-joints", args.ignore_joints))
              if value]
+    for flag, value in (("--time-offset", args.time_offset), ("--max-time-offset", args.max_time_offset)):
+        if value is not None and not np.isfinite(value):
+            raise InputError(f"{flag} must be a finite number of seconds, got {value}")
+    if not args.max_time_offset > 0:
+        raise InputError(f"--max-time-offset must be > 0 s, got {args.max_time_offset}")
     if given:
         raise InputError(f"{', '.join(given)} do(es) not apply to --bag: the bag's joint states give the spins and "
                          "the joint angles (radians, matched by name)")
@@ -416,9 +421,12 @@ def _track_bag(args: argparse.Namespace, arm: Arm, params) -> Dataset:
     dataset = dataset_from_bag(args.bag, arm, image_topic=args.image_topic, joint_topic=args.joint_topic,
                                camera_info_topic=args.camera_info_topic, camera=args.camera, tracker_params=params,
                                still_tolerance_deg=args.still_tolerance, min_spin_deg=args.min_spin,
+                               max_offset_s=args.max_time_offset, time_offset_s=args.time_offset,
                                progress=not args.no_progress)
     recording = dataset.metadata["recording"]
-    offset, applied = recording["time_offset_s"], "applied" if recording["time_offset_applied"] else "NOT applied"
+    offset = recording["time_offset_s"]
+    applied = ("applied" if recording["time_offset_applied"] else "NOT applied" if args.time_offset is None
+               else f"not used: {1000 * args.time_offset:+.1f} ms given")
     print(f"topics: images {recording['topics']['image']}, joint states {recording['topics']['joints']}, camera "
           f"{recording['camera_from']}; {len(dataset)} spin(s); camera-to-joint-state time offset "
           + ("not measured" if offset is None else f"{1000 * offset:+.1f} ms (correlation "
@@ -476,6 +484,10 @@ def add_track_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--joint-topic", metavar="TOPIC", help="the bag's JointState topic (default: the only one)")
     p.add_argument("--camera-info-topic", metavar="TOPIC",
                    help="the bag's CameraInfo topic (default: the one beside the images, or the only one)")
+    p.add_argument("--time-offset", type=float, metavar="S",
+                   help="a bag's camera clock minus its joint-state clock (s), when known (default: measured)")
+    p.add_argument("--max-time-offset", type=float, default=1.0, metavar="S",
+                   help="the largest camera-to-joint-state offset searched (s, default 1)")
     robot = p.add_mutually_exclusive_group(required=True)
     robot.add_argument("--robot", metavar="NAME", help="example-robot-data arm (kinova, ur5, ur10, panda, xarm7)")
     robot.add_argument("--urdf", metavar="FILE", help="the arm's URDF")

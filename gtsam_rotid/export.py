@@ -149,7 +149,14 @@ class Transform:
                     f"the robot {robot.get('name', '?')!r} has no link {parent_frame!r} fixed to its root "
                     f"{robot.get('root_link')!r}: the camera's parent must be one of {', '.join(sorted(static))} "
                     "(a link after a joint moves with the arm; --parent)")
-            pose = gtsam.Pose3(np.array(static[parent_frame], dtype=float)).between(pose)
+            from .calibration.result import _rigid  # a result file's matrices are checked as its pose is
+
+            try:
+                root_T_parent = gtsam.Pose3(_rigid(static[parent_frame]))
+            except (InputError, TypeError, ValueError) as exc:
+                raise InputError(f"the result's record of the link {parent_frame!r} is not a rigid transform "
+                                 f"({exc}); the result file is damaged") from None
+            pose = root_T_parent.between(pose)
         if driver is not None:
             if camera_frame is CameraFrame.BODY or child_frame is not None:
                 raise InputError("with the camera driver's transform the child frame is its link: do not give a "
@@ -161,6 +168,10 @@ class Transform:
             pose, covariance = pose.compose(link_T_optical.inverse()), adjoint @ covariance @ adjoint.T
         child_frame = DEFAULT_CHILD[camera_frame] if child_frame is None else child_frame
         _checked_name(child_frame, "child frame")
+        if child_frame in (robot.get("links") or ()):
+            raise InputError(f"the child frame {child_frame!r} is a link of the robot {robot.get('name', '?')!r}: it "
+                             "has a parent in the robot's TF tree already; name the camera's own frame (--child, or "
+                             "the camera driver's link with --driver)")
         if parent_frame == child_frame:
             raise InputError(f"the parent and child frames must differ, both are {parent_frame!r}")
         ros = ros_covariance(pose, covariance)  # the same for both child conventions
@@ -370,8 +381,15 @@ def export_problems(result) -> list[str]:
     if not np.all(np.isfinite(result.arm_T_camera.matrix())):
         problems.append("the pose is not finite")
     covariance = np.asarray(result.covariance, dtype=float)
-    if covariance.shape != (6, 6) or not np.all(np.isfinite(covariance)):
+    if covariance.shape != (6, 6):
+        problems.append(f"the covariance is not 6x6 (shape {covariance.shape})")
+    elif not np.all(np.isfinite(covariance)):
         problems.append("the covariance has NaN or infinite entries")
+    elif not np.allclose(covariance, covariance.T, rtol=1e-6, atol=1e-15):
+        problems.append("the covariance is not symmetric")
+    elif np.min(np.linalg.eigvalsh(0.5 * (covariance + covariance.T))) < -1e-12 * max(
+            1.0, float(np.max(np.abs(covariance)))):
+        problems.append("the covariance is not positive semi-definite (a negative variance)")
     observability = getattr(result, "observability", None)
     if observability is not None and not observability.is_observable:
         problems.append(f"the arm poses do not determine the calibration ({len(observability.unobservable_directions)}"
@@ -398,7 +416,7 @@ def export_result(result, to: str | Format, *, parent_frame: str | None = None, 
     problems = export_problems(result)
     if problems and not force:
         raise ExportRefused("the result is not fit to export: " + "; ".join(problems)
-                            + ". Export it anyway with --force (force=True): the file then says so")
+                            + ". Export it anyway with --force (in Python: force=True): the file then says so")
     transform = Transform.from_result(result, parent_frame=parent_frame, child_frame=child_frame,
                                       camera_frame=camera_frame, warnings=tuple(problems), driver=driver)
     return transform.to_text(to, joint_name)

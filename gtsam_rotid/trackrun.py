@@ -24,7 +24,8 @@ def checked_size(frames: Iterable[np.ndarray], camera: Camera, path: Path) -> It
     for i, frame in enumerate(frames):
         if i == 0 and (frame.shape[1], frame.shape[0]) != (camera.width, camera.height):
             raise RecordingError(f"{path}: the frames are {frame.shape[1]}x{frame.shape[0]} pixels but the camera "
-                                 f"is {camera.width}x{camera.height}; the camera file must describe this video")
+                                 f"is {camera.width}x{camera.height}; the camera (file or CameraInfo) must describe "
+                                 "these frames")
         yield frame
 
 

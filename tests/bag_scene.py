@@ -1,7 +1,7 @@
 """Small ROS bags of a rendered scene, written with rosbags' own writers (ROS 1, ROS 2 sqlite3 and mcap): the
 images of each spin (raw in several encodings, or compressed), the joint states at their own rate with a gripper
 joint the model does not have, the arm moving between the poses, CameraInfo, and a camera clock that runs ahead of
-the joint-state clock by a known offset. Shared by tests/test_bags.py and tests/test_bagdataset.py."""
+the joint-state clock by a known offset. Used by tests/test_bags.py."""
 
 from __future__ import annotations
 
@@ -64,9 +64,13 @@ def timeline(dataset, spins, offset_s: float = 0.0):
 
 
 def write_bag(path: Path, storage: str, dataset, spins, *, offset_s: float = 0.0, encoding: str = "mono8",
-              camera_info: bool = True, image_topic: str = "/camera/image_raw") -> Path:
+              camera_info: bool = True, image_topic: str = "/camera/image_raw",
+              camera_info_topic: str = "/camera/camera_info", info_frame: str = "camera_optical",
+              split_joints: bool = False) -> Path:
     """Write the scene as a bag: ``storage`` "ros1" (a .bag file), "sqlite3" or "mcap" (a ROS 2 bag directory);
-    ``encoding`` an Image encoding (mono8, bgr8, rgb8, mono16) or "jpeg" / "png" (CompressedImage)."""
+    ``encoding`` an Image encoding (mono8, bgr8, rgb8, mono16, "mono12": 12-bit data in mono16) or "jpeg" / "png"
+    (CompressedImage). ``split_joints``: the arm's first three and last joints come from two publishers, 3 ms
+    apart."""
     from rosbags.typesys import Stores, get_typestore
 
     ros1 = storage == "ros1"
@@ -87,11 +91,18 @@ def write_bag(path: Path, storage: str, dataset, spins, *, offset_s: float = 0.0
     joint_t, joint_q, images = timeline(dataset, spins, offset_s)
     names = [*dataset.arm.joint_names, "gripper_finger_joint"]
     messages = []
+    groups = [(0.0, list(range(3))), (0.003, list(range(3, len(names))))] if split_joints else \
+        [(0.0, list(range(len(names))))]
     for s, q in zip(joint_t, joint_q, strict=True):
-        msg = T["sensor_msgs/msg/JointState"](header=header(s, ""), name=names,
-                                               position=np.append(q, 0.01), velocity=np.zeros(0),
-                                               effort=np.zeros(0))
-        messages.append((s, "/joint_states", "sensor_msgs/msg/JointState", msg))
+        for delay, members in groups:
+            values = np.append(q, 0.01)
+            if delay:  # the second publisher reads its joints later
+                later = np.array([np.interp(s + delay, joint_t, joint_q[:, j]) for j in range(joint_q.shape[1])])
+                values = np.append(later, 0.01)
+            msg = T["sensor_msgs/msg/JointState"](header=header(s + delay, ""), name=[names[i] for i in members],
+                                                   position=values[members], velocity=np.zeros(0),
+                                                   effort=np.zeros(0))
+            messages.append((s + delay, "/joint_states", "sensor_msgs/msg/JointState", msg))
     compressed = encoding in ("jpeg", "png")
     image_type = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
     for s, k, i in images:
@@ -105,28 +116,30 @@ def write_bag(path: Path, storage: str, dataset, spins, *, offset_s: float = 0.0
                 pixels, step = grey, camera.width
             elif encoding == "mono16":
                 pixels, step = (grey.astype("<u2") * 256 + 7).view(np.uint8), 2 * camera.width
+            elif encoding == "mono12":
+                pixels, step = (grey.astype("<u2") * 16 + 3).view(np.uint8), 2 * camera.width
             else:
                 colour = cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
                 pixels = colour if encoding == "bgr8" else colour[..., ::-1]
                 step = 3 * camera.width
             msg = T[image_type](header=header(s, "camera_optical"), height=camera.height, width=camera.width,
-                                encoding=encoding, is_bigendian=0, step=step,
+                                encoding="mono16" if encoding == "mono12" else encoding, is_bigendian=0, step=step,
                                 data=np.ascontiguousarray(pixels).ravel().view(np.uint8))
         messages.append((s, image_topic, image_type, msg))
     if camera_info:
         K = camera.K.ravel().tolist()
         D = [] if camera.dist is None else camera.dist.tolist()
-        fields = dict(header=header(joint_t[0], "camera_optical"), height=camera.height, width=camera.width,
+        fields = dict(header=header(joint_t[0], info_frame), height=camera.height, width=camera.width,
                       distortion_model="plumb_bob", binning_x=0, binning_y=0,
                       roi=T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0,
                                                                  do_rectify=False))
         R = np.eye(3).ravel()
-        P = np.hstack([camera.K, np.zeros((3, 1))]).ravel()
+        P = np.hstack([camera.K * np.array([[0.9], [0.9], [1.0]]), np.zeros((3, 1))]).ravel()  # rectified: other
         if ros1:
             fields.update(D=np.array(D), K=np.array(K), R=R, P=P)
         else:
             fields.update(d=np.array(D), k=np.array(K), r=R, p=P)
-        messages.append((joint_t[0], "/camera/camera_info", "sensor_msgs/msg/CameraInfo",
+        messages.append((joint_t[0], camera_info_topic, "sensor_msgs/msg/CameraInfo",
                          T["sensor_msgs/msg/CameraInfo"](**fields)))
     messages.sort(key=lambda m: m[0])
     if ros1:

@@ -465,3 +465,19 @@ def test_the_command_line_takes_the_driver_and_the_report_finds_the_dataset(nois
         handle.write(" ")
     assert main(["report", str(result_path)]) == 0
     assert "changed since the calibration; not used" in capsys.readouterr().err
+
+
+def test_a_damaged_robot_record_a_robot_link_as_child_and_a_bad_covariance_are_refused(recorded):
+    damaged = replace(recorded, robot={**recorded.robot, "static_links": {
+        **recorded.robot["static_links"], "j2s6s200_link_base": (2.0 * np.eye(4)).tolist()}})
+    with pytest.raises(InputError, match="record of the link 'j2s6s200_link_base' is not a rigid transform"):
+        export_result(damaged, "yaml", parent_frame="j2s6s200_link_base")
+    with pytest.raises(InputError, match="'j2s6s200_link_4' is a link of the robot"):
+        export_result(recorded, "yaml", child_frame="j2s6s200_link_4")
+    with pytest.raises(InputError, match="is a link of the robot"):
+        export_result(recorded, "yaml", driver=("j2s6s200_end_effector", gtsam.Pose3()))
+    negative = replace(recorded, covariance=-recorded.covariance)
+    with pytest.raises(ExportRefused, match="not positive semi-definite"):
+        export_result(negative, "json")
+    with pytest.raises(ExportRefused, match="not 6x6"):
+        export_result(replace(recorded, covariance=np.eye(5)), "matrix")

@@ -87,7 +87,7 @@ class Alternative:
 
     @classmethod
     def from_dict(cls, data: dict) -> Alternative:
-        return cls(gtsam.Pose3(np.array(data["arm_T_camera"])), float(data["delta_chi2"]))
+        return cls(gtsam.Pose3(_rigid(data["arm_T_camera"])), float(data["delta_chi2"]))
 
 
 @dataclass

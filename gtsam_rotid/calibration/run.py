@@ -38,7 +38,7 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
     Call as ``calibrate(dataset)`` or ``calibrate(arm, camera, measurements)``; ``method`` and ``options`` are
     keywords (``calibrate(dataset, options=CalibrationOptions(...))``).
     """
-    metadata = {}
+    metadata, source = {}, {}
     if isinstance(arm, Dataset):
         if camera is not None or measurements is not None:
             given = type(camera if camera is not None else measurements).__name__
@@ -47,6 +47,7 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
                              "calibrate(dataset, options=CalibrationOptions(...), method='joint')")
         dataset = arm
         arm, camera, measurements, metadata = dataset.arm, dataset.camera, list(dataset), dataset.metadata
+        source = dict(dataset.source or {})
     if camera is None or measurements is None:
         raise InputError("calibrate needs a Dataset, or an Arm, a Camera and a list of Measurements")
     try:
@@ -57,6 +58,10 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
     if options.axis_floor_px is None:
         options = replace(options, axis_floor_px=_tracker_floor_px(metadata))
     measurements = [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements]
+    for k, m in enumerate(measurements):  # as a Dataset checks them (a Dataset's are checked already)
+        problem = arm.limit_problem(m.joint_angles)
+        if problem is not None:
+            raise InputError(f"measurement {k}: {problem}")
     # a measurement with fewer than two usable tracks has no image axis: it is left out and named, not fatal
     builder = _builder(arm, camera, options)
     prepared = [builder.prepare(m, k) for k, m in enumerate(measurements)]
@@ -80,7 +85,7 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
             dict(p.rejected), OutlierKind.FEW_TRACKS.value, axis_point=[float(v) for v in axis.point],
             axis_direction=[float(v) for v in axis.direction], arc_span_deg=max(spans) if spans else None, weak=True))
     result = replace(result, measurements=sorted(reports, key=lambda r: r.index), robot=arm.description(),
-                     dataset=dict(getattr(dataset, "source", None) or {}))
+                     dataset=source)
     return replace(result, untrusted=_untrusted(result, setup))
 
 
