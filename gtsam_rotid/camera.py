@@ -54,6 +54,11 @@ class Camera:
         for name, value in (("width", width), ("height", height)):
             if isinstance(value, bool) or not float(value).is_integer() or value <= 0:
                 raise CameraError(f"image {name} must be a positive integer, got {value!r}")
+        cx, cy = K[0, 2], K[1, 2]
+        if not (0.0 <= cx <= float(width) and 0.0 <= cy <= float(height)):
+            raise CameraError(f"the principal point ({cx:g}, {cy:g}) lies outside the {int(width)}x{int(height)} "
+                              "image: is the camera matrix for another resolution (or are width and height "
+                              "swapped)?")
         if dist is not None:
             dist = np.array(dist, dtype=float).ravel()
             if dist.shape[0] == 4:

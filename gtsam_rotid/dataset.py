@@ -45,7 +45,7 @@ from .errors import (
     ValidationError,
 )
 from .files import staged_directory
-from .measurements import Measurement, Track, _located, _plural
+from .measurements import MAX_FRAME_SPAN, Measurement, Track, _located, _plural
 
 #: ``"format"`` marker of ``dataset.json``.
 FORMAT = "gtsam_rotid.dataset"
@@ -152,6 +152,10 @@ def _is_dataset_directory(path: Path) -> bool:
     return isinstance(document, dict) and document.get("format") == FORMAT
 
 
+#: The files a dataset directory may hold (the simulator adds its ground truth); anything else is the user's.
+_DATASET_FILES = frozenset({DATASET_FILE, TRACKS_FILE, URDF_FILE, "truth.json"})
+
+
 def _check_save_target(target: Path, overwrite: bool) -> bool:
     """Raise unless ``target`` may be written; True when an existing dataset is to be replaced."""
     if not os.path.lexists(target):
@@ -168,6 +172,11 @@ def _check_save_target(target: Path, overwrite: bool) -> bool:
                                  f"not to delete unrelated files")
     if not overwrite:
         raise DatasetExistsError(f"a dataset already exists at {target}; pass overwrite=True to replace it")
+    foreign = sorted(entry.name for entry in target.iterdir() if entry.name not in _DATASET_FILES)
+    if foreign:
+        raise DatasetExistsError(f"{target} holds files that are not part of the dataset ({', '.join(foreign)}); "
+                                 "replacing the dataset would delete them, so it is refused even with "
+                                 "overwrite=True: move them out, or save to another directory")
     return True
 
 
@@ -215,6 +224,9 @@ class Dataset:
         except ArmError as err:
             raise ValidationError(f"joint angles do not fit the arm {self.arm.name!r}: {err}",
                                   measurement=k) from None
+        problem = self.arm.limit_problem(angles)
+        if problem is not None:
+            raise ValidationError(problem, measurement=k)
         angles.setflags(write=False)
         width, height = self.camera.width, self.camera.height
         for j, track in enumerate(measurement.tracks):
@@ -226,6 +238,12 @@ class Dataset:
                     f"(-0.5 <= u <= {width - 0.5:g}, -0.5 <= v <= {height - 0.5:g}); {outside.size} of "
                     f"{len(track)} pixels of the track are outside",
                     measurement=k, track=j)
+        firsts = [int(t.frames[0]) for t in measurement.tracks if t.frames is not None and len(t.frames)]
+        lasts = [int(t.frames[-1]) for t in measurement.tracks if t.frames is not None and len(t.frames)]
+        if firsts and max(lasts) - min(firsts) > MAX_FRAME_SPAN:
+            raise ValidationError(f"the tracks' frame indices span {max(lasts) - min(firsts)} frames (from "
+                                  f"{min(firsts)} to {max(lasts)}; at most {MAX_FRAME_SPAN}): frame indices must "
+                                  "be frame numbers of one spin's video, not time stamps", measurement=k)
         return angles
 
     # ------------------------------------------------------------------ access

@@ -72,7 +72,11 @@ def _folder_frames(files: list[Path], start: int, stop: int | None) -> Iterator[
         yield image
 
 
-def _video_frames(path: Path, start: int, stop: int | None) -> Iterator[np.ndarray]:
+#: A video whose container reports more frames than decode by this factor (or more) is truncated or damaged.
+TRUNCATED_FRACTION = 0.9
+
+
+def _video_frames(path: Path, start: int, stop: int | None, reported: int | None = None) -> Iterator[np.ndarray]:
     capture = cv2.VideoCapture(os.fspath(path))
     try:
         if not capture.isOpened():
@@ -94,6 +98,10 @@ def _video_frames(path: Path, start: int, stop: int | None) -> Iterator[np.ndarr
     if (stop is not None and index < stop) or index <= start:
         raise RecordingError(f"the video {path} has {index} frames (0 to {index - 1}); the frame range "
                              f"{_range_text(start, stop)} goes beyond its end")
+    if stop is None and reported is not None and index < TRUNCATED_FRACTION * reported:
+        raise RecordingError(f"the video {path} reports {reported} frames but only {index} decode: it is truncated "
+                             f"or damaged. Record or export it again, or give the frame range 0:{index} (--frames) to "
+                             "use the frames that decode")
 
 
 @dataclass(frozen=True)
@@ -144,7 +152,7 @@ def frames_of(source: Source, frame_range) -> tuple[Iterator[np.ndarray], int | 
         expected = max(end - start, 0) or None
     elif stop is not None:
         expected = stop - start
-    return _video_frames(source.path, start, stop), expected, start
+    return _video_frames(source.path, start, stop, source.count), expected, start
 
 
 def read_frames(path: str | os.PathLike, frame_range: tuple[int | None, int | None] | None = None

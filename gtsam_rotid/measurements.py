@@ -12,6 +12,9 @@ import numpy as np
 
 from .errors import ValidationError
 
+#: The most frames one measurement's tracks may span (9 hours of video at 30 fps): more are time stamps, and the
+#: rigid spin would allocate an angle per frame between them.
+MAX_FRAME_SPAN = 1_000_000
 _INT64_MAX = np.iinfo(np.int64).max
 
 
@@ -95,6 +98,10 @@ class Track:
             i = not_increasing[0]
             raise ValidationError(f"frames must be strictly increasing; frame {i + 1} is {frames_int[i + 1]} "
                                   f"after frame {i} = {frames_int[i]}")
+        if frames_int.size and frames_int[-1] - frames_int[0] > MAX_FRAME_SPAN:
+            raise ValidationError(f"frames must be frame numbers of one spin's video: they span "
+                                  f"{frames_int[-1] - frames_int[0]} frames (at most {MAX_FRAME_SPAN}; time stamps "
+                                  "in nanoseconds or microseconds are not frame numbers)")
         frames_int.setflags(write=False)
         return frames_int
 

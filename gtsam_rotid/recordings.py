@@ -347,7 +347,7 @@ def load_joints(path: str | os.PathLike, arm: Arm, n_measurements: int | None = 
         if n_measurements is not None and rows != n_measurements:
             raise RecordingError(f"{joint_file.path} has {rows} row(s) of joint angles (one per measurement) but "
                                  f"there are {n_measurements} measurements (videos)")
-        return joint_file.positions.copy()
+        return _within_limits(joint_file.positions.copy(), arm, joint_file.path, labels)
     unwrapped = np.unwrap(joint_file.positions, axis=0)
     stamps = joint_file.stamps
     if spans is None:
@@ -377,8 +377,19 @@ def load_joints(path: str | os.PathLike, arm: Arm, n_measurements: int | None = 
                                      f"{inside.size} sample(s) between the stamps {t0:g} and {t1:g} (it spans "
                                      f"{stamps[0]:g} to {stamps[-1]:g}); a spin needs at least 2")
             selections.append(inside)
-    return np.array([_still_pose(joint_file, unwrapped, inside, arm, _label(k, labels), still_tolerance_deg,
-                                 min_spin_deg) for k, inside in enumerate(selections)])
+    return _within_limits(np.array([_still_pose(joint_file, unwrapped, inside, arm, _label(k, labels),
+                                                still_tolerance_deg, min_spin_deg)
+                                    for k, inside in enumerate(selections)]), arm, joint_file.path, labels)
+
+
+def _within_limits(angles: np.ndarray, arm: Arm, path: Path, labels: Sequence[str] | None) -> np.ndarray:
+    """``angles`` (one row per measurement), or a RecordingError naming the file and the measurement whose joints
+    pass the model's limits (with a hint when the file reads as degrees)."""
+    for k, row in enumerate(angles):
+        problem = arm.limit_problem(row)
+        if problem is not None:
+            raise RecordingError(f"{path}, {_label(k, labels)}: {problem}")
+    return angles
 
 
 # ---------------------------------------------------------------------------------------------- dataset

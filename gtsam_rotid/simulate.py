@@ -14,6 +14,7 @@ Entry points: :func:`simulate`, :func:`reference_scene` (the paper's Kinova Jaco
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import asdict, dataclass, field, replace
 
@@ -303,16 +304,33 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
+def _check_config(config: SceneConfig) -> None:
+    """Raise an InputError naming the first field of ``config`` that cannot make a scene (before any work)."""
+    def number(name: str, low: float, high: float = math.inf, *, low_open: bool = False, what: str = "") -> None:
+        value = getattr(config, name)
+        ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+        ok = ok and (value > low if low_open else value >= low) and value <= high
+        if not ok:
+            bound = f"{'>' if low_open else '>='} {low:g}" + ("" if high == math.inf else f" and <= {high:g}")
+            raise InputError(f"{name} must be a finite number {bound}{what}, got {value!r}")
+
+    number("n_measurements", 1, what=" (arm poses)")
+    number("duration", 0.0, low_open=True, what=" (seconds of wrist spin)")
+    number("fps", 0.0, low_open=True, what=" (frames per second)")
+    number("noise_var", 0.0, what=" (px^2)")
+    number("outlier_fraction", 0.0, 1.0)
+    number("n_features", 1)
+    number("min_track_length", 2, what=" (points)")
+    if not (isinstance(config.wrist_speed, int | float) and math.isfinite(config.wrist_speed)
+            and config.wrist_speed != 0):
+        raise InputError(f"wrist_speed must be a finite, non-zero number (rad/s), got {config.wrist_speed!r}")
+
+
 def simulate(config: SceneConfig | None = None, seed: int | None = 0, *, arm: Arm | None = None,
              ) -> tuple[Dataset, GroundTruth]:
     """Simulate a scene: returns the dataset (what a user would record) and its ground truth."""
     config = SceneConfig() if config is None else config
-    if config.n_measurements < 1:
-        raise InputError(f"n_measurements must be at least 1, got {config.n_measurements}")
-    if config.noise_var < 0:
-        raise InputError(f"noise_var must be >= 0 (px^2), got {config.noise_var}")
-    if not 0.0 <= config.outlier_fraction <= 1.0:
-        raise InputError(f"outlier_fraction must be in [0, 1], got {config.outlier_fraction}")
+    _check_config(config)
     rng = np.random.default_rng(seed)
     arm = Arm.from_robot(config.robot) if arm is None else arm
     scene = _Scene(config, arm, rng)

@@ -87,3 +87,9 @@ def test_malformed_camera_rejected(kwargs, fragment):
 def test_bad_point_shape_rejected():
     with pytest.raises(CameraError, match=r"shape \(N, 3\)"):
         Camera.xtion().project(np.zeros((4, 2)))
+
+
+@pytest.mark.parametrize("cx, cy", [(900.0, 240.0), (320.0, -3.0), (240.0, 640.0)])
+def test_a_principal_point_outside_the_image_is_refused(cx, cy):
+    with pytest.raises(CameraError, match=r"principal point .* outside the 640x480 image"):
+        Camera(np.array([[570.0, 0.0, cx], [0.0, 570.0, cy], [0.0, 0.0, 1.0]]), 640, 480)

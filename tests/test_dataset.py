@@ -53,7 +53,8 @@ def arc_pixels(centre_uv, radius_px: float, n: int, phase0: float = 0.0) -> np.n
 def make_measurements(joint_names: list[str]) -> list[Measurement]:
     """Two measurements: a vector of angles with framed tracks, and a dict of angles with mixed tracks."""
     dof = len(joint_names)
-    angles_0 = np.linspace(-0.4, 0.5, dof) + 1.0 / 3.0  # non-round floats, to test exact storage
+    # non-round floats, to test exact storage; inside the Kinova's and the 3-joint URDF's limits
+    angles_0 = np.linspace(0.6, 1.5, dof) + 1.0 / 3.0
     m0 = Measurement(
         angles_0,
         [
@@ -62,7 +63,7 @@ def make_measurements(joint_names: list[str]) -> list[Measurement]:
         ],
         name="pose A",
     )
-    angles_1 = {name: 0.1 * (i + 1) - 0.05 for i, name in enumerate(joint_names)}
+    angles_1 = {name: 0.1 * (i + 1) + 0.95 for i, name in enumerate(joint_names)}
     m1 = Measurement(
         angles_1,
         [
@@ -224,7 +225,7 @@ def test_dataset_accessors_and_summary(kinova_dataset, kinova):
     assert list(kinova_dataset) == list(kinova_dataset.measurements)
     assert kinova_dataset.n_observations == 7 + 5 + 4 + 2 + 6
     # dict joint angles come back as a vector in the arm's joint order
-    expected_1 = [0.1 * (i + 1) - 0.05 for i in range(kinova.dof)]
+    expected_1 = [0.1 * (i + 1) + 0.95 for i in range(kinova.dof)]
     np.testing.assert_array_equal(kinova_dataset.joint_angles(1), expected_1)
     vector = kinova_dataset.joint_angles(0)
     vector[0] = 100.0
@@ -239,7 +240,7 @@ def test_dataset_accessors_and_summary(kinova_dataset, kinova):
 
 def test_dataset_rejects_pixel_outside_image(kinova, camera):
     inside = make_measurements(kinova.joint_names)
-    bad = Measurement(np.zeros(kinova.dof), [np.ones((2, 2)), [[10.0, 10.0], [10.0, 480.0], [700.0, 5.0]]])
+    bad = Measurement(inside[0].joint_angles, [np.ones((2, 2)), [[10.0, 10.0], [10.0, 480.0], [700.0, 5.0]]])
     with pytest.raises(ValidationError) as info:
         Dataset(kinova, camera, [*inside, bad])
     message = str(info.value)
@@ -597,3 +598,41 @@ def test_refuses_to_replace_a_symbolic_link(kinova_dataset, tmp_path):
     with pytest.raises(DatasetExistsError, match="symbolic link"):
         kinova_dataset.save(link, overwrite=True)
     assert link.is_symlink() and snapshot(real) == before
+
+
+def test_joint_angles_outside_the_models_limits_are_refused_with_a_hint(kinova, camera):
+    """A joint CSV in degrees read as radians, or another robot's angles: refused by name (a bounded joint beyond
+    its limits by more than a degree); continuous joints wrap and are never refused."""
+    good = make_measurements(kinova.joint_names)
+    q = np.array(good[0].joint_angles)
+    degrees = Measurement(np.degrees(q), good[0].tracks)
+    with pytest.raises(ValidationError, match=r"measurement 0: joint angle\(s\) outside the model's limits: "
+                                              r"j2s6s200_joint_2 = .* read them as degrees"):
+        Dataset(kinova, camera, [degrees, good[1]])
+    beyond = q.copy()
+    beyond[1] = kinova.upper_limits[1] + np.radians(3.0)
+    with pytest.raises(ValidationError, match="j2s6s200_joint_2 .* right robot model"):
+        Dataset(kinova, camera, [Measurement(beyond, good[0].tracks), good[1]])
+    slightly = q.copy()
+    slightly[1] = kinova.upper_limits[1] + np.radians(0.5)  # within the tolerance of a reading
+    wrapped = slightly.copy()
+    wrapped[0] += 4 * np.pi  # a continuous joint
+    assert len(Dataset(kinova, camera, [Measurement(wrapped, good[0].tracks), good[1]])) == 2
+
+
+def test_frame_indices_that_are_time_stamps_are_refused():
+    with pytest.raises(ValidationError, match="span 66666666 frames .* time stamps"):
+        Track(np.zeros((3, 2)), np.array([1_700_000_000_000_000_000, 1_700_000_000_033_333_333,
+                                          1_700_000_000_066_666_666]))
+
+
+def test_a_dataset_directory_with_the_users_files_is_never_replaced(kinova, camera, tmp_path):
+    folder = tmp_path / "ds"
+    dataset = Dataset(kinova, camera, make_measurements(kinova.joint_names))
+    dataset.save(folder)
+    (folder / "truth.json").write_text("{}")  # the simulator's: part of a dataset directory
+    dataset.save(folder, overwrite=True)
+    (folder / "notes.txt").write_text("mine")
+    with pytest.raises(DatasetExistsError, match=r"holds files that are not part of the dataset \(notes.txt\)"):
+        dataset.save(folder, overwrite=True)
+    assert (folder / "notes.txt").read_text() == "mine" and (folder / "dataset.json").is_file()

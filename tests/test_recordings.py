@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import types
 from pathlib import Path
@@ -613,3 +614,19 @@ def test_module_exports():
         assert hasattr(recordings, name)
     assert not hasattr(recordings, "cmd_track"), "the command line lives in gtsam_rotid.cli"
     assert issubclass(RecordingError, InputError)
+
+
+def test_a_truncated_video_is_refused_not_tracked_on_half_its_frames(tmp_path):
+    whole = tmp_path / "whole.avi"
+    writer = cv2.VideoWriter(str(whole), cv2.VideoWriter_fourcc(*"MJPG"), 30, (64, 48))
+    for i in range(60):
+        writer.write(np.full((48, 64, 3), 4 * i, np.uint8))
+    writer.release()
+    assert len(list(read_frames(whole))) == 60
+    cut = tmp_path / "cut.avi"  # its header still says 60 frames
+    cut.write_bytes(whole.read_bytes()[:len(whole.read_bytes()) // 2])
+    with pytest.raises(RecordingError, match=r"cut.avi reports 60 frames but only (\d+) decode: it is truncated") \
+            as raised:
+        list(read_frames(cut))
+    n = int(re.search(r"only (\d+) decode", str(raised.value)).group(1))
+    assert 0 < n < 54 and len(list(read_frames(cut, (0, n)))) == n  # the frames that decode, asked for explicitly

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from gtsam_rotid import Arm, Camera, SimulationError, simulate
+from gtsam_rotid import Arm, Camera, InputError, SimulationError, simulate
 from gtsam_rotid.simulate import GroundTruth, SceneConfig
 
 DISTORTED = Camera([[560.0, 0.0, 322.0], [0.0, 565.0, 236.0], [0.0, 0.0, 1.0]], 640, 480,
@@ -181,3 +181,13 @@ def test_other_arms(robot):
     dataset, truth = simulate.simulate(SceneConfig(robot=robot, duration=3.0, n_measurements=3), seed=0)
     assert len(dataset) == 3 and dataset.arm.name == robot
     assert dataset.n_observations > 1000
+
+
+@pytest.mark.parametrize("field, value, words", [
+    ("duration", -5.0, "duration must be a finite number > 0"), ("noise_var", float("nan"), "noise_var must be"),
+    ("fps", 0.0, "fps must be"), ("n_measurements", 0, "n_measurements must be"),
+    ("wrist_speed", 0.0, "wrist_speed must be"), ("outlier_fraction", 1.5, "outlier_fraction must be"),
+])
+def test_a_scene_that_cannot_be_made_is_refused_by_its_field(field, value, words):
+    with pytest.raises(InputError, match=words):
+        simulate.simulate(simulate.SceneConfig(**{field: value}))
