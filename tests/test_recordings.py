@@ -630,3 +630,11 @@ def test_a_truncated_video_is_refused_not_tracked_on_half_its_frames(tmp_path):
         list(read_frames(cut))
     n = int(re.search(r"only (\d+) decode", str(raised.value)).group(1))
     assert 0 < n < 54 and len(list(read_frames(cut, (0, n)))) == n  # the frames that decode, asked for explicitly
+
+
+def test_a_joint_file_in_degrees_read_as_radians_is_refused_with_the_hint(tmp_path, arm):
+    path = write(tmp_path / "degrees.csv", ",".join(arm.joint_names) + "\n30,60,-45\n10,-20,90\n")
+    with pytest.raises(RecordingError, match=r"degrees.csv, measurement 0.*outside the model's limits.*read them as "
+                                             r"degrees \(--degrees"):
+        load_joints(path, arm, 2)
+    np.testing.assert_allclose(load_joints(path, arm, 2, degrees=True)[0], np.radians([30, 60, -45]))
