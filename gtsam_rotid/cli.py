@@ -273,7 +273,8 @@ def add_report_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("result", metavar="RESULT_JSON", help="result file written by `calibrate -o`")
     p.add_argument("--dataset", metavar="DIR", help="the dataset directory that was calibrated (optional)")
     p.add_argument("--format", choices=[f.value for f in ReportFormat], default=ReportFormat.TEXT.value,
-                   help="text (default), markdown or json")
+                   help="text (default), markdown (linking the --plots), json, or html (one page, the plots "
+                        "embedded)")
     p.add_argument("-o", "--output", metavar="FILE", help="write the report to FILE instead of standard output")
     p.add_argument("--plots", metavar="DIR", help="write PNG plots into DIR (created if missing)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
@@ -297,7 +298,20 @@ def cmd_report(args) -> int:
 
         if plots_dir.is_dir():  # refuse before writing anything
             check_outputs(plot_files(result, dataset, plots_dir), args.overwrite)
-    text = make_report(result, dataset).render(args.format)
+    report = make_report(result, dataset)
+    if args.format == ReportFormat.HTML.value:  # one self-contained page: the plots embedded
+        from .htmlreport import to_html
+        from .plots import report_pngs
+
+        text = to_html(report, report_pngs(result, dataset))
+    elif args.format == ReportFormat.MARKDOWN.value and plots_dir is not None:  # linked where they are written
+        from .plots import plot_files
+
+        base = Path(output).parent if output is not None else Path.cwd()
+        links = [os.path.relpath(p, base.resolve()) for p in plot_files(result, dataset, plots_dir.resolve())]
+        text = report.to_markdown(plots=[Path(link).as_posix() for link in links])
+    else:
+        text = report.render(args.format)
     # with the report on standard output, progress lines go to standard error (the output stays parseable)
     progress = sys.stdout if output is not None else sys.stderr
     _emit(text, output, args.overwrite)

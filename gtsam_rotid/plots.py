@@ -20,6 +20,7 @@ Every function returns a ``matplotlib.figure.Figure``; ``fig.savefig("x.png")`` 
 
 from __future__ import annotations
 
+import io
 import math
 import os
 from collections.abc import Sequence
@@ -413,6 +414,26 @@ def plot_files(result, dataset, directory: str | os.PathLike) -> list[Path]:
     return [directory / name for name in names]
 
 
+def _report_figures(result, dataset) -> list[Figure]:
+    """The report's figures, in :func:`plot_files` order."""
+    figures = [plot_pose_3d(result, dataset)]
+    if dataset is not None:
+        fits = [fit_tracks(result, dataset, k) for k in range(len(dataset))]
+        figures += [plot_tracks(result, dataset, k, fit=fit) for k, fit in enumerate(fits)]
+        figures.append(plot_residual_histograms(result, dataset, fits=fits))
+    return figures
+
+
+def report_pngs(result, dataset=None) -> list[tuple[str, bytes]]:
+    """The report's figures as (name, PNG bytes), in :func:`plot_files` order: for a page that embeds them."""
+    out = []
+    for fig, path in zip(_report_figures(result, dataset), plot_files(result, dataset, "."), strict=True):
+        buffer = io.BytesIO()
+        fig.savefig(buffer, format="png", dpi=DPI)
+        out.append((path.stem, buffer.getvalue()))
+    return out
+
+
 def save_plots(result, dataset, directory: str | os.PathLike, *, overwrite: bool = False) -> list[Path]:
     """Write the 3-D view and, with the dataset, each measurement's tracks and the residual histograms, as PNG.
 
@@ -422,12 +443,7 @@ def save_plots(result, dataset, directory: str | os.PathLike, *, overwrite: bool
     if not directory.is_dir():
         raise OutputError(f"{directory} is not a directory")
     paths = check_outputs(plot_files(result, dataset, directory), overwrite)
-    figures = [plot_pose_3d(result, dataset)]
-    if dataset is not None:
-        fits = [fit_tracks(result, dataset, k) for k in range(len(dataset))]
-        figures += [plot_tracks(result, dataset, k, fit=fit) for k, fit in enumerate(fits)]
-        figures.append(plot_residual_histograms(result, dataset, fits=fits))
-    for fig, path in zip(figures, paths, strict=True):
+    for fig, path in zip(_report_figures(result, dataset), paths, strict=True):
         with staged(path, overwrite) as staging:
             fig.savefig(staging, dpi=DPI)
     return paths

@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
+from pathlib import Path
 
 import numpy as np
 
@@ -49,6 +51,7 @@ from .words import (
     outlier_words,
     tracking_words,
     untrusted_words,
+    verdict,
 )
 
 #: Two-sided 95 % point of the normal distribution: the 95 % bound of one axis is Z95 σ.
@@ -70,6 +73,8 @@ class ReportFormat(StrEnum):
     TEXT = "text"
     MARKDOWN = "markdown"
     JSON = "json"
+    #: a self-contained page with the plots embedded (:mod:`gtsam_rotid.htmlreport`)
+    HTML = "html"
 
 
 def _vec(v, fmt: str = "{:.1f}") -> str:
@@ -129,6 +134,8 @@ class CalibrationReport:
     axis_floor_px: float = 0.0
     #: why a determined calibration's covariance is still not trusted (``result.untrusted``'s kinds)
     untrusted: list = field(default_factory=list)
+    #: one line: usable and how well, or why not and what to do (:func:`gtsam_rotid.words.verdict`)
+    verdict: str = ""
 
     @property
     def bound95_position_mm(self) -> np.ndarray:
@@ -221,7 +228,7 @@ class CalibrationReport:
         return [*lines, "", summary]
 
     def to_text(self) -> str:
-        out = ["gtsam_rotid calibration report", *self._header_lines(), ""]
+        out = ["gtsam_rotid calibration report", self.verdict, *self._header_lines(), ""]
         out.append(f"  {'':<12}{'estimate':>14}{'1σ':>16}{'95 % (±1.96σ)':>18}")
         out += [f"  {n:<12}{v:>14}{s:>16}{b:>18}" for n, v, s, b in self._estimate_rows()]
         out += ["  " + line for line in self._uncertainty_lines()]
@@ -241,8 +248,10 @@ class CalibrationReport:
         out += [f"  measurement {k}, track {j}: {why}" for k, j, why in rejected]
         return "\n".join(out) + "\n"
 
-    def to_markdown(self) -> str:
-        out = ["# Calibration report", "", *[f"{line}  " for line in self._header_lines()], "",
+    def to_markdown(self, plots: Sequence[str] = ()) -> str:
+        """Markdown; ``plots`` (paths relative to where the markdown is written) are linked under "Plots"."""
+        out = ["# Calibration report", "", f"**{self.verdict}**", "", *[f"{line}  " for line in self._header_lines()],
+               "",
                "## Estimate", "", "| | estimate | 1σ | 95 % (±1.96σ) |", "|---|---:|---:|---:|"]
         out += [f"| {n} | {v} | {s} | {b} |" for n, v, s, b in self._estimate_rows()]
         out += [""] + [f"- {line}" for line in self._uncertainty_lines()]
@@ -261,6 +270,8 @@ class CalibrationReport:
         rejected = self.rejected_tracks
         out += ["", "### Rejected tracks", ""]
         out += [f"- measurement {k}, track {j}: {why}" for k, j, why in rejected] if rejected else ["none"]
+        if plots:
+            out += ["", "## Plots", ""] + [f"![{Path(p).stem}]({p})" for p in plots]
         return "\n".join(out) + "\n"
 
     def __str__(self) -> str:
@@ -277,6 +288,7 @@ class CalibrationReport:
         return {
             "format": "gtsam_rotid.report",
             "version": 1,
+            "verdict": self.verdict,
             "method": self.method,
             "converged": self.converged,
             "iterations": self.iterations,
@@ -339,6 +351,9 @@ class CalibrationReport:
             return self.to_markdown()
         if fmt is ReportFormat.JSON:
             return self.to_json()
+        if fmt is ReportFormat.HTML:
+            from .htmlreport import to_html  # (same layer) the page without plots; the CLI embeds them
+            return to_html(self)
         return self.to_text()
 
 
@@ -468,7 +483,7 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         crossing_miss_mm=1000.0 * float(np.max(geometry.miss)) if crossing else None, ambiguous=ambiguous,
         axis_consistency=getattr(result, "axis_consistency", None),
         joint_sigma_deg=float(getattr(result, "joint_sigma_deg", 0.0)), untrusted=untrusted,
-        axis_floor_px=float(getattr(result, "axis_floor_px", 0.0)),
+        axis_floor_px=float(getattr(result, "axis_floor_px", 0.0)), verdict=verdict(result),
     )
 
 

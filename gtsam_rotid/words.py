@@ -22,12 +22,29 @@ from .calibration.tuning import (
 from .uncertainty import Observability
 
 
+def verdict(result: CalibrationResult) -> str:
+    """One line: whether the calibration can be used and how well, or why not and what to do next."""
+    if result.covariance_usable and result.converged:
+        return (f"USABLE: 1σ at most {float(np.max(result.sigma_mm_arm)):.2f} mm and "
+                f"{float(np.max(result.sigma_deg)):.3f}° on every axis")
+    if not result.converged:
+        return "NOT USABLE: the solver did not converge; add arm poses or check the data"
+    if not result.observability.is_observable:
+        return ("NOT USABLE: these arm poses do not determine the calibration; add a pose whose wrist axis is tilted "
+                "from the others and misses their common point")
+    if result.ambiguous:
+        return ("NOT USABLE: another camera pose fits the pixels nearly as well; add a pose whose wrist axis is "
+                "tilted from the others")
+    return "NOT USABLE: " + untrusted_words(result)[0]
+
+
 def summary(result: CalibrationResult) -> str:
     """The result in a few lines: the pose, its 1σ or why the covariance is unusable, the observability, each
     measurement."""
     t = result.arm_T_camera.translation() * 1000.0
     rpy = np.degrees(result.arm_T_camera.rotation().rpy())
     lines = [
+        verdict(result),
         f"arm_T_camera ({result.method}, {'converged' if result.converged else 'NOT converged'}, "
         f"{result.iterations} iterations, pixel sigma {result.sigma_px:.3f} px)",
         f"  translation (mm):  {t[0]:9.2f} {t[1]:9.2f} {t[2]:9.2f}",

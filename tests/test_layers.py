@@ -19,7 +19,7 @@ LAYERS = {
     "simulate": 3, "recordings": 3, "camerafiles": 2, "bags": 2, "trackrun": 3, "bagdataset": 3,
     "graph": 4, "initialise": 4, "uncertainty": 4,
     "calibration": 5, "estimate": 5, "fits": 5,
-    "report": 6, "diagnosis": 6, "words": 6, "plots": 6, "export": 6, "pixels": 6, "posefiles": 6,
+    "report": 6, "diagnosis": 6, "words": 6, "plots": 6, "export": 6, "pixels": 6, "posefiles": 6, "htmlreport": 6,
     "cli": 7, "demo": 7, "__main__": 7, "__init__": 8,
 }
 #: (importer, imported) pairs that break the rule today

@@ -548,7 +548,7 @@ def test_summary_prints_the_pose_its_sigma_and_each_measurement():
                       axis_chi2=40.0)]
     r = result(measurements=ms, iterations=17, sigma_px=1.2214)
     text = summary(r)
-    head = text.splitlines()[0]
+    head = text.splitlines()[1]  # after the verdict
     assert "weighted" in head and "converged" in head and "NOT" not in head
     assert after(head, "converged,") == 17 and after(head, "pixel sigma") == 1.221
     np.testing.assert_allclose(floats(line_starting(text, "translation (mm):")), 1000 * POSE.translation(),
@@ -574,7 +574,7 @@ def test_summary_prints_the_pose_its_sigma_and_each_measurement():
 
 
 def test_summary_says_when_the_solver_did_not_converge():
-    assert "NOT converged" in summary(result(converged=False)).splitlines()[0]
+    assert "NOT converged" in summary(result(converged=False)).splitlines()[1]
 
 
 def test_summary_states_what_the_covariance_assumes_of_kinematics_and_tracking():
