@@ -277,6 +277,9 @@ def add_report_parser(subparsers) -> argparse.ArgumentParser:
                         "embedded)")
     p.add_argument("-o", "--output", metavar="FILE", help="write the report to FILE instead of standard output")
     p.add_argument("--plots", metavar="DIR", help="write PNG plots into DIR (created if missing)")
+    p.add_argument("--overlays", metavar="DIR",
+                   help="write the quad view of each measurement on its own recorded frame (the video or bag `track` "
+                        "read) into DIR as overlay_m<k>.png")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.set_defaults(func=cmd_report)
     return p
@@ -291,8 +294,15 @@ def cmd_report(args) -> int:
         if not plots_dir.parent.is_dir():
             raise OutputError(f"cannot write plots into {plots_dir}: the directory {plots_dir.parent} does not "
                                   "exist")
+    overlays_dir = None if args.overlays is None else Path(args.overlays)
+    if overlays_dir is not None and not overlays_dir.parent.is_dir():
+        raise OutputError(f"cannot write overlays into {overlays_dir}: the directory {overlays_dir.parent} does not "
+                          "exist")
     result = load_result(args.result)
     dataset = Dataset.load(args.dataset) if args.dataset is not None else _recorded_dataset(result)
+    if overlays_dir is not None and dataset is None:
+        raise InputError("--overlays needs the dataset that was calibrated (--dataset DIR; the result records none "
+                         "that is still there)")
     if plots_dir is not None:
         from .plots import plot_files
 
@@ -323,6 +333,16 @@ def cmd_report(args) -> int:
             print("gtsam-rotid report: note: only the 3-D view is drawn; give --dataset for the tracks and the "
                   "residual histograms", file=sys.stderr)
         for path in save_plots(result, dataset, plots_dir, overwrite=args.overwrite):
+            print(f"wrote {path}", file=progress)
+    if overlays_dir is not None:
+        from .overlays import recorded_frames
+        from .plots import save_overlays
+
+        frames, notes = recorded_frames(dataset)
+        for note in notes:
+            print(f"gtsam-rotid report: note: no overlay for {note}", file=sys.stderr)
+        overlays_dir.mkdir(exist_ok=True)
+        for path in save_overlays(result, dataset, frames, overlays_dir, overwrite=args.overwrite):
             print(f"wrote {path}", file=progress)
     return 0
 

@@ -19,6 +19,7 @@ from gtsam_rotid.cli import add_track_parser, cmd_track, main
 from gtsam_rotid.dataset import Dataset
 from gtsam_rotid.errors import InputError
 from gtsam_rotid.estimate import calibrate
+from gtsam_rotid.overlays import busiest_frame, recorded_frames
 
 OFFSET_S = 0.137  # the camera clock runs ahead of the joint-state clock
 CHI2_6_999 = 22.458
@@ -245,3 +246,24 @@ def test_a_damaged_bag_and_clocks_far_apart_are_named(rendered, bags, tmp_path, 
     assert len(made) == 3 and made.metadata["recording"]["time_offset_given_s"] == 5.0
     again = dataset_from_bag(far, dataset.arm, progress=False, max_offset_s=6.0)
     assert abs(again.metadata["recording"]["time_offset_s"] - 5.0) < 0.1 / FPS
+
+
+def test_the_report_draws_each_spin_on_its_own_recorded_frame(rendered, bags, tmp_path, capsys):
+    dataset, _, spins = rendered
+    made = dataset_from_bag(bags["mcap"], dataset.arm, progress=False)
+    frames, notes = recorded_frames(made)
+    assert sorted(frames) == list(range(len(made))) and not notes
+    _, _, images = timeline(dataset, spins, OFFSET_S)
+    for k, (number, image) in frames.items():
+        assert number == busiest_frame(made, k)
+        _, spin, i = images[number]  # the bag's image at that position on the topic
+        assert spin == k
+        np.testing.assert_allclose(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image,
+                                   spins[k].frame(i), atol=1)
+    folder, result_path = tmp_path / "ds", tmp_path / "result.json"
+    made.save(folder)
+    main(["calibrate", str(folder), "-o", str(result_path)])
+    assert main(["report", str(result_path), "--overlays", str(tmp_path / "quad")]) == 0
+    assert sorted(p.name for p in (tmp_path / "quad").iterdir()) == [f"overlay_m{k}.png" for k in range(len(made))]
+    assert recorded_frames(dataset)[1] == ["the dataset records no video or bag (it was not made by `gtsam-rotid "
+                                           "track`)"]

@@ -20,6 +20,7 @@ LAYERS = {
     "graph": 4, "initialise": 4, "uncertainty": 4,
     "calibration": 5, "estimate": 5, "fits": 5,
     "report": 6, "diagnosis": 6, "words": 6, "plots": 6, "export": 6, "pixels": 6, "posefiles": 6, "htmlreport": 6,
+    "overlays": 6,
     "cli": 7, "demo": 7, "__main__": 7, "__init__": 8,
 }
 #: (importer, imported) pairs that break the rule today
