@@ -5,9 +5,15 @@ from __future__ import annotations
 
 import base64
 import re
+import shutil
+import subprocess
 from dataclasses import replace
 from html.parser import HTMLParser
 from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
 
 from gtsam_rotid.cli import main
 from gtsam_rotid.estimate import calibrate
@@ -80,3 +86,29 @@ def test_the_html_page_is_self_contained_with_the_verdict_and_the_plots(referenc
     links = re.findall(r"!\[[^]]*\]\(([^)]+)\)", md.read_text())
     assert len(links) == len(pngs) and all((md.parent / link).resolve().is_file() for link in links)
     assert all(not Path(link).is_absolute() for link in links)
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed here (.ci/run installs it)")
+def test_the_page_loads_in_a_headless_browser_and_shows_the_verdict_and_the_plots(reference_weighted, tmp_path):
+    dataset, _, result = reference_weighted
+    page = tmp_path / "report.html"
+    page.write_text(to_html(make_report(result, dataset), report_pngs(result, dataset)), encoding="utf-8")
+    shot = tmp_path / "shot.png"
+    common = [CHROMIUM, "--headless=new", "--no-sandbox", "--disable-gpu", "--hide-scrollbars"]
+    run = subprocess.run([*common, "--enable-logging=stderr", "--v=0", "--window-size=1280,11000",
+                          f"--screenshot={shot}", page.as_uri()], capture_output=True, text=True, timeout=120)
+    problems = [line for line in run.stderr.splitlines() if "CONSOLE" in line or "Failed to load" in line]
+    assert run.returncode == 0 and not problems, problems or run.stderr[-2000:]
+    dom = subprocess.run([*common, "--dump-dom", page.as_uri()], capture_output=True, text=True, timeout=120).stdout
+    assert Page(dom).verdict == verdict(result)
+    image = cv2.imread(str(shot))
+    assert image is not None and image.shape[:2] == (11000, 1280)
+    green = np.all(np.abs(image.astype(int) - [225, 244, 227]) <= 3, axis=2)  # the usable verdict's box (#e3f4e1)
+    rows = np.flatnonzero(green.any(axis=1))
+    assert green.sum() > 5000 and rows.min() < 300  # at the top of the page
+    plots = image[2000:]
+    coloured = np.ptp(plots.astype(int), axis=2) > 40  # the plots' colours (the tables are black on white)
+    assert coloured.mean() > 0.002 and len(np.unique(plots.reshape(-1, 3), axis=0)) > 200
