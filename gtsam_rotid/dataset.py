@@ -397,7 +397,10 @@ class Dataset:
         if root.is_file() and root.name == DATASET_FILE:
             root = root.parent
         if not root.exists():
-            raise DatasetNotFoundError(f"no dataset at {root}: the directory does not exist")
+            left = sorted(root.parent.glob(f".{root.name}.old-*")) if root.parent.is_dir() else []
+            hint = (f"; an interrupted save left the previous dataset at {left[-1]}: rename it to {root.name} to "
+                    "recover it") if left else ""
+            raise DatasetNotFoundError(f"no dataset at {root}: the directory does not exist{hint}")
         if not root.is_dir():
             raise DatasetNotFoundError(f"{root} is a file, not a dataset directory")
         for name in (DATASET_FILE, TRACKS_FILE):

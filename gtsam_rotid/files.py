@@ -95,6 +95,31 @@ def _umask() -> int:
     return mask
 
 
+def exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False where the system cannot (another
+    platform, an old kernel or file system), and nothing is changed then."""
+    global _RENAMEAT2
+    if _RENAMEAT2 is None:
+        try:
+            import ctypes
+            import ctypes.util
+
+            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+            function = libc.renameat2
+            function.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+            _RENAMEAT2 = function
+        except (OSError, AttributeError):
+            _RENAMEAT2 = False
+    if _RENAMEAT2 is False:
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    return _RENAMEAT2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0
+
+
+#: libc's renameat2 once looked up (False: there is none)
+_RENAMEAT2 = None
+
+
 def sibling_name(target: Path, tag: str) -> Path:
     """A hidden name next to ``target`` that no user file has: ``.NAME.TAG-random`` (a staging or set-aside
     directory; files use :func:`staged`)."""
@@ -109,8 +134,9 @@ def staged_directory(target: str | os.PathLike, check: Callable[[], object] | No
 
     The caller decides beforehand whether ``target`` may be replaced; ``check``, called again on a clean exit
     before anything is moved, raises if the target (which may have changed while the block ran) must not be. Then
-    the staging directory is flushed, the old ``target`` renamed aside, the new one renamed in (the old one renamed
-    back if that fails), the parent flushed, and only then the old one deleted (a warning naming where it is left
+    the staging directory is flushed and swapped with the old ``target`` in one atomic step where the system can
+    (:func:`exchange`; else the old one renamed aside, the new one renamed in, the old one renamed back if that
+    fails), the parent flushed, and only then the old one deleted (a warning naming where it is left
     if it cannot be). On an error or an interrupt in the block or in ``check`` the staging directory is removed
     and ``target`` is left as it was. OS errors propagate unchanged (the caller names them).
     """
@@ -130,15 +156,18 @@ def staged_directory(target: str | os.PathLike, check: Callable[[], object] | No
         if check is not None:
             check()
         aside = None
-        if os.path.lexists(target):
-            aside = sibling_name(target, "old")
-            os.rename(target, aside)
-        try:
-            os.rename(staging, target)
-        except BaseException:
-            if aside is not None:
-                os.rename(aside, target)
-            raise
+        if os.path.lexists(target) and exchange(staging, target):  # one atomic step: never a moment without it
+            aside = staging
+        else:
+            if os.path.lexists(target):
+                aside = sibling_name(target, "old")
+                os.rename(target, aside)
+            try:
+                os.rename(staging, target)
+            except BaseException:
+                if aside is not None:
+                    os.rename(aside, target)
+                raise
         moved_in = True
         _fsync_directory(target.parent)
         if aside is not None:

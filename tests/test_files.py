@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from gtsam_rotid import cli, simulate
+from gtsam_rotid import cli, files, simulate
 from gtsam_rotid.errors import DatasetExistsError, OutputError, OutputExistsError
 from gtsam_rotid.files import check_output, image_files, staged, staged_directory, write_json, write_text
 from gtsam_rotid.recordings import read_frames
@@ -136,7 +136,38 @@ def test_a_failed_or_interrupted_or_refused_staged_directory_keeps_the_old_one(t
         rename(source, destination)
 
     monkeypatch.setattr(os, "rename", no_rename_in)
+    monkeypatch.setattr(files, "exchange", lambda a, b: False)  # the two-rename path (no atomic exchange)
     with pytest.raises(OSError, match="cross-device"):
         with staged_directory(target) as staging:
             (staging / "new.txt").write_text("new")
     assert _tree(target) == {"old.txt": "old"} and os.listdir(tmp_path) == ["out"]
+
+
+def test_a_directory_is_replaced_in_one_atomic_step_where_the_system_can(tmp_path, monkeypatch):
+    target = tmp_path / "out"
+    target.mkdir()
+    (target / "old.txt").write_text("old")
+    probe_a, probe_b = tmp_path / "a", tmp_path / "b"
+    probe_a.write_text("a")
+    probe_b.write_text("b")
+    if not files.exchange(probe_a, probe_b):
+        pytest.skip("this system has no atomic exchange (renameat2); the two-rename path is tested above")
+    assert probe_a.read_text() == "b" and probe_b.read_text() == "a"
+
+    def no_rename(source, destination):  # the swap must not go through a moment without the target
+        raise AssertionError(f"os.rename({source}, {destination}) called")
+
+    monkeypatch.setattr(os, "rename", no_rename)
+    with staged_directory(target) as staging:
+        (staging / "new.txt").write_text("new")
+    assert _tree(target) == {"new.txt": "new"}
+    assert sorted(os.listdir(tmp_path)) == ["a", "b", "out"], "the old one deleted, nothing hidden left"
+
+
+def test_a_dataset_set_aside_by_an_interrupted_save_is_named_when_loading(tmp_path):
+    from gtsam_rotid.dataset import Dataset
+    from gtsam_rotid.errors import DatasetNotFoundError
+
+    (tmp_path / ".ds.old-1a2b3c4d").mkdir()
+    with pytest.raises(DatasetNotFoundError, match=r"left the previous dataset at .*\.ds\.old-1a2b3c4d: rename it"):
+        Dataset.load(tmp_path / "ds")
