@@ -216,7 +216,9 @@ class Arm:
         ``tolerance_deg``, with a hint when the values read as degrees would fit; None when all are inside."""
         angles = self.joint_angle_vector(joint_angles)
         tolerance = math.radians(tolerance_deg)
-        bounded = ~np.array(self._continuous)
+        # a URDF <limit> without lower/upper gives 0 to 0 in Pinocchio; absurd spans mean no limit either
+        span = self.upper_limits - self.lower_limits
+        bounded = ~np.array(self._continuous) & np.isfinite(span) & (span > 0) & (span < 1e3)
         outside = bounded & ((angles < self.lower_limits - tolerance) | (angles > self.upper_limits + tolerance))
         if not np.any(outside):
             return None

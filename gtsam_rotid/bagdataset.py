@@ -118,7 +118,7 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
                 spans.append([float(stamps[a]), float(stamps[b - 1])])
                 bar.update(1)
     recording = {
-        "bag": os.fspath(path),
+        "bag": os.path.abspath(path),
         "topics": {"image": topics.image, "joints": topics.joints, "camera_info": topics.camera_info},
         "camera_from": camera_from,
         "spans": spans,

@@ -68,15 +68,17 @@ def _time(message, bag_time_ns: int) -> float:
     return 1e-9 * bag_time_ns
 
 
-def decode_image(message, msgtype: str, where: str) -> np.ndarray:
-    """A ``sensor_msgs`` Image or CompressedImage as a uint8 array: (H, W) grey or (H, W, 3) BGR."""
+def decode_image(message, msgtype: str, where: str, bits: int | None = None) -> np.ndarray:
+    """A ``sensor_msgs`` Image or CompressedImage as a uint8 array: (H, W) grey or (H, W, 3) BGR. 16-bit images
+    are shifted down from ``bits`` (the sensor's depth, one for a topic: :meth:`Bag.image_motion` finds it), or
+    from the image's own when None."""
     data = np.frombuffer(message.data, dtype=np.uint8)
     if msgtype == COMPRESSED_IMAGE:
         image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
         if image is None:
             raise BagError(f"{where}: a CompressedImage ({message.format!r}) that OpenCV cannot decode")
         if image.dtype == np.uint16:
-            image = _to_8_bits(image)
+            image = _to_8_bits(image, bits)
         if image.ndim == 3 and image.shape[2] == 4:
             image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
         return image
@@ -97,18 +99,23 @@ def decode_image(message, msgtype: str, where: str) -> np.ndarray:
     rows = data[:height * step].reshape(height, step)[:, :row_bytes]
     if wide:
         order = ">" if message.is_bigendian else "<"
-        return _to_8_bits(np.ascontiguousarray(rows).view(f"{order}u2").reshape(height, width))
+        return _to_8_bits(np.ascontiguousarray(rows).view(f"{order}u2").reshape(height, width), bits)
     image = np.ascontiguousarray(rows).reshape(height, width, channels) if channels > 1 else rows.copy()
     return image if conversion is None else cv2.cvtColor(image, conversion)
 
 
-def _to_8_bits(image: np.ndarray) -> np.ndarray:
-    """A 16-bit image as 8 bits, shifted by its own bit depth: 10- and 12-bit sensors write mono16 images whose
-    values stay below 1024 or 4096, which a fixed shift by 8 bits would turn almost black."""
-    top = int(image.max()) if image.size else 0
-    bits = top.bit_length() + top.bit_length() % 2  # 10, 12, 14 or 16 bits: one shift for a sensor's frames
-    shift = max(0, bits - 8)
-    return (image >> shift).astype(np.uint8)
+def _bit_depth(top: int) -> int:
+    """The even bit depth (10, 12, 14, 16) that holds ``top``."""
+    return top.bit_length() + top.bit_length() % 2
+
+
+def _to_8_bits(image: np.ndarray, bits: int | None = None) -> np.ndarray:
+    """A 16-bit image as 8 bits, shifted down from ``bits`` (else the image's own depth): 10- and 12-bit sensors
+    write mono16 images whose values stay below 1024 or 4096, which a fixed shift by 8 bits would turn almost
+    black. One depth for all of a topic's frames, so that one bright pixel does not change a frame's brightness."""
+    if bits is None:
+        bits = _bit_depth(int(image.max()) if image.size else 0)
+    return np.clip(image >> max(0, bits - 8), 0, 255).astype(np.uint8)
 
 
 class Bag:
@@ -125,6 +132,7 @@ class Bag:
         if not self.path.exists():
             raise BagError(f"no bag at {self.path}")
         self._receive: dict[str, np.ndarray] = {}  # per image topic, each image's receive time (ns), bag order
+        self._bits: dict[str, int | None] = {}  # per 16-bit image topic, the sensor's bit depth
         if self.path.is_file() and self.path.suffix.lower() in (".db3", ".mcap"):
             self.path = self.path.parent  # a ROS 2 bag is its directory (metadata.yaml beside the storage file)
         try:
@@ -293,19 +301,39 @@ class Bag:
             offset = int(np.searchsorted(receive, receive[first], side="left"))
             start_ns = int(receive[first])
             stop_ns = None if last is None or last + 1 >= len(receive) else int(receive[last]) + 1
+        bits = self._bits.get(topic)
         for i, (stamp, message, msgtype, _) in enumerate(self.messages(topic, start_ns, stop_ns), start=offset):
             if i < first:
                 continue
             if last is not None and i > last:
                 return
-            yield i, stamp, decode_image(message, msgtype, f"{self.path}, topic {topic}, image {i}")
+            yield i, stamp, decode_image(message, msgtype, f"{self.path}, topic {topic}, image {i}", bits)
+
+    def _topic_bits(self, topic: str) -> int | None:
+        """The bit depth of a 16-bit image topic (the largest value over all its images); None for 8-bit ones."""
+        first = next(self.messages(topic), None)
+        if first is None or (first[2] == IMAGE and str(first[1].encoding).lower() != "mono16"):
+            return None
+        top = 0
+        for _, message, msgtype, _ in self.messages(topic):
+            if msgtype == IMAGE:
+                data = np.frombuffer(message.data, dtype=np.uint8)
+                order = ">" if message.is_bigendian else "<"
+                values = data[:len(data) // 2 * 2].view(f"{order}u2")
+            else:
+                values = cv2.imdecode(np.frombuffer(message.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+                if values is None or values.dtype != np.uint16:
+                    return None
+            top = max(top, int(values.max()) if values.size else 0)
+        return _bit_depth(top)
 
     def image_motion(self, topic: str, size: int = 64) -> tuple[np.ndarray, np.ndarray]:
         """(stamps, motion) of every image on ``topic``, in the bag's order: motion is the mean absolute difference
         (grey levels) of each image from the one before, at ``size`` pixels across (0 for the first)."""
         stamps, motion, receive, previous = [], [], [], None
+        self._bits[topic] = bits = self._topic_bits(topic)
         for i, (stamp, message, msgtype, received) in enumerate(self.messages(topic)):
-            image = decode_image(message, msgtype, f"{self.path}, topic {topic}, image {i}")
+            image = decode_image(message, msgtype, f"{self.path}, topic {topic}, image {i}", bits)
             grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
             small = cv2.resize(grey, (size, max(1, round(size * grey.shape[0] / grey.shape[1]))),
                                interpolation=cv2.INTER_AREA).astype(np.float32)

@@ -373,25 +373,41 @@ def add_check_parser(subparsers) -> argparse.ArgumentParser:
         "check", help="re-check an existing calibration against new spins: still valid, or moved by how much",
         description="Test a calibration (a result of ours, one of our exports, easy_handeye's YAML, or a 4x4 "
                     "matrix of the camera's optical frame in the arm's root frame) against the spins of a dataset "
-                    "(one spin is enough). Exit code 0: still valid; 3: moved; 1: an error.")
+                    "(one spin is enough). Exit code 0: still valid; 3: moved; 4: the spins disagree among "
+                    "themselves (one or more do not fit); 1: an error.")
     p.add_argument("calibration", metavar="CALIBRATION", help="result JSON, export YAML/JSON, easy_handeye YAML or "
                                                              "a 4x4 matrix text file")
     p.add_argument("dataset", metavar="DATASET", help="dataset directory of the new spins (`track` or `simulate`)")
+    p.add_argument("--tolerance", nargs=2, type=float, metavar=("MM", "DEG"),
+                   help="for a calibration without a covariance (another tool's): its 1 sigma per axis (default "
+                        "1 mm, 0.1 deg)")
     p.set_defaults(func=cmd_check)
     return p
 
 
 def cmd_check(args) -> int:
-    from .calibration.check import check_calibration
+    from .calibration.check import DEFAULT_TOLERANCE, check_calibration
+    from .calibration.options import CalibrationOptions
     from .posefiles import load_pose
     from .words import check_words
 
     dataset = Dataset.load(args.dataset)
     pose = load_pose(args.calibration, dataset.arm)
+    if pose.robot:
+        now = dataset.arm.description()
+        differ = [key for key in ("name", "root_link", "wrist_joint", "urdf_sha256")
+                  if pose.robot.get(key) != now.get(key)]
+        if differ:
+            raise InputError(f"{args.calibration} was calibrated with another robot model than {args.dataset}'s ("
+                             + ", ".join(f"{key}: {pose.robot.get(key)!r} vs {now.get(key)!r}" for key in differ)
+                             + ")")
+    options = CalibrationOptions(joint_sigma_deg=pose.joint_sigma_deg, axis_floor_px=pose.axis_floor_px)
+    tolerance = DEFAULT_TOLERANCE if args.tolerance is None else tuple(args.tolerance)
     print(f"checking {pose.kind} against {len(dataset)} spin(s) of {args.dataset}", flush=True)
-    check = check_calibration(pose.arm_T_camera, dataset, covariance=pose.covariance)
+    check = check_calibration(pose.arm_T_camera, dataset, covariance=pose.covariance, tolerance=tolerance,
+                              options=options)
     print("\n".join(check_words(check)))
-    return 0 if check.still_valid else 3
+    return 3 if not check.still_valid else 0 if check.consistent and check.odd_spin is None else 4
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -153,7 +153,8 @@ def _is_dataset_directory(path: Path) -> bool:
 
 
 #: The files a dataset directory may hold (the simulator adds its ground truth); anything else is the user's.
-_DATASET_FILES = frozenset({DATASET_FILE, TRACKS_FILE, URDF_FILE, "truth.json"})
+_DATASET_FILES = frozenset({DATASET_FILE, TRACKS_FILE, URDF_FILE, "truth.json",
+                            ".DS_Store", "Thumbs.db", "desktop.ini"})  # (and the file browsers' own)
 
 
 def _check_save_target(target: Path, overwrite: bool) -> bool:

@@ -119,6 +119,8 @@ class Transform:
     warnings: tuple[str, ...] = ()
     #: the robot's end-effector frame (for easy_handeye's file), "" when the result does not record it
     end_effector: str = ""
+    #: with a camera driver's transform: its ``link_T_optical`` (4x4), the child being that link
+    driver_link_T_optical: np.ndarray | None = None
 
     @classmethod
     def from_result(cls, result, *, parent_frame: str | None = None, child_frame: str | None = None,
@@ -179,7 +181,8 @@ class Transform:
             pose = pose.compose(gtsam.Pose3(gtsam.Rot3(OPTICAL_R_BODY), np.zeros(3)))
         return cls(pose, ros, parent_frame, child_frame, camera_frame,
                    bool(getattr(result, "covariance_usable", True)), str(getattr(result, "method", "")),
-                   tuple(warnings), str(robot.get("end_effector", "")))
+                   tuple(warnings), str(robot.get("end_effector", "")),
+                   None if driver is None else driver[1].matrix())
 
     @property
     def translation(self) -> np.ndarray:
@@ -200,7 +203,9 @@ class Transform:
         return self.parent_T_child.matrix()
 
     def _describe(self) -> str:
-        frame = ("OpenCV optical frame: x right, y down, z forward" if self.camera_frame is CameraFrame.OPTICAL
+        frame = ("the camera driver's link, which its driver places relative to the optical frame"
+                 if self.driver_link_T_optical is not None else
+                 "OpenCV optical frame: x right, y down, z forward" if self.camera_frame is CameraFrame.OPTICAL
                  else "ROS body convention: x forward, y left, z up")
         method = f" ({self.method})" if self.method else ""
         return (f"gtsam_rotid calibration{method}: pose of {self.child_frame} ({frame}) in {self.parent_frame} "
@@ -215,7 +220,9 @@ class Transform:
             "description": self._describe(),
             "parent_frame": self.parent_frame,
             "child_frame": self.child_frame,
-            "camera_frame": self.camera_frame.value,
+            "camera_frame": "driver" if self.driver_link_T_optical is not None else self.camera_frame.value,
+            **({} if self.driver_link_T_optical is None else {"driver": {
+                "link": self.child_frame, "link_T_optical": self.driver_link_T_optical.tolist()}}),
             "method": self.method,
             "pose": {
                 "position": {"x": float(x), "y": float(y), "z": float(z)},

@@ -38,9 +38,15 @@ def recorded_frames(dataset: Dataset) -> tuple[dict[int, tuple[int, np.ndarray]]
             notes.append(f"measurement {k}: its tracks carry no frame numbers")
             continue
         try:
-            frames[k] = (number, _bag_frame(bag, recording, number) if bag else _video_frame(videos[k], number))
+            image = _bag_frame(bag, recording, number) if bag else _video_frame(videos[k], number)
         except (RotIdError, OSError, IndexError, KeyError, StopIteration) as exc:
             notes.append(f"measurement {k}: its frame {number} cannot be read again ({exc})")
+            continue
+        if image.shape[:2] != (dataset.camera.height, dataset.camera.width):
+            notes.append(f"measurement {k}: the recording's frame is {image.shape[1]}x{image.shape[0]}, not the "
+                         f"camera's {dataset.camera.width}x{dataset.camera.height} (another recording?)")
+            continue
+        frames[k] = (number, image)
     return frames, notes
 
 

@@ -27,6 +27,10 @@ class PoseFile(NamedTuple):
     arm_T_camera: gtsam.Pose3
     covariance: np.ndarray | None
     kind: str  # what the file was, with its article ("a 4x4 matrix")
+    #: a result of ours: the joint sigma and the tracker's floor its covariance assumed, and the robot it records
+    joint_sigma_deg: float = 0.0
+    axis_floor_px: float | None = None
+    robot: dict | None = None
 
 
 def load_pose(path: str | os.PathLike, arm: Arm | None = None) -> PoseFile:
@@ -47,7 +51,8 @@ def load_pose(path: str | os.PathLike, arm: Arm | None = None) -> PoseFile:
             document = None
     if isinstance(document, dict) and document.get("format") == "gtsam_rotid.calibration":
         result = load_result(path)
-        return PoseFile(result.arm_T_camera, result.covariance, "a gtsam_rotid result")
+        return PoseFile(result.arm_T_camera, result.covariance, "a gtsam_rotid result", result.joint_sigma_deg,
+                        result.axis_floor_px, result.robot or None)
     if isinstance(document, dict) and document.get("format") == FORMAT_MARKER:
         return _transform(document, path, arm)
     if isinstance(document, dict) and "transformation" in document:
@@ -92,6 +97,14 @@ def _transform(document: dict, path: Path, arm: Arm | None) -> PoseFile:
         raise InputError(f"{path}: a gtsam_rotid export without a readable pose and covariance ({exc})") from None
     if document.get("camera_frame") == "body":  # back to the optical frame the calibration estimates
         pose = pose.compose(gtsam.Pose3(gtsam.Rot3(OPTICAL_R_BODY), np.zeros(3)).inverse())
+    elif document.get("camera_frame") == "driver":
+        try:
+            link_T_optical = gtsam.Pose3(np.array(document["driver"]["link_T_optical"], dtype=float))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{path}: a driver-link export without its link_T_optical ({exc})") from None
+        pose = pose.compose(link_T_optical)
+        return PoseFile(_in_root(pose, str(document.get("parent_frame", "")), path, arm), None,
+                        "a gtsam_rotid export (composed with its camera driver's transform)")
     pose = _in_root(pose, str(document.get("parent_frame", "")), path, arm)
     usable = bool(document.get("covariance_usable", True)) and np.all(np.isfinite(covariance))
     return PoseFile(pose, gtsam_covariance(pose, covariance) if usable else None, "a gtsam_rotid export")
@@ -109,4 +122,9 @@ def _easy_handeye(document: dict, path: Path, arm: Arm | None) -> PoseFile:
         raise InputError(f"{path}: an eye-in-hand calibration (the camera on the arm's hand); gtsam_rotid checks a "
                          "camera fixed in the arm's base (eye on base)")
     base = str(parameters.get("robot_base_frame") or (arm.root_link if arm is not None else ""))
-    return PoseFile(_in_root(pose, base, path, arm), None, "an easy_handeye YAML")
+    child = str(parameters.get("tracking_base_frame") or "")
+    kind = "an easy_handeye YAML"
+    if child and "optical" not in child:  # a driver's camera_link: REP 103's x-forward body frame
+        pose = pose.compose(gtsam.Pose3(gtsam.Rot3(OPTICAL_R_BODY), np.zeros(3)).inverse())
+        kind += f" ({child} taken as a REP 103 body frame: x forward, z up)"
+    return PoseFile(_in_root(pose, base, path, arm), None, kind)

@@ -480,7 +480,7 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
             measurements.append(Measurement(angles[k], tracks, name=source.path.name))
             bar.update(1)
     recording = {
-        "videos": [os.fspath(v) for v in videos],
+        "videos": [os.path.abspath(v) for v in videos],
         "frame_ranges": [None if given is None else list(checked)
                          for given, checked in zip(frame_ranges, checked_ranges, strict=True)],
         "joints_file": joints_file,

@@ -271,7 +271,7 @@ class CalibrationReport:
         out += ["", "### Rejected tracks", ""]
         out += [f"- measurement {k}, track {j}: {why}" for k, j, why in rejected] if rejected else ["none"]
         if plots:
-            out += ["", "## Plots", ""] + [f"![{Path(p).stem}]({p})" for p in plots]
+            out += ["", "## Plots", ""] + [f"![{Path(p).stem}](<{p}>)" for p in plots]  # <>: spaces, parentheses
         return "\n".join(out) + "\n"
 
     def __str__(self) -> str:

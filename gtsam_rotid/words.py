@@ -280,24 +280,39 @@ def check_words(check: CheckResult) -> list[str]:
     """A calibration re-checked against new spins (:func:`gtsam_rotid.calibration.check.check_calibration`): the
     verdict first, then each spin."""
     n = len(check.spins)
-    spins = f"{n} new spin{'' if n == 1 else 's'}"
-    test = f"χ² {check.chi2:.3g} for {check.dof} dof, p = {check.p_value:.2g}"
+    spins, verb = (f"{n} new spin", "agrees") if n == 1 else (f"{n} new spins", "agree")
+    test = (f"the move's χ² {check.chi2:.3g} for the {check.dof} direction(s) they determine, p = "
+            f"{check.p_value:.2g}")
     mm, deg = check.move_mm, check.move_deg
     sigma_mm, sigma_deg = check.move_sigma
-    k = len(check.determined)
-    along = ("in every direction" if k == 6 else f"along the {k} of 6 directions they determine"
-             + ("; one spin cannot tell a shift of the camera from a turn" if n == 1 else ""))
-    basis = "" if check.had_covariance else " (the calibration came without a covariance: taken as exact)"
-    if check.still_valid:
-        lines = [f"STILL VALID: the {spins} agree with the calibration ({test}){basis}. They would place the "
-                 f"camera {mm:.2f} mm and {deg:.3f}° from it (1σ {sigma_mm:.2f} mm, {sigma_deg:.3f}°, {along}, the "
-                 "calibration's own uncertainty included): within the noise."]
+    basis = ("" if check.tolerance is None else f" (the calibration came without a covariance: taken as good to "
+             f"{check.tolerance[0]:g} mm and {check.tolerance[1]:g}° per axis, 1σ; --tolerance)")
+    recalibrate = ("Recalibrate: spin the wrist at three or more poses whose axes do not meet in one point (or check "
+                   "that the camera mount, the joint readings and the intrinsics are as they were).")
+    odd = ("" if check.odd_spin is None else f"Spin {check.odd_spin} alone does not fit: check its joint readings "
+           "and tracks, or record it again; what follows is without it. ")
+    if not check.still_valid and check.fully_determined:
+        lines = [f"MOVED: {odd}the {spins} disagree with the calibration ({test}){basis}: the camera moved by about "
+                 f"{mm:.2f} mm and {deg:.3f}° (1σ {sigma_mm:.2f} mm, {sigma_deg:.3f}°, the calibration's own "
+                 f"uncertainty included). {recalibrate}"]
+    elif not check.still_valid:
+        lines = [f"MOVED: {odd}the {spins} {'disagrees' if n == 1 else 'disagree'} with the calibration ({test})"
+                 f"{basis}, but {'it determines' if n == 1 else 'they determine'} only {check.dof} of the pose's 6 "
+                 "directions, so how far the camera moved cannot be read from them"
+                 + ("; one spin cannot tell a shift of the camera from a turn" if n == 1 else "") + f". {recalibrate}"]
+    elif not check.consistent:
+        lines = [f"THE SPINS DISAGREE: they do not fit one camera pose (χ² {check.residual_chi2:.3g} for "
+                 f"{check.residual_dof} dof at the pose that fits them best), and no one spin alone explains it; the "
+                 f"calibration is not shown to have moved ({test}). Check the joint readings and the tracks, or "
+                 "record the spins again."]
+    elif check.odd_spin is not None:
+        lines = [f"ONE SPIN DISAGREES: spin {check.odd_spin} alone does not fit (check its joint readings and tracks, "
+                 f"or record it again); without it the others agree with the calibration ({test}){basis}."]
     else:
-        lines = [f"MOVED: the {spins} disagree with the calibration ({test}){basis}: the camera moved by about "
-                 f"{mm:.2f} mm and {deg:.3f}° (1σ {sigma_mm:.2f} mm, {sigma_deg:.3f}°, {along}, the calibration's "
-                 "own uncertainty included). Recalibrate: spin "
-                 "the wrist at three or more poses whose axes do not meet in one point (or check that the camera "
-                 "mount, the joint readings and the intrinsics are as they were)."]
-    lines.extend(f"  spin {s.index}{f' ({s.name})' if s.name else ''}: {s.n_tracks} tracks, χ² {s.chi2:.3g} (2 dof)"
-                 for s in check.spins)
+        size = (f" They would place the camera {mm:.2f} mm and {deg:.3f}° from it (1σ {sigma_mm:.2f} mm, "
+                f"{sigma_deg:.3f}°, the calibration's own uncertainty included): within the noise."
+                if check.fully_determined else "")
+        lines = [f"STILL VALID: the {spins} {verb} with the calibration ({test}){basis}.{size}"]
+    lines.extend(f"  spin {s.index}{f' ({s.name})' if s.name else ''}: {s.n_tracks} tracks, χ² {s.chi2:.3g} (2 dof "
+                 "at the calibration)" for s in check.spins)
     return lines

@@ -1,3 +1,5 @@
+import re
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -151,3 +153,14 @@ def test_inverse_kinematics_reaches_axis():
     np.testing.assert_allclose(reached.point, goal.point, atol=1e-8)
     np.testing.assert_allclose(reached.direction, goal.direction, atol=1e-8)
     assert arm.within_limits(q)
+
+
+def test_joints_without_limits_in_the_urdf_are_never_refused():
+    """A URDF <limit> with effort and velocity only (Pinocchio reads 0 to 0) bounds nothing; real limits do."""
+    from urdf_arm import URDF_3_JOINTS
+
+    unlimited = re.sub(r'lower="[^"]*" upper="[^"]*" ', "", URDF_3_JOINTS)
+    assert unlimited != URDF_3_JOINTS
+    arm = Arm.from_urdf_string(unlimited)
+    assert arm.limit_problem([0.5, -2.9, 40.0]) is None
+    assert "outside the model's limits" in Arm.from_urdf_string(URDF_3_JOINTS).limit_problem([0.5, -2.9, 40.0])

@@ -83,7 +83,7 @@ def test_the_html_page_is_self_contained_with_the_verdict_and_the_plots(referenc
     md.parent.mkdir()
     assert main(["report", str(result_path), "--dataset", str(dataset_path), "--format", "markdown", "-o", str(md),
                  "--plots", str(tmp_path / "plots")]) == 0
-    links = re.findall(r"!\[[^]]*\]\(([^)]+)\)", md.read_text())
+    links = re.findall(r"!\[[^]]*\]\(<([^>]+)>\)", md.read_text())
     assert len(links) == len(pngs) and all((md.parent / link).resolve().is_file() for link in links)
     assert all(not Path(link).is_absolute() for link in links)
 

@@ -12,6 +12,7 @@ shift of the camera from a turn.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import gtsam
 import numpy as np
@@ -19,12 +20,12 @@ import numpy as np
 from ..arm import Arm
 from ..camera import Camera
 from ..dataset import Dataset, Measurement
-from ..errors import InputError
+from ..errors import InputError, RotIdError
 from ..factors import line_distances
 from ..graph import Model, axis_test_points, track_huber
 from ..uncertainty import chi2_sf
 from .lm import _builder
-from .options import CalibrationOptions
+from .options import CalibrationError, CalibrationOptions
 from .setup import _setup
 from .stage1 import _jackknife, _stage1
 from .stage2 import _axis_distances
@@ -33,6 +34,12 @@ from .stage2 import _axis_distances
 CHECK_P = 1e-3
 #: The prior on the move: 1 rad and 1 m (1 sigma), i.e. hardly any (it holds only the undetermined directions).
 WEAK_PRIOR = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
+#: A pose from another tool (no covariance) is taken as good to this, 1 sigma per axis (mm, deg), unless told.
+DEFAULT_TOLERANCE = (1.0, 0.1)
+#: Stage 1 of each spin starts from the FK axis of the pose checked and of poses turned by these angles (deg) about
+#: the camera's x and y axes; the fit of lowest cost is kept, so that where a spin's fit lands does not depend on
+#: the pose being checked (from one start a short spin can settle in a minimum of its own).
+START_TURNS_DEG = (8.0, 20.0)
 #: A direction of the move counts as determined by the new spins when their information there is at least this
 #: fraction of the total (prior included): the prior then no longer holds it where it was.
 DETERMINED_FRACTION = 0.5
@@ -53,8 +60,10 @@ class CheckResult:
     """A calibration re-checked against new spins (data only; :func:`gtsam_rotid.words.check_words` says it)."""
 
     arm_T_camera: gtsam.Pose3           # the calibration checked
-    had_covariance: bool                # False: another tool's pose, taken as exact for the test
+    had_covariance: bool                # False: another tool's pose, taken as good to ``tolerance``
     spins: list[SpinCheck]
+    #: the test of a move: the move's χ² under its covariance (the calibration's included) along the ``dof``
+    #: directions the spins determine
     chi2: float
     dof: int
     p_value: float
@@ -66,6 +75,23 @@ class CheckResult:
     move_covariance: np.ndarray
     #: unit directions (Pose3 tangent) that the new spins determine (the move is read along these)
     determined: list[np.ndarray] = field(default_factory=list)
+    #: a spin that alone disagrees (the others agree without it): one spin's tracks or joints, not a move
+    odd_spin: int | None = None
+    #: for a pose without covariance, the 1 sigma it was taken to have (mm, deg)
+    tolerance: tuple[float, float] | None = None
+    #: the spins' own agreement once the move is made: their χ² at the moved pose, with 2 n - dof degrees of freedom
+    residual_chi2: float = 0.0
+    residual_dof: int = 0
+    residual_p: float = 1.0
+
+    @property
+    def consistent(self) -> bool:
+        """The new spins agree among themselves (with some pose); False: one spin's (or more) tracks or joints."""
+        return self.residual_p >= CHECK_P
+    @property
+    def fully_determined(self) -> bool:
+        """The new spins determine every direction of the pose: the move's size can be read."""
+        return len(self.determined) == 6
 
     @property
     def moved_camera(self) -> gtsam.Pose3:
@@ -89,11 +115,13 @@ class CheckResult:
 
 
 def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, Camera, list[Measurement]], *,
-                      covariance: np.ndarray | None = None,
+                      covariance: np.ndarray | None = None, tolerance: tuple[float, float] = DEFAULT_TOLERANCE,
                       options: CalibrationOptions | None = None) -> CheckResult:
     """Test ``arm_T_camera`` (the camera's optical frame in the arm's root frame) against the spins of
     ``dataset`` (one or more): see the module docstring. ``covariance`` is the calibration's (6x6, Pose3 tangent,
-    as ``CalibrationResult.covariance``), or None for a pose from another tool."""
+    as ``CalibrationResult.covariance``), or None for a pose from another tool, which is then taken as good to
+    ``tolerance`` = (mm, deg), 1 sigma per axis. ``options``: the calibration's own (its joint sigma and the
+    tracker's floor)."""
     if isinstance(dataset, Dataset):
         arm, camera, measurements, metadata = dataset.arm, dataset.camera, list(dataset), dataset.metadata
     else:
@@ -107,6 +135,11 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
             raise InputError(f"the calibration's covariance must be a finite 6x6 matrix, got shape "
                              f"{covariance.shape}{'' if np.all(np.isfinite(covariance)) else ' with NaN'}")
         covariance = 0.5 * (covariance + covariance.T)
+    else:
+        mm, deg = tolerance
+        if not (np.isfinite(mm) and np.isfinite(deg) and mm >= 0 and deg >= 0):
+            raise InputError(f"the tolerance must be two finite numbers >= 0 (mm, deg), got {tolerance!r}")
+        covariance = np.diag([np.radians(deg)] * 3 + [mm / 1000.0] * 3) ** 2
     prior = np.diag(WEAK_PRIOR**2)
     options = CalibrationOptions() if options is None else options
     if options.axis_floor_px is None:
@@ -114,11 +147,7 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
         options = replace(options, axis_floor_px=_tracker_floor_px(metadata))
     measurements = [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements]
     setup = _setup(arm, camera, measurements, options, minimum=1)
-    stage1 = _stage1(arm, camera, measurements, arm_T_camera, setup, options)
-    if setup.short_arcs:
-        builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
-        stage1 = [_jackknife(builder, measurements[k], k, arm_T_camera, setup.prepared[k], s, options)
-                  for k, s in enumerate(stage1)]
+    stage1 = _pose_free_stage1(arm, camera, measurements, arm_T_camera, setup, options)
     floor = setup.floor_covariance
     variance = [max(s.sigma2, float(np.median([t.sigma2 for t in stage1]))) for s in stage1]
 
@@ -140,26 +169,100 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
                 step[i] = 1e-6
                 J[:, i] = (distances(step) - distances(-step)) / 2e-6
             _, cov = _axis_distances(camera, setup.axes[k], s, pose, variance[k], setup, k)
+            if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J)) and np.all(np.isfinite(cov))):
+                raise CalibrationError(f"spin {k}: the calibration puts its wrist axis behind the camera or out of "
+                                       "the image; is the pose the camera's optical frame in the arm's root frame "
+                                       "(x right, y down, z forward)?")
             out.append((e, J, cov if floor is None else cov + floor))
         return out
 
     at_pose = rows(arm_T_camera)
-    chi2 = []
-    for e, J, cov in at_pose:
-        total = cov + (J @ covariance @ J.T if had_covariance else 0.0)
-        chi2.append(float(e @ np.linalg.pinv(total, hermitian=True) @ e))
-    dof = 2 * len(stage1)
-    p_value = chi2_sf(float(np.sum(chi2)), dof)
-    move, move_covariance, information = _move(arm_T_camera, rows, at_pose, prior)
-    if had_covariance:
-        move_covariance = move_covariance + covariance
-    total_information = information + np.linalg.inv(prior)
-    w, V = np.linalg.eigh(np.linalg.solve(total_information, information))  # the data's share, per direction
-    determined = [V[:, i] for i in range(6) if w[i] >= DETERMINED_FRACTION]
-    spins = [SpinCheck(k, len(s.keys.tracks), chi2[k], getattr(measurements[k], "name", "") or "")
+    chi2_each = [float(e @ np.linalg.pinv(cov + J @ covariance @ J.T, hermitian=True) @ e) for e, J, cov in at_pose]
+    test = _test(arm_T_camera, rows, at_pose, prior, covariance)
+    odd = None
+    if test.residual_p < CHECK_P and len(stage1) >= 2:  # the spins disagree among themselves: one of them alone?
+        # leave each out in turn (a wrong spin drags the fit, so the largest residual need not be its own)
+        best = None
+        for left in range(len(stage1)):
+            keep = [k for k in range(len(stage1)) if k != left]
+            rest = _test(arm_T_camera, lambda pose, keep=keep: [rows(pose)[k] for k in keep],
+                         [at_pose[k] for k in keep], prior, covariance)
+            if rest.residual_p >= CHECK_P and (best is None or rest.residual < best[1].residual):
+                best = (left, rest)
+        if best is not None:
+            odd, test = best  # the move is judged without it
+    spins = [SpinCheck(k, len(s.keys.tracks), chi2_each[k], getattr(measurements[k], "name", "") or "")
              for k, s in enumerate(stage1)]
-    return CheckResult(arm_T_camera, had_covariance, spins, float(np.sum(chi2)), dof, float(p_value),
-                       bool(p_value >= CHECK_P), move, move_covariance, determined)
+    return CheckResult(arm_T_camera, had_covariance, spins, test.chi2, test.dof, test.p_value,
+                       bool(test.p_value >= CHECK_P), test.move, test.move_covariance, test.determined, odd,
+                       None if had_covariance else (float(tolerance[0]), float(tolerance[1])),
+                       test.residual, test.residual_dof, test.residual_p)
+
+
+class _Test(NamedTuple):
+    move: np.ndarray
+    move_covariance: np.ndarray
+    determined: list[np.ndarray]
+    chi2: float
+    dof: int
+    p_value: float
+    residual: float
+    residual_dof: int
+    residual_p: float
+    residuals: list[float]
+
+
+def _test(pose: gtsam.Pose3, rows, at_pose, prior: np.ndarray, covariance: np.ndarray) -> _Test:
+    """The move that best explains the spins of ``rows`` and its test against ``covariance`` (the calibration's),
+    along the directions they determine; then their own agreement at the moved pose."""
+    move, move_covariance, information = _move(pose, rows, at_pose, prior)
+    move_covariance = move_covariance + covariance  # the calibration's own uncertainty too
+    # the data's share of the information per direction (the prior is isotropic, so the two commute)
+    w, V = np.linalg.eigh(information)
+    determined = [V[:, i] for i in range(6) if w[i] >= DETERMINED_FRACTION / (1.0 - DETERMINED_FRACTION)
+                  / float(WEAK_PRIOR[0]) ** 2]
+    D = np.array(determined).T if determined else np.zeros((6, 0))
+    move = D @ (D.T @ move)  # read only along what the spins determine
+    dof = len(determined)
+    m = D.T @ move
+    chi2 = float(m @ np.linalg.pinv(D.T @ move_covariance @ D, hermitian=True) @ m) if dof else 0.0
+    residuals = [float(e @ np.linalg.pinv(cov, hermitian=True) @ e) for e, _, cov in rows(pose.retract(move))]
+    residual_dof = 2 * len(at_pose) - dof
+    residual = float(sum(residuals))
+    return _Test(move, move_covariance, determined, chi2, dof, float(chi2_sf(chi2, dof)) if dof else 1.0, residual,
+                 residual_dof, float(chi2_sf(residual, residual_dof)) if residual_dof > 0 else 1.0, residuals)
+
+
+def _rank(s) -> tuple[int, float]:
+    cost = float(sum(v[0] for v in s.stats.values()))
+    return -len(s.stats), cost if np.isfinite(cost) else np.inf
+
+
+def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
+    """Each spin's stage-1 fit from the FK axis of ``pose`` and of poses turned by START_TURNS_DEG, the fit of
+    lowest residual cost kept (with short arcs jackknifed)."""
+    starts = [pose] + [pose.compose(gtsam.Pose3(gtsam.Rot3.AxisAngle(axis, float(sign * np.radians(deg))), np.zeros(3)))
+                       for deg in START_TURNS_DEG for sign in (-1.0, 1.0)
+                       for axis in (np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))]
+    best = None
+    for start in starts:
+        try:
+            fits = _stage1(arm, camera, measurements, start, setup, options)
+        except (RotIdError, RuntimeError, np.linalg.LinAlgError):
+            continue
+        if best is None:
+            best = list(fits)
+            continue
+        for k, s in enumerate(fits):  # the most tracks kept, then the lowest cost
+            if _rank(s) < _rank(best[k]):
+                best[k] = s
+    if best is None:
+        raise CalibrationError("no spin's circles could be fitted from the pose checked (few or short tracks?)")
+    if setup.short_arcs:
+        builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
+        best = [_jackknife(builder, measurements[k], k, pose, setup.prepared[k], s, options)
+                for k, s in enumerate(best)]
+    return best
 
 
 def _move(pose: gtsam.Pose3, rows, at_pose, prior: np.ndarray, steps: int = 8):
