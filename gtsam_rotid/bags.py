@@ -72,16 +72,21 @@ def decode_image(message, msgtype: str, where: str, bits: int | None = None) -> 
     """A ``sensor_msgs`` Image or CompressedImage as a uint8 array: (H, W) grey or (H, W, 3) BGR. 16-bit images
     are shifted down from ``bits`` (the sensor's depth, one for a topic: :meth:`Bag.image_motion` finds it), or
     from the image's own when None."""
+    image, conversion = _native(message, msgtype, where)
+    if image.dtype == np.uint16:
+        image = _to_8_bits(image, bits)
+    return image if conversion is None else cv2.cvtColor(image, conversion)
+
+
+def _native(message, msgtype: str, where: str) -> tuple[np.ndarray, int | None]:
+    """The image as stored (uint8, or uint16 for mono16 and 16-bit PNG), and the OpenCV conversion to BGR or grey
+    that :func:`decode_image` applies after scaling it to 8 bits (None: none)."""
     data = np.frombuffer(message.data, dtype=np.uint8)
     if msgtype == COMPRESSED_IMAGE:
         image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
         if image is None:
             raise BagError(f"{where}: a CompressedImage ({message.format!r}) that OpenCV cannot decode")
-        if image.dtype == np.uint16:
-            image = _to_8_bits(image, bits)
-        if image.ndim == 3 and image.shape[2] == 4:
-            image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
-        return image
+        return image, cv2.COLOR_BGRA2BGR if image.ndim == 3 and image.shape[2] == 4 else None
     encoding = str(message.encoding).lower()
     if encoding in ("16uc1", "32fc1"):
         raise BagError(f"{where}: {message.encoding} images are depth images, not intensity: give the colour or "
@@ -99,9 +104,8 @@ def decode_image(message, msgtype: str, where: str, bits: int | None = None) -> 
     rows = data[:height * step].reshape(height, step)[:, :row_bytes]
     if wide:
         order = ">" if message.is_bigendian else "<"
-        return _to_8_bits(np.ascontiguousarray(rows).view(f"{order}u2").reshape(height, width), bits)
-    image = np.ascontiguousarray(rows).reshape(height, width, channels) if channels > 1 else rows.copy()
-    return image if conversion is None else cv2.cvtColor(image, conversion)
+        return np.ascontiguousarray(rows).view(f"{order}u2").reshape(height, width), None
+    return (np.ascontiguousarray(rows).reshape(height, width, channels) if channels > 1 else rows.copy()), conversion
 
 
 def _bit_depth(top: int) -> int:
@@ -315,15 +319,10 @@ class Bag:
         if first is None or (first[2] == IMAGE and str(first[1].encoding).lower() != "mono16"):
             return None
         top = 0
-        for _, message, msgtype, _ in self.messages(topic):
-            if msgtype == IMAGE:
-                data = np.frombuffer(message.data, dtype=np.uint8)
-                order = ">" if message.is_bigendian else "<"
-                values = data[:len(data) // 2 * 2].view(f"{order}u2")
-            else:
-                values = cv2.imdecode(np.frombuffer(message.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-                if values is None or values.dtype != np.uint16:
-                    return None
+        for i, (_, message, msgtype, _) in enumerate(self.messages(topic)):
+            values, _ = _native(message, msgtype, f"{self.path}, topic {topic}, image {i}")
+            if values.dtype != np.uint16:
+                return None
             top = max(top, int(values.max()) if values.size else 0)
         return _bit_depth(top)
 

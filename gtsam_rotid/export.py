@@ -49,6 +49,8 @@ JOINT_NAME = "camera_joint"
 #: ``optical_R_body``: maps ROS body-frame coordinates (x forward, y left, z up) to OpenCV optical-frame
 #: coordinates (x right, y down, z forward); its columns are the body axes seen in the optical frame.
 OPTICAL_R_BODY = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+#: ``optical_T_body``: the same turn as a pose (``parent_T_body = parent_T_optical * OPTICAL_T_BODY``).
+OPTICAL_T_BODY = gtsam.Pose3(gtsam.Rot3(OPTICAL_R_BODY), np.zeros(3))
 COVARIANCE_CONVENTION = (
     "geometry_msgs/PoseWithCovariance: 6x6 row-major, (x, y, z, rotation about X, Y, Z) of the parent frame, "
     "metres and radians; position error t_true - t in the parent frame; rotation error dtheta with "
@@ -178,7 +180,7 @@ class Transform:
             raise InputError(f"the parent and child frames must differ, both are {parent_frame!r}")
         ros = ros_covariance(pose, covariance)  # the same for both child conventions
         if camera_frame is CameraFrame.BODY:
-            pose = pose.compose(gtsam.Pose3(gtsam.Rot3(OPTICAL_R_BODY), np.zeros(3)))
+            pose = pose.compose(OPTICAL_T_BODY)
         return cls(pose, ros, parent_frame, child_frame, camera_frame,
                    bool(getattr(result, "covariance_usable", True)), str(getattr(result, "method", "")),
                    tuple(warnings), str(robot.get("end_effector", "")),

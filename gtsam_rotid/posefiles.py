@@ -17,7 +17,7 @@ import yaml
 
 from .arm import Arm
 from .errors import InputError
-from .export import FORMAT_MARKER, OPTICAL_R_BODY, load_result
+from .export import FORMAT_MARKER, OPTICAL_T_BODY, load_result
 from .geometry import gtsam_covariance
 
 
@@ -96,7 +96,7 @@ def _transform(document: dict, path: Path, arm: Arm | None) -> PoseFile:
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"{path}: a gtsam_rotid export without a readable pose and covariance ({exc})") from None
     if document.get("camera_frame") == "body":  # back to the optical frame the calibration estimates
-        pose = pose.compose(gtsam.Pose3(gtsam.Rot3(OPTICAL_R_BODY), np.zeros(3)).inverse())
+        pose = pose.compose(OPTICAL_T_BODY.inverse())
     elif document.get("camera_frame") == "driver":
         try:
             link_T_optical = gtsam.Pose3(np.array(document["driver"]["link_T_optical"], dtype=float))
@@ -125,6 +125,6 @@ def _easy_handeye(document: dict, path: Path, arm: Arm | None) -> PoseFile:
     child = str(parameters.get("tracking_base_frame") or "")
     kind = "an easy_handeye YAML"
     if child and "optical" not in child:  # a driver's camera_link: REP 103's x-forward body frame
-        pose = pose.compose(gtsam.Pose3(gtsam.Rot3(OPTICAL_R_BODY), np.zeros(3)).inverse())
+        pose = pose.compose(OPTICAL_T_BODY.inverse())
         kind += f" ({child} taken as a REP 103 body frame: x forward, z up)"
     return PoseFile(_in_root(pose, base, path, arm), None, kind)

@@ -21,7 +21,7 @@ from ..arm import Arm
 from ..camera import Camera
 from ..dataset import Dataset, Measurement
 from ..errors import InputError, RotIdError
-from ..factors import line_distances
+from ..factors import axis_point_residuals
 from ..graph import Model, axis_test_points, track_huber
 from ..uncertainty import chi2_sf
 from .lm import _builder
@@ -154,20 +154,8 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
     def rows(pose: gtsam.Pose3):
         """Per spin: distances (2,), their Jacobian by the pose's tangent (2, 6), their covariance (2, 2)."""
         out = []
-        for k, s in enumerate(stage1):
-            points = axis_test_points(setup.axes[k])
-
-            def distances(xi, points=points, s=s):
-                moved = pose.retract(xi)
-                return line_distances(s.image_axis, camera.project(
-                    np.array([moved.transformTo(p) for p in points]), distort=False))
-
-            e = distances(np.zeros(6))
-            J = np.empty((len(e), 6))
-            for i in range(6):
-                step = np.zeros(6)
-                step[i] = 1e-6
-                J[:, i] = (distances(step) - distances(-step)) / 2e-6
+        for k, s in enumerate(stage1):  # the projected-axis factor's own distances and Jacobian
+            e, J, _ = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), s.image_axis)
             _, cov = _axis_distances(camera, setup.axes[k], s, pose, variance[k], setup, k)
             if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J)) and np.all(np.isfinite(cov))):
                 raise CalibrationError(f"spin {k}: the calibration puts its wrist axis behind the camera or out of "
