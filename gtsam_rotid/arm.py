@@ -262,6 +262,10 @@ class Arm:
         wrapped = np.where(self._continuous, (angles + np.pi) % (2 * np.pi) - np.pi, angles)
         return np.clip(wrapped, self.lower_limits, self.upper_limits)
 
+    def clip_joint_angles(self, joint_angles) -> np.ndarray:
+        """Bounded joints clipped to their limits, continuous ones wrapped to [-pi, pi)."""
+        return self._limit(self.joint_angle_vector(joint_angles))
+
     def random_joint_angles(self, rng: np.random.Generator) -> np.ndarray:
         return rng.uniform(self.lower_limits, self.upper_limits)
 

@@ -168,22 +168,32 @@ class GroundTruth:
 # Scene construction
 
 
-class _Scene:
-    """Camera + arm + features: the checks shared by pose sampling and track generation."""
+class SpinScene:
+    """Camera + arm + features: the checks shared by pose sampling and track generation.
 
-    def __init__(self, config: SceneConfig, arm: Arm, rng: np.random.Generator):
+    The camera stands where ``config`` puts it by look-at unless ``arm_T_camera`` is given; the features are drawn
+    from ``rng`` unless ``features`` gives their ``(radii, offsets, phases)`` (three arrays of ``n_features``).
+    """
+
+    def __init__(self, config: SceneConfig, arm: Arm, rng: np.random.Generator, *,
+                 arm_T_camera: gtsam.Pose3 | None = None, features: tuple | None = None):
         self.config = config
         self.arm = arm
         self.camera = config.camera
-        self.arm_T_camera = look_at(config.camera_eye, config.camera_target, config.camera_up)
+        if arm_T_camera is None:
+            arm_T_camera = look_at(config.camera_eye, config.camera_target, config.camera_up)
+        self.arm_T_camera = arm_T_camera
         self.camera_T_arm = self.arm_T_camera.inverse()
-        self.camera_centre = np.asarray(config.camera_eye, dtype=float)
+        self.camera_centre = np.asarray(arm_T_camera.translation(), dtype=float)
         self.local_axis = arm.wrist_axis_local()
         self.local_e1, self.local_e2 = perpendicular_basis(self.local_axis)
         n = config.n_features
-        self.radii = rng.uniform(*config.radius_range, size=n)
-        self.offsets = rng.uniform(*config.offset_range, size=n)
-        self.phases = rng.uniform(0.0, 2.0 * np.pi, size=n)
+        if features is None:
+            self.radii = rng.uniform(*config.radius_range, size=n)
+            self.offsets = rng.uniform(*config.offset_range, size=n)
+            self.phases = rng.uniform(0.0, 2.0 * np.pi, size=n)
+        else:
+            self.radii, self.offsets, self.phases = (np.asarray(f, dtype=float).reshape(n) for f in features)
 
     def basis(self, joint_angles) -> tuple[Line3, np.ndarray, np.ndarray]:
         axis = self.arm.wrist_axis(joint_angles)
@@ -333,7 +343,7 @@ def simulate(config: SceneConfig | None = None, seed: int | None = 0, *, arm: Ar
     _check_config(config)
     rng = np.random.default_rng(seed)
     arm = Arm.from_robot(config.robot) if arm is None else arm
-    scene = _Scene(config, arm, rng)
+    scene = SpinScene(config, arm, rng)
     if config.joint_angles is not None:
         poses = [arm.joint_angle_vector(q) for q in config.joint_angles]
         for k, q in enumerate(poses):
@@ -378,7 +388,7 @@ def single_crossing_scene(seed: int | None = 0, **changes) -> tuple[Dataset, Gro
     config = SceneConfig(**changes)
     rng = np.random.default_rng(seed)
     arm = Arm.from_robot(config.robot)
-    scene = _Scene(config, arm, np.random.default_rng(rng.integers(2**63)))
+    scene = SpinScene(config, arm, np.random.default_rng(rng.integers(2**63)))
     first = scene.sample_poses(np.random.default_rng(rng.integers(2**63)))[0]
     crossing = arm.wrist_axis(first).point
     poses, directions = [first], [arm.wrist_axis(first).direction]
