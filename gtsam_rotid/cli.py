@@ -1,4 +1,5 @@
-"""Command line: ``gtsam-rotid {simulate,calibrate,demo,track,report,export}``; thin: parses, calls the library."""
+"""Command line: ``gtsam-rotid {simulate,calibrate,demo,track,report,export,check,plan,predict}``; thin: parses,
+calls the library."""
 
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ from .export import (
 )
 from .files import OVERWRITE_HINT, check_output, check_outputs, write_text
 from .meshrender import COVERINGS
+from .plancli import add_plan_parsers
 from .recordings import MIN_SPIN_DEG, STILL_TOLERANCE_DEG, load_tracker_params, make_dataset, videos_in
 from .report import ReportFormat, error_vs_truth_lines, make_report
 from .words import summary
@@ -632,6 +634,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_report_parser(sub)
     add_export_parser(sub)
     add_check_parser(sub)
+    add_plan_parsers(sub)
     return parser
 
 

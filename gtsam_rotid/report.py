@@ -40,7 +40,7 @@ from .diagnosis import (  # noqa: F401 (the constants are re-exported)
     chi2_check,
     wrist_axes,
 )
-from .errors import InputError
+from .errors import InputError, RotIdError
 from .geometry import correlation, quaternion_xyzw, ros_covariance, rpy_jacobian
 from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  # noqa: F401 (re-export)
 from .words import (
@@ -136,6 +136,8 @@ class CalibrationReport:
     untrusted: list = field(default_factory=list)
     #: one line: usable and how well, or why not and what to do (:func:`gtsam_rotid.words.verdict`)
     verdict: str = ""
+    #: for a calibration the poses do not determine: the arm pose (joint name -> rad) that most reduces its worst 1σ
+    next_pose: dict | None = None
 
     @property
     def bound95_position_mm(self) -> np.ndarray:
@@ -320,6 +322,7 @@ class CalibrationReport:
             "observability": {
                 "words": list(self.observability),
                 "suggestion": self.suggestion,
+                "next_pose_rad": self.next_pose,
                 "condition_number": f(self.condition_number),
                 "crossing_point_mm": None if self.crossing_point_mm is None else arr(self.crossing_point_mm),
                 "crossing_miss_mm": None if self.crossing_miss_mm is None else f(self.crossing_miss_mm),
@@ -424,11 +427,52 @@ def _observability(result, cov: np.ndarray, geometry: AxisGeometry | None) -> tu
     return words, suggestion
 
 
-def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORRELATION) -> CalibrationReport:
+#: candidate poses of the report's next-best-pose search (``gtsam-rotid plan --dataset`` searches more)
+NEXT_POSE_CANDIDATES = 60
+
+
+def _spin_seconds(dataset) -> float:
+    """The median spin length (s) of a dataset's measurements, from its tracks' frame indices (30 fps unless the
+    dataset says otherwise)."""
+    fps = float(dataset.metadata.get("fps") or 30.0)
+    spans = []
+    for m in dataset:
+        frames = [t.frames for t in m.tracks if getattr(t, "frames", None) is not None and len(t.frames)]
+        if frames:
+            spans.append((max(int(f[-1]) for f in frames) - min(int(f[0]) for f in frames) + 1) / fps)
+    return float(np.median(spans)) if spans else 20.0
+
+
+def next_best_pose(result, dataset) -> dict | None:
+    """The arm pose (joint name -> rad) that most reduces the worst 1σ of ``result`` (its estimate as the camera
+    guess, its information, from ``result.observability``, as what is known): :func:`gtsam_rotid.planning.plan_poses`
+    with the result's pixel noise and axis floor and the dataset's spin length. None when no pose satisfies the
+    plan's constraints."""
+    from .planning import PlanOptions, plan_poses
+
+    options = PlanOptions(candidates=NEXT_POSE_CANDIDATES, guess_samples=2, spin_seconds=_spin_seconds(dataset),
+                          pixel_sigma=float(result.sigma_px) if result.sigma_px > 0 else 0.5,
+                          axis_floor_px=float(getattr(result, "axis_floor_px", 0.0)))
+    # the information from its eigen-analysis: the covariance holds 1e12 on an undetermined direction, which leaves
+    # the rest of it with rounding errors of ~1e-4 (m², rad²), far above its real entries
+    obs = result.observability
+    information = (obs.eigenvectors * np.maximum(obs.eigenvalues, 0.0)) @ obs.eigenvectors.T
+    try:
+        plan = plan_poses(dataset.arm, dataset.camera, result.arm_T_camera, 1, options,
+                          prior_information=information)
+    except RotIdError:
+        return None
+    return {name: float(v) for name, v in zip(dataset.arm.joint_names, plan.joint_angles[0], strict=True)}
+
+
+def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORRELATION,
+                next_pose: bool = True) -> CalibrationReport:
     """The report of a :class:`~gtsam_rotid.estimate.CalibrationResult`.
 
     ``dataset`` (the one calibrated) lets the observability words locate the wrist axes' common point; without
-    it they use the wrist axes the result carries, if any.
+    it they use the wrist axes the result carries, if any. With the dataset, a calibration that its poses do not
+    determine (or that another pose fits as well) also gets the arm pose to add (:func:`next_best_pose`, a few
+    seconds; ``next_pose=False`` skips it).
     """
     pose = result.arm_T_camera
     rotation = pose.rotation()
@@ -462,6 +506,12 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         for sentence in reversed(untrusted_words(result)):
             words.insert(0, "NOT TRUSTED: " + sentence)
         suggestion = suggestion or "spin the wrist longer (a full turn), give the hand more texture, or add arm poses"
+    planned = None
+    if next_pose and dataset is not None and (ambiguous or not result.observability.is_observable):
+        planned = next_best_pose(result, dataset)
+        if planned is not None:
+            suggestion = (f"{suggestion}; the arm pose that helps most here (`gtsam-rotid plan --dataset` plans "
+                          "more): " + ", ".join(f"{name} = {v:.4f}" for name, v in planned.items()) + " rad")
     pos_dir, pos_sigma = _strongest(cov[:3, :3])
     rot_axis, rot_sigma = _strongest(cov[3:, 3:])
     crossing = geometry is not None and geometry.is_crossing
@@ -483,7 +533,7 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         crossing_miss_mm=1000.0 * float(np.max(geometry.miss)) if crossing else None, ambiguous=ambiguous,
         axis_consistency=getattr(result, "axis_consistency", None),
         joint_sigma_deg=float(getattr(result, "joint_sigma_deg", 0.0)), untrusted=untrusted,
-        axis_floor_px=float(getattr(result, "axis_floor_px", 0.0)), verdict=verdict(result),
+        axis_floor_px=float(getattr(result, "axis_floor_px", 0.0)), verdict=verdict(result), next_pose=planned,
     )
 
 

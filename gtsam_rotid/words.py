@@ -19,6 +19,7 @@ from .calibration.tuning import (
     MAX_SIGMA_DEG,
     RESTART_P,
 )
+from .planning import Plan, Prediction
 from .uncertainty import Observability
 
 
@@ -316,3 +317,49 @@ def check_words(check: CheckResult) -> list[str]:
     lines.extend(f"  spin {s.index}{f' ({s.name})' if s.name else ''}: {s.n_tracks} tracks, χ² {s.chi2:.3g} (2 dof "
                  "at the calibration)" for s in check.spins)
     return lines
+
+
+def prediction_words(prediction: Prediction) -> list[str]:
+    """The predicted accuracy of a set of arm poses: the 1σ per axis, the observability verdict, what it assumes,
+    and the poses that break a constraint."""
+    p, o = prediction, prediction.options
+    s = p.sigma
+    lines = []
+    poses = f"{len(p.joint_angles)} {'new ' if p.with_prior else ''}pose(s)"
+    poses += " and what is already recorded" if p.with_prior else ""
+    if p.observability.is_observable:
+        lines.append(f"PREDICTED 1σ from {poses}: rotation {s[0]:.3f}, {s[1]:.3f}, {s[2]:.3f}° "
+                     f"(about the camera's x, y, z), translation {s[3]:.2f}, {s[4]:.2f}, {s[5]:.2f} mm (camera "
+                     f"frame); camera position along the arm's x, y, z: "
+                     + ", ".join(f"{v:.2f}" for v in p.sigma_mm_arm) + " mm")
+    else:
+        lines.append(f"DEGENERATE: {poses} would not determine the calibration, whatever the recording:")
+    lines.extend(observability_words(p.observability)[0 if p.observability.is_observable else 1:])
+    floor = (f", each spin's image axis off by {o.axis_floor_px:g} px more (the tracker's floor)"
+             if o.axis_floor_px > 0 else "")
+    lines.append(f"assumes {o.spin_seconds:g} s spins at {o.wrist_speed:g} rad/s and {o.fps:g} fps, {o.n_features} "
+                 f"features {100 * o.radius_range[0]:g}-{100 * o.radius_range[1]:g} cm from the spinning axis, "
+                 f"{o.pixel_sigma:g} px noise per tracked point{floor}, and the camera where the guess puts it (the "
+                 f"1σ is averaged over {o.guess_samples} camera poses {o.guess_sigma_mm:g} mm and "
+                 f"{o.guess_sigma_deg:g}° about it)")
+    for k, problem in enumerate(p.problems):
+        if problem is not None:
+            lines.append(f"pose {k}: {problem}")
+    return lines
+
+
+def plan_words(plan: Plan) -> list[str]:
+    """A plan: what was searched, the predicted accuracy, and (next best poses) the gain over the calibration."""
+    refused = ", ".join(f"{reason} ({count})" for reason, count in
+                        sorted(plan.refused.items(), key=lambda item: -item[1])[:4])
+    lines = [f"planned {len(plan.joint_angles)} pose(s) from {plan.candidates} that satisfy every constraint "
+             f"({plan.draws} arm poses tried; refused most often: {refused or 'none'}) in {plan.seconds:.1f} s"]
+    if plan.sigma_before is not None:
+        b, a = plan.sigma_before, plan.prediction.sigma
+
+        def worst(s: np.ndarray) -> str:
+            if s.max() > 1e5:  # an undetermined direction (σ = 1000 km)
+                return "not determined"
+            return f"{s[:3].max():.3g}° and {s[3:].max():.3g} mm"
+        lines.append(f"with them the worst 1σ goes from {worst(b)} to {worst(a)}")
+    return lines + prediction_words(plan.prediction)

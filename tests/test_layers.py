@@ -12,16 +12,16 @@ ROOT = Path(__file__).resolve().parents[1]
 #: module -> layer (docs/design.md §8); every module of the package must be here
 LAYERS = {
     "errors": 1, "geometry": 1, "files": 1, "factors": 1,
-    "camera": 2, "arm": 2, "dataset": 2, "measurements": 2, "frames": 2,
+    "camera": 2, "arm": 2, "collisions": 2, "dataset": 2, "measurements": 2, "frames": 2,
     "tracking": 3, "trackparams": 3, "centroids": 3, "trackfilter": 3, "corners": 3, "spinmodel": 3, "spinfilter": 3,
     "meshconfig": 3, "armmeshes": 3, "meshtextures": 3, "meshcast": 3, "patterns": 3, "render": 3, "renderconfig": 3,
     "videos": 2, "meshrender": 3,
     "simulate": 3, "recordings": 3, "camerafiles": 2, "bags": 2, "trackrun": 3, "bagdataset": 3,
     "graph": 4, "initialise": 4, "uncertainty": 4,
-    "calibration": 5, "estimate": 5, "fits": 5,
+    "calibration": 5, "estimate": 5, "fits": 5, "planning": 5,
     "report": 6, "diagnosis": 6, "words": 6, "plots": 6, "export": 6, "pixels": 6, "posefiles": 6, "htmlreport": 6,
-    "overlays": 6,
-    "cli": 7, "demo": 7, "__main__": 7, "__init__": 8,
+    "overlays": 6, "planplots": 6,
+    "cli": 7, "plancli": 7, "demo": 7, "__main__": 7, "__init__": 8,
 }
 #: (importer, imported) pairs that break the rule today
 KNOWN_UPWARD: set[tuple[str, str]] = set()
@@ -88,7 +88,7 @@ def test_the_core_imports_no_package_module_above_it():
 
 def test_argparse_only_in_the_command_line():
     graph = _graph()
-    using = {m for m, (_, argparse) in graph.items() if argparse} - {"cli"}
+    using = {m for m, (_, argparse) in graph.items() if argparse and LAYERS.get(m) != LAYERS["cli"]}
     assert using - KNOWN_ARGPARSE == set(), f"argparse outside the CLI: {sorted(using - KNOWN_ARGPARSE)}"
     assert KNOWN_ARGPARSE - using == set(), f"fixed, take off KNOWN_ARGPARSE: {sorted(KNOWN_ARGPARSE - using)}"
 

@@ -1,0 +1,198 @@
+"""Command line of the planner: ``gtsam-rotid plan`` (arm poses that determine the calibration best) and
+``gtsam-rotid predict`` (the accuracy of given poses), both before anything is recorded."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+import gtsam
+import numpy as np
+
+from .arm import Arm
+from .camerafiles import load_camera
+from .dataset import Dataset
+from .errors import InputError
+from .files import check_output, write_text
+from .planning import PlanOptions, dataset_information, plan_poses, predict_accuracy, predicted_spins
+from .recordings import read_joint_file
+from .words import plan_words, prediction_words
+
+GUESS_HELP = ("the camera's OpenCV optical frame in the arm's root frame: X Y Z in metres, ROLL PITCH YAW in degrees "
+              "with R = Rz(yaw) Ry(pitch) Rx(roll) (gtsam's Rot3.RzRyRx, the report's convention)")
+
+
+def camera_guess(values) -> gtsam.Pose3:
+    """``X Y Z ROLL PITCH YAW`` (m, degrees) -> ``arm_T_camera``."""
+    x, y, z, roll, pitch, yaw = (float(v) for v in values)
+    if not all(math.isfinite(v) for v in (x, y, z, roll, pitch, yaw)):
+        raise InputError("--camera-guess: every value must be a finite number")
+    return gtsam.Pose3(gtsam.Rot3.RzRyRx(*np.radians([roll, pitch, yaw])), np.array([x, y, z]))
+
+
+def _add_common(p: argparse.ArgumentParser, *, dataset: bool) -> None:
+    robot = p.add_mutually_exclusive_group(required=not dataset)
+    robot.add_argument("--robot", metavar="NAME", help="example-robot-data arm (kinova, ur5, ur10, panda, xarm7)")
+    robot.add_argument("--urdf", metavar="FILE", help="the arm's URDF (its <collision> meshes are used)")
+    p.add_argument("--package-dir", action="append", default=[], metavar="DIR",
+                   help="where the URDF's package:// mesh paths resolve (repeatable)")
+    p.add_argument("--wrist-joint", metavar="NAME", help="the spinning joint (default: the last revolute joint)")
+    p.add_argument("--camera", metavar="CAMERA_YAML", required=not dataset,
+                   help="OpenCV calibration YAML or ROS camera_info YAML")
+    p.add_argument("--camera-guess", nargs=6, type=float, required=True,
+                   metavar=("X", "Y", "Z", "ROLL", "PITCH", "YAW"), help=GUESS_HELP)
+    p.add_argument("--guess-sigma", nargs=2, type=float, default=(30.0, 3.0), metavar=("MM", "DEG"),
+                   help="how far the guess may be off, 1 sigma per axis (default 30 mm, 3 deg): the prediction is "
+                        "averaged over camera poses drawn from it and the constraints must hold at them")
+    p.add_argument("--spin-seconds", type=float, default=20.0, metavar="S", help="seconds of spin per pose (20)")
+    p.add_argument("--fps", type=float, default=30.0, help="camera frame rate (30)")
+    p.add_argument("--wrist-speed", type=float, default=0.5, metavar="RAD_S", help="spin speed in rad/s (0.5)")
+    p.add_argument("--pixel-sigma", type=float, default=0.5, metavar="PX",
+                   help="noise of a tracked point in px (default 0.5)")
+    p.add_argument("--axis-floor-px", type=float, default=PlanOptions.axis_floor_px, metavar="PX",
+                   help=f"the tracker's floor on each spin's image axis (default {PlanOptions.axis_floor_px:g}: "
+                        "the corner tracker's; 0 for simulated tracks)")
+    p.add_argument("--features", type=int, default=12, metavar="N",
+                   help="features on the end effector assumed (default 12, 3-6 cm from the axis)")
+    p.add_argument("--floor-height", type=float, default=0.0, metavar="Z",
+                   help="height (m, arm frame) of the floor or table no link may pass (default 0)")
+    p.add_argument("--no-floor", action="store_true", help="no floor or table plane")
+    p.add_argument("--depth-range", nargs=2, type=float, default=(0.5, 1.6), metavar=("NEAR", "FAR"),
+                   help="workable camera-to-wrist distances in m (default 0.5 1.6)")
+    p.add_argument("--plot", metavar="PNG", help="also draw the poses: axes and camera in 3-D, the predicted arcs")
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def add_plan_parsers(subparsers) -> None:
+    """Add ``plan`` and ``predict`` to an ``argparse`` subparsers object."""
+    p = subparsers.add_parser(
+        "plan", help="choose the arm poses to record (before touching the robot), with their predicted accuracy",
+        description="Choose arm poses that determine arm_T_camera best at a guess of the camera pose, subject to "
+                    "the joint limits, no self-collision or floor contact (the robot's collision meshes), the "
+                    "end effector inside the image and facing the camera at a workable distance, the spinning axis "
+                    "neither end-on nor side-on, and the arm's other links not hiding the end effector. Writes a "
+                    "CSV (a header row of the joint names, one row per pose, radians) that `track --joints` and "
+                    "`predict --poses` read, and prints the predicted 1 sigma per axis. With --dataset: the next "
+                    "best pose(s) to add to an existing recording.")
+    _add_common(p, dataset=True)
+    p.add_argument("-n", type=int, default=None, metavar="N",
+                   help="how many poses (default 6; 1 with --dataset: the next best pose)")
+    p.add_argument("--dataset", metavar="DIR", help="an existing dataset: plan the pose(s) that most reduce the "
+                                                    "worst 1 sigma of its calibration (robot and camera from it)")
+    p.add_argument("--candidates", type=int, default=PlanOptions.candidates, metavar="N",
+                   help=f"valid random poses to choose from (default {PlanOptions.candidates})")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the search (default 0)")
+    p.add_argument("--no-collisions", action="store_true",
+                   help="skip the collision and occlusion checks (a URDF without <collision> meshes)")
+    p.add_argument("-o", "--output", required=True, metavar="POSES_CSV", help="the joint-angle file to write")
+    p.set_defaults(func=cmd_plan)
+
+    p = subparsers.add_parser(
+        "predict", help="the predicted accuracy of given arm poses, before any recording",
+        description="Predict the 1 sigma per axis of a calibration from these arm poses (a joint file: header row "
+                    "of joint names, one row per pose, radians unless --degrees) and say whether they determine "
+                    "all six degrees of freedom. Exit code 0: determined; 3: degenerate.")
+    p.add_argument("--poses", required=True, metavar="FILE", help="joint-angle file (CSV or JSON), one row per pose")
+    p.add_argument("--degrees", action="store_true", help="the pose file is in degrees")
+    _add_common(p, dataset=False)
+    p.set_defaults(func=cmd_predict)
+
+
+def _options(args, **extra) -> PlanOptions:
+    options = PlanOptions(spin_seconds=args.spin_seconds, fps=args.fps, wrist_speed=args.wrist_speed,
+                          pixel_sigma=args.pixel_sigma, axis_floor_px=args.axis_floor_px, n_features=args.features,
+                          floor_height=None if args.no_floor else args.floor_height,
+                          depth_range=tuple(args.depth_range), guess_sigma_mm=args.guess_sigma[0],
+                          guess_sigma_deg=args.guess_sigma[1], **extra)
+    options.check()
+    return options
+
+
+def _arm(args) -> Arm:
+    if args.urdf:
+        return Arm.from_urdf(args.urdf, wrist_joint=args.wrist_joint)
+    return Arm.from_robot(args.robot, wrist_joint=args.wrist_joint)
+
+
+def _progress(args):
+    if args.no_progress:
+        return None
+    from tqdm import tqdm
+
+    bars: dict = {}
+
+    def update(stage: str, done: int, total: int) -> None:
+        bar = bars.get(stage)
+        if bar is None:
+            bar = bars[stage] = tqdm(total=total, desc=stage, unit="pose", file=sys.stderr, leave=False)
+        bar.update(done - bar.n)
+        if done >= total:
+            bar.close()
+    return update
+
+
+def _plot(args, arm, camera, prediction) -> None:
+    from .files import staged
+    from .planplots import plot_plan
+    from .plots import DPI
+
+    figure = plot_plan(arm, camera, prediction, predicted_spins(arm, camera, prediction.arm_T_camera,
+                                                                prediction.joint_angles, prediction.options))
+    with staged(args.plot, args.overwrite) as staging:
+        figure.savefig(staging, dpi=DPI, format="png")
+    print(f"drew {args.plot}")
+
+
+def cmd_plan(args) -> int:
+    from .collisions import ArmCollisions
+
+    output = check_output(args.output, args.overwrite)
+    if args.plot:
+        check_output(args.plot, args.overwrite)
+    prior = None
+    guess = camera_guess(args.camera_guess)
+    options = _options(args, candidates=args.candidates, seed=args.seed)
+    if args.dataset:
+        dataset = Dataset.load(args.dataset)
+        arm = _arm(args) if (args.robot or args.urdf) else dataset.arm
+        camera = load_camera(args.camera) if args.camera else dataset.camera
+        prior = dataset_information(dataset, guess, options)
+        print(f"{args.dataset}: {len(dataset)} spin(s) recorded; planning what to add")
+    else:
+        if not (args.robot or args.urdf) or not args.camera:
+            raise InputError("plan needs --robot or --urdf and --camera (or --dataset to take them from)")
+        arm, camera = _arm(args), load_camera(args.camera)
+    n = args.n if args.n is not None else (1 if args.dataset else 6)
+    collisions = None if args.no_collisions else ArmCollisions(arm, args.package_dir, options.floor_height)
+    plan = plan_poses(arm, camera, guess, n, options, collisions=collisions, prior_information=prior,
+                      progress=_progress(args))
+    rows = [",".join(arm.joint_names)] + [",".join(repr(float(v)) for v in q) for q in plan.joint_angles]
+    write_text(output, "\n".join(rows) + "\n", args.overwrite)
+    print("\n".join(plan_words(plan)))
+    print(f"wrote {len(plan.joint_angles)} pose(s) to {output} (radians, one row per pose)")
+    if args.no_collisions:
+        print("WARNING: no collision or occlusion check was made (--no-collisions)")
+    if args.plot:
+        _plot(args, arm, camera, plan.prediction)
+    return 0
+
+
+def cmd_predict(args) -> int:
+    from .collisions import ArmCollisions
+
+    if args.plot:
+        check_output(args.plot, args.overwrite)
+    arm, camera = _arm(args), load_camera(args.camera)
+    poses = read_joint_file(args.poses, arm, degrees=args.degrees)
+    if poses.is_time_series:
+        raise InputError(f"{args.poses}: a time series of joint states; predict reads one row per pose")
+    options = _options(args)
+    collisions = ArmCollisions(arm, args.package_dir, options.floor_height)
+    prediction = predict_accuracy(arm, camera, camera_guess(args.camera_guess), list(poses.positions), options,
+                                  collisions=collisions)
+    print("\n".join(prediction_words(prediction)))
+    if args.plot:
+        _plot(args, arm, camera, prediction)
+    return 0 if prediction.observability.is_observable else 3

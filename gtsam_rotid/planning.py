@@ -1,0 +1,562 @@
+"""Plan the arm poses of a calibration and predict its accuracy before anything is recorded (docs/design.md §9).
+
+The prediction is the information the calibration's own graph (:class:`gtsam_rotid.graph.RotIdGraph`, projected
+model: a line per measurement tied to the pose) would hold at the camera's guessed pose, for noise-free spins of a
+typical textured end effector (``PlanOptions.n_features`` features spread over the radius and offset ranges, seen
+as the simulator sees them: while they face the camera and are inside the image), at ``pixel_sigma`` per tracked
+point, with every image axis also shifted by the tracker's floor ``axis_floor_px`` (a bias its tracks share). Its
+inverse is the Cramér-Rao bound of that model, which the joint estimator reaches on simulated tracks.
+
+The plan samples arm poses inside the joint limits and keeps those that satisfy every constraint at the guess: the
+spinning links inside the image with a margin at a workable distance, the spinning axis neither end-on nor
+side-on, no self-collision and nothing below the floor (:class:`gtsam_rotid.collisions.ArmCollisions`), the
+features' lines of sight not blocked by the arm's other links. It then chooses the ``n`` poses that minimise the
+worst axis' 1σ (rotation in units of ``worst_axis_deg``, translation of ``worst_axis_mm``), averaged over camera
+poses drawn from the guess' uncertainty: greedily, then by exchanges until no swap helps. Axes that all pass near
+one point determine nothing along the ray to it, so the criterion never chooses them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+
+import gtsam
+import numpy as np
+
+from .arm import Arm
+from .camera import Camera
+from .collisions import ArmCollisions
+from .dataset import Dataset
+from .errors import ArmError, InputError, SimulationError
+from .geometry import circle_points
+from .graph import MIN_TRACK_EXTENT_PX, RotIdGraph
+from .initialise import MIN_ELLIPSE_POINTS
+from .simulate import SceneConfig, SpinScene
+from .trackparams import AXIS_FLOOR_PX
+from .uncertainty import Observability, analyse_observability, pose_information
+
+#: (deg, deg, deg, mm, mm, mm) per unit of the Pose3 tangent (rad, m)
+UNITS = np.array([math.degrees(1.0)] * 3 + [1000.0] * 3)
+
+
+class PlanningError(InputError):
+    """No plan: too few arm poses satisfy the constraints, or the inputs cannot make one."""
+
+
+@dataclass(frozen=True)
+class PlanOptions:
+    """What a plan assumes about the recording and what it requires of a pose. Units: m, s, px, degrees."""
+
+    #: the recording: seconds of spin per pose, frame rate, spin speed (rad/s)
+    spin_seconds: float = 20.0
+    fps: float = 30.0
+    wrist_speed: float = 0.5
+    #: pixel noise of a tracked point, and the tracker's floor on each image axis (px; 0 for simulated tracks)
+    pixel_sigma: float = 0.5
+    axis_floor_px: float = AXIS_FLOOR_PX["auto"]
+    #: the texture: features at these distances from the spinning axis and along it from the joint origin (m)
+    n_features: int = 12
+    radius_range: tuple = (0.03, 0.06)
+    offset_range: tuple = (0.0, 0.10)
+    #: constraints: camera-to-wrist distance, angle of the axis to the viewing ray, image margin (px), lowest
+    #: height of the spinning links (m, arm frame), floor plane height (None: no floor), largest fraction of the
+    #: features' circles the arm's other links may hide
+    depth_range: tuple = (0.5, 1.6)
+    axis_view_angle_deg: tuple = (25.0, 75.0)
+    image_margin: float = 12.0
+    min_height: float = 0.05
+    floor_height: float | None = 0.0
+    max_hidden_fraction: float = 0.25
+    #: the guess' uncertainty (1σ per axis, mm and degrees) and how many camera poses are drawn from it
+    guess_sigma_mm: float = 30.0
+    guess_sigma_deg: float = 3.0
+    guess_samples: int = 6
+    #: the end effector must stay inside the image by this many sigmas of its image motion under the guess' 1σ
+    constraint_sigmas: float = 2.0
+    #: candidate poses sampled (and the most random draws spent finding them); a worst-axis unit pair
+    candidates: int = 150
+    max_draws: int = 100_000
+    #: the search for candidates stops after this long (s) once it has a third of them; local steps after the choice
+    search_seconds: float = 12.0
+    refine_steps: int = 60
+    worst_axis_mm: float = 1.0
+    worst_axis_deg: float = 0.05
+    #: the prediction's frame rate (information scales with the points; fewer points, each less noisy)
+    prediction_fps: float = 10.0
+    seed: int = 0
+
+    def with_(self, **changes) -> PlanOptions:
+        return replace(self, **changes)
+
+    def scene_config(self, camera: Camera, robot: str = "kinova") -> SceneConfig:
+        """The simulator's scene with this recording, texture and these constraints (``duration`` = the spin)."""
+        return SceneConfig(robot=robot, camera=camera, n_features=self.n_features, radius_range=self.radius_range,
+                           offset_range=self.offset_range, duration=self.spin_seconds, fps=self.fps,
+                           wrist_speed=self.wrist_speed, noise_var=self.pixel_sigma**2,
+                           axis_view_angle_deg=self.axis_view_angle_deg, depth_range=self.depth_range,
+                           image_margin=self.image_margin, min_height=self.min_height)
+
+    def check(self) -> None:
+        positive = {"spin_seconds": self.spin_seconds, "fps": self.fps, "pixel_sigma": self.pixel_sigma,
+                    "prediction_fps": self.prediction_fps, "worst_axis_mm": self.worst_axis_mm,
+                    "worst_axis_deg": self.worst_axis_deg}
+        for name, value in positive.items():
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise PlanningError(f"{name} must be a positive number, got {value!r}")
+        for name in ("axis_floor_px", "guess_sigma_mm", "guess_sigma_deg"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise PlanningError(f"{name} must be a number >= 0, got {value!r}")
+        if self.n_features < 2 or self.guess_samples < 1 or self.candidates < 1:
+            raise PlanningError("n_features must be >= 2, guess_samples and candidates >= 1")
+
+
+@dataclass
+class Prediction:
+    """The predicted accuracy of a set of arm poses at a camera guess.
+
+    ``covariance`` (6x6, Pose3 tangent: rotation rad then translation m in the camera frame) is the bound averaged
+    over the guess samples; ``information`` is the data's at the guess itself, ``observability`` its analysis
+    (undetermined directions get σ = 1000 km). ``per_pose`` holds each pose's information at the guess.
+    """
+
+    arm_T_camera: gtsam.Pose3
+    joint_angles: list[np.ndarray]
+    information: np.ndarray
+    covariance: np.ndarray
+    observability: Observability
+    per_pose: list[np.ndarray]
+    options: PlanOptions
+    #: each pose's constraint problem at the guess (None: satisfies them all)
+    problems: list[str | None] = field(default_factory=list)
+    #: the prediction includes an existing calibration's information (``prior_information``)
+    with_prior: bool = False
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """1σ per tangent axis: rx, ry, rz (deg, about the camera axes), tx, ty, tz (mm, camera frame)."""
+        return np.sqrt(np.maximum(np.diag(self.covariance), 0.0)) * UNITS
+
+    @property
+    def sigma_mm_arm(self) -> np.ndarray:
+        """1σ of the camera position along the arm frame's x, y, z (mm)."""
+        R = self.arm_T_camera.rotation().matrix()
+        return np.sqrt(np.maximum(np.diag(R @ self.covariance[3:, 3:] @ R.T), 0.0)) * 1000.0
+
+    @property
+    def worst(self) -> tuple[float, float]:
+        """(worst rotation 1σ in degrees, worst translation 1σ in mm)."""
+        s = self.sigma
+        return float(s[:3].max()), float(s[3:].max())
+
+
+@dataclass
+class Plan:
+    """Chosen arm poses (``joint_angles``, model order, radians) with their :class:`Prediction`, the candidates
+    they were chosen from and why the other draws were refused."""
+
+    joint_angles: list[np.ndarray]
+    prediction: Prediction
+    candidates: int
+    draws: int
+    refused: dict[str, int]
+    seconds: float
+    joint_names: list[str]
+    #: with an existing calibration: its predicted 1σ before the new poses (deg x3, mm x3)
+    sigma_before: np.ndarray | None = None
+
+
+# ------------------------------------------------------------------------------------------------- helpers
+def typical_features(options: PlanOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A deterministic texture: radii, offsets and phases spread evenly (a Kronecker sequence) over their ranges."""
+    n = options.n_features
+    i = np.arange(n) + 0.5
+    golden, plastic = 0.6180339887498949, 0.7548776662466927
+    radii = options.radius_range[0] + (i / n) * np.ptp(options.radius_range)
+    offsets = options.offset_range[0] + np.mod(i * golden, 1.0) * np.ptp(options.offset_range)
+    phases = 2.0 * np.pi * np.mod(i * plastic, 1.0)
+    return radii, offsets, phases
+
+
+def guess_samples(guess: gtsam.Pose3, options: PlanOptions) -> list[gtsam.Pose3]:
+    """The guess and ``guess_samples - 1`` camera poses drawn about it (seeded: the same each run)."""
+    rng = np.random.default_rng(options.seed + 7919)
+    sigma = np.array([math.radians(options.guess_sigma_deg)] * 3 + [options.guess_sigma_mm / 1000.0] * 3)
+    return [guess] + [guess.retract(rng.normal(size=6) * sigma) for _ in range(options.guess_samples - 1)]
+
+
+def _criterion(covariances: np.ndarray, options: PlanOptions) -> np.ndarray:
+    """Worst axis' 1σ in units of (``worst_axis_deg``, ``worst_axis_mm``), averaged over guess samples; any batch
+    shape (..., S, 6, 6) -> (...)."""
+    scale = UNITS / np.array([options.worst_axis_deg] * 3 + [options.worst_axis_mm] * 3)
+    variances = np.diagonal(covariances, axis1=-2, axis2=-1) * scale**2
+    return np.sqrt(np.maximum(variances, 0.0).max(axis=-1)).mean(axis=-1)
+
+
+#: A weak prior (1σ of 1000 rad and 1000 m) that keeps the exchanges' information invertible; far below any
+#: spin's, it never enters a reported prediction.
+REGULARISER = 1e-6 * np.eye(6)
+
+
+def _unit_scale(options: PlanOptions) -> np.ndarray:
+    """The worst-axis units in the Pose3 tangent (rad, m)."""
+    return np.array([math.radians(options.worst_axis_deg)] * 3 + [options.worst_axis_mm / 1000.0] * 3)
+
+
+class _Predictor:
+    """The information of one spin at one camera pose: a noise-free simulated measurement in the calibration's
+    graph."""
+
+    def __init__(self, arm: Arm, camera: Camera, options: PlanOptions):
+        self.arm, self.camera, self.options = arm, camera, options
+        step = max(1, int(round(options.fps / options.prediction_fps)))
+        self.fps = options.fps / step
+        self.config = options.scene_config(camera).with_(fps=self.fps, noise_var=0.0, min_track_length=3)
+        self.sigma_px = options.pixel_sigma / math.sqrt(step)  # fewer points, each carrying `step` points' worth
+        self.features = typical_features(options)
+        self.tie_covariance = 2.0 * options.axis_floor_px**2 * np.eye(2)
+        self._rng = np.random.default_rng(0)
+
+    def scene(self, arm_T_camera: gtsam.Pose3) -> SpinScene:
+        return SpinScene(self.config, self.arm, self._rng, arm_T_camera=arm_T_camera, features=self.features)
+
+    def sample_scenes(self, guess: gtsam.Pose3) -> list[SpinScene]:
+        """The scenes the prediction averages over: the typical texture at the guess, then a random texture (drawn
+        as the simulator draws one) at each other camera pose drawn from the guess: a bound averaged over textures
+        is larger than the bound of the average texture."""
+        samples = guess_samples(guess, self.options)
+        rng = np.random.default_rng(self.options.seed + 104729)
+        return [self.scene(samples[0])] + [SpinScene(self.config, self.arm, rng, arm_T_camera=pose)
+                                           for pose in samples[1:]]
+
+    def information(self, scene: SpinScene, joint_angles) -> np.ndarray:
+        builder = RotIdGraph(self.arm, self.camera, model="projected", track_sigma_px=self.sigma_px,
+                             min_track_points=MIN_ELLIPSE_POINTS, min_track_extent_px=MIN_TRACK_EXTENT_PX)
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        values.insert(builder.pose_key, scene.arm_T_camera)
+        try:
+            measurement, _ = scene.measurement(joint_angles, self._rng)
+            builder.add_measurement(graph, values, 0, measurement, tie_covariance=self.tie_covariance)
+        except InputError:  # fewer than two usable arcs: this spin tells nothing
+            return np.zeros((6, 6))
+        return pose_information(graph, values, builder.pose_key)
+
+
+class _Constraints:
+    """Whether an arm pose satisfies the plan's constraints at the guess (words when it does not)."""
+
+    def __init__(self, predictor: _Predictor, guess: gtsam.Pose3, collisions: ArmCollisions | None):
+        self.scene = predictor.scene(guess)
+        o = predictor.options
+        # the guess' 1σ moves the image: the end effector must stay inside by constraint_sigmas of that motion
+        sigma = np.array([math.radians(o.guess_sigma_deg)] * 3 + [o.guess_sigma_mm / 1000.0] * 3)
+        self._moved = [predictor.scene(guess.retract(sigma[i] * np.eye(6)[i])) for i in range(6) if sigma[i] > 0]
+        self.options = predictor.options
+        self.collisions = collisions
+        self.camera_centre = np.asarray(guess.translation(), dtype=float)
+        self._local_points = None if collisions is None else collisions.spinning_points()
+
+    def _image_motion_problem(self, joint_angles) -> str | None:
+        """Words when the end effector's rims (as the simulator's check draws them) come closer to the image border
+        than ``image_margin`` plus ``constraint_sigmas`` times their 1σ motion under the guess' uncertainty."""
+        o = self.options
+        if o.constraint_sigmas <= 0 or not self._moved:
+            return None
+        axis, e1, e2 = self.scene.basis(joint_angles)
+        phases = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+        rims = np.vstack([circle_points(axis.point + d * axis.direction, axis.direction, o.radius_range[1], phases,
+                                        e1, e2) for d in o.offset_range])
+        pixels = self.scene.project(rims)
+        motion = np.sqrt(sum((scene.project(rims) - pixels) ** 2 for scene in self._moved))  # (N, 2) 1σ, px
+        camera = self.scene.camera
+        low = pixels - o.constraint_sigmas * motion - o.image_margin
+        high = pixels + o.constraint_sigmas * motion + o.image_margin
+        if np.all((low >= -0.5) & (high <= np.array([camera.width, camera.height]) - 0.5)):
+            return None
+        return f"end effector leaves the image with the guess {o.constraint_sigmas:g} sigma off"
+
+    def aimed(self, rng: np.random.Generator) -> np.ndarray | None:
+        """Joint angles (inverse kinematics from a random start) that put the wrist on a random ray through the inner
+        part of the image, at a random workable distance, its axis at a random workable angle to the ray; None when
+        the arm cannot reach it."""
+        o, camera = self.options, self.scene.camera
+        pixel = np.array([camera.width, camera.height]) * rng.uniform(0.25, 0.75, size=2)
+        ray = np.linalg.solve(camera.K, np.append(pixel, 1.0))
+        ray = self.scene.arm_T_camera.rotation().matrix() @ (ray / np.linalg.norm(ray))
+        point = self.camera_centre + rng.uniform(*o.depth_range) * ray
+        angle = math.radians(rng.uniform(*o.axis_view_angle_deg))
+        side = np.cross(ray, rng.normal(size=3))
+        side /= np.linalg.norm(side)
+        direction = math.cos(angle) * ray * rng.choice([-1.0, 1.0]) + math.sin(angle) * side
+        try:
+            return self.scene.arm.solve_wrist_axis(point, direction, self.scene.arm.random_joint_angles(rng),
+                                                   iterations=60, tolerance=1e-4)
+        except ArmError:
+            return None
+
+    def problem(self, joint_angles) -> str | None:
+        problem = self.scene.pose_problem(joint_angles) or self._image_motion_problem(joint_angles)
+        if problem is not None or self.collisions is None:
+            return problem
+        pair = self.collisions.self_collision(joint_angles)
+        if pair is not None:
+            return f"self-collision of {pair[0]} and {pair[1]}"
+        link = self.collisions.below_floor(joint_angles)
+        if link is not None:
+            return f"{link} below the floor"
+        arm_T_wrist = self.scene.arm.arm_T_wrist(joint_angles)
+        axis = self.scene.arm.wrist_axis(joint_angles)
+        points = self._local_points @ arm_T_wrist.rotation().matrix().T + arm_T_wrist.translation()
+        radial = points - axis.point - np.outer((points - axis.point) @ axis.direction, axis.direction)
+        facing = np.einsum("ij,ij->i", radial, self.camera_centre - points) > 0
+        if not np.any(facing):
+            return "no part of the end effector faces the camera"
+        hidden = float(np.mean(self.collisions.hidden(joint_angles, self.camera_centre, points[facing])))
+        if hidden > self.options.max_hidden_fraction:
+            return f"the arm hides {100 * hidden:.0f} % of the end effector"
+        return None
+
+
+def _reason(problem: str) -> str:
+    """A refusal's kind, for counting: its words without the numbers."""
+    words = [w for w in problem.split() if not any(c.isdigit() or c == "%" for c in w)]
+    return " ".join(words[:4])
+
+
+def _check_inputs(arm: Arm, camera: Camera, guess: gtsam.Pose3, options: PlanOptions) -> None:
+    if not isinstance(arm, Arm):
+        raise PlanningError(f"arm must be a gtsam_rotid Arm, got {type(arm).__name__}")
+    if not isinstance(camera, Camera):
+        raise PlanningError(f"camera must be a gtsam_rotid Camera, got {type(camera).__name__}")
+    if not isinstance(guess, gtsam.Pose3):
+        raise PlanningError(f"the camera guess must be a gtsam.Pose3 (arm_T_camera), got {type(guess).__name__}")
+    options.check()
+
+
+# ------------------------------------------------------------------------------------------------- public
+def predict_accuracy(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, joint_angles: Sequence,
+                     options: PlanOptions | None = None, *, collisions: ArmCollisions | None = None,
+                     prior_information: np.ndarray | None = None) -> Prediction:
+    """The predicted 1σ of a calibration from these arm poses, before any recording (see the module's words).
+
+    ``prior_information`` (6x6): an existing calibration's information, added to the poses'. Each pose's
+    constraint problems at the guess are listed in ``problems`` (a pose that breaks one is still predicted).
+    """
+    options = PlanOptions() if options is None else options
+    _check_inputs(arm, camera, arm_T_camera, options)
+    poses = [arm.joint_angle_vector(q) for q in joint_angles]
+    predictor = _Predictor(arm, camera, options)
+    constraints = _Constraints(predictor, arm_T_camera, collisions)
+    prior = np.zeros((6, 6)) if prior_information is None else np.asarray(prior_information, dtype=float)
+    scenes = predictor.sample_scenes(arm_T_camera)
+    infos = np.array([[predictor.information(scene, q) for scene in scenes] for q in poses])
+    return _prediction(arm_T_camera, poses, infos.reshape(len(poses), len(scenes), 6, 6), prior, options,
+                       [constraints.problem(q) for q in poses])
+
+
+def _prediction(guess, poses, infos: np.ndarray, prior: np.ndarray, options: PlanOptions, problems) -> Prediction:
+    """``infos`` (poses, samples, 6, 6) -> the Prediction (the covariance averaged over the samples)."""
+    total = prior[None] + infos.sum(axis=0) if len(poses) else np.repeat(prior[None], infos.shape[1], axis=0)
+    at_guess = total[0]
+    observability = analyse_observability(at_guess, guess)
+    covariances = [analyse_observability(t, guess).covariance(t) for t in total]
+    return Prediction(guess, poses, at_guess, np.mean(covariances, axis=0), observability,
+                      [infos[k, 0] for k in range(len(poses))], options, list(problems), bool(np.any(prior)))
+
+
+def plan_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: int = 6, options: PlanOptions | None = None,
+               *, collisions: ArmCollisions | bool | None = True, prior_information: np.ndarray | None = None,
+               progress: Callable[[str, int, int], None] | None = None) -> Plan:
+    """Choose ``n`` arm poses that minimise the worst axis' predicted 1σ of ``arm_T_camera`` (the guess: the camera's
+    OpenCV optical frame in the arm's root frame), subject to the constraints of :class:`PlanOptions`.
+
+    ``collisions``: True (default) loads the arm's collision meshes, an :class:`ArmCollisions` reuses one, None
+    checks no collision (say so to your users). ``prior_information`` (6x6): an existing calibration's, for the
+    next best poses. ``progress(stage, done, total)`` is called as candidates are found and evaluated. Raises
+    :class:`PlanningError` when fewer than ``n`` poses satisfy the constraints.
+    """
+    options = PlanOptions() if options is None else options
+    _check_inputs(arm, camera, arm_T_camera, options)
+    if not isinstance(n, int) or n < 1:
+        raise PlanningError(f"n must be a positive number of poses, got {n!r}")
+    start = time.perf_counter()
+    collisions = _collisions(arm, collisions, options)
+    predictor = _Predictor(arm, camera, options)
+    constraints = _Constraints(predictor, arm_T_camera, collisions)
+    candidates, draws, refused = _sample(arm, constraints, options.candidates, n, options,
+                                         np.random.default_rng(options.seed), progress=progress)
+    scenes = predictor.sample_scenes(arm_T_camera)
+    infos = np.empty((len(candidates), len(scenes), 6, 6))
+    for c, q in enumerate(candidates):
+        infos[c] = [predictor.information(scene, q) for scene in scenes]
+        if progress is not None:
+            progress("predictions", c + 1, len(candidates))
+    prior = np.zeros((6, 6)) if prior_information is None else np.asarray(prior_information, dtype=float)
+    chosen = _choose(infos, prior + REGULARISER, n, options)
+    poses, chosen_infos = _refine([candidates[c] for c in chosen], infos[chosen], prior + REGULARISER, predictor,
+                                  constraints, scenes, rng=np.random.default_rng(options.seed + 1), options=options)
+    prediction = _prediction(arm_T_camera, poses, chosen_infos, prior, options, [None] * n)
+    before = None
+    if prior_information is not None:
+        before = _prediction(arm_T_camera, [], infos[:0], prior, options, []).sigma
+    return Plan(poses, prediction, len(candidates), draws, refused, time.perf_counter() - start,
+                list(arm.joint_names), before)
+
+
+def _sample(arm: Arm, constraints: _Constraints, count: int, need: int, options: PlanOptions,
+            rng: np.random.Generator, *, min_separation_deg: float = 0.0, progress=None):
+    """Up to ``count`` random arm poses that satisfy the constraints (wrist axes at least ``min_separation_deg``
+    apart); raises PlanningError with the commonest refusals when fewer than ``need`` are found."""
+    candidates, directions, refused, draws = [], [], Counter(), 0
+    cos_sep = math.cos(math.radians(min_separation_deg))
+    deadline = time.perf_counter() + options.search_seconds
+    while len(candidates) < count and draws < options.max_draws:
+        if len(candidates) >= max(need, count // 3) and time.perf_counter() > deadline:
+            break
+        # the workable region can be a small part of joint space: half the draws near a pose already found, a
+        # quarter aimed by inverse kinematics at a wrist in view, a quarter anywhere
+        u = rng.random()
+        if candidates and u < 0.5:
+            q = arm.clip_joint_angles(candidates[rng.integers(len(candidates))] + rng.normal(scale=0.2, size=arm.dof))
+        elif u < 0.75:
+            q = constraints.aimed(rng)
+        else:
+            q = arm.random_joint_angles(rng)
+        draws += 1
+        if q is None:
+            refused["no inverse kinematics solution"] += 1
+            continue
+        problem = constraints.problem(q)
+        if problem is None and min_separation_deg > 0:
+            a = arm.wrist_axis(q).direction
+            if any(abs(a @ b) > cos_sep for b in directions):
+                problem = "wrist axis too close to another pose's"
+            else:
+                directions.append(a)
+        if problem is None:
+            candidates.append(q)
+            if progress is not None:
+                progress("candidates", len(candidates), count)
+        else:
+            refused[_reason(problem)] += 1
+    if len(candidates) < need:
+        listed = ", ".join(f"{reason} ({n})" for reason, n in refused.most_common(5))
+        raise PlanningError(f"only {len(candidates)} of {draws} random arm poses satisfy the constraints at this "
+                            f"camera guess (need {need}); refused most often: {listed}. Check the guess (X Y Z in "
+                            f"metres, angles in degrees, the optical frame in the arm's root frame) or relax the "
+                            f"constraints (depth range, image margin, view angle)")
+    return candidates, draws, dict(refused)
+
+
+def random_valid_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: int = 6,
+                       options: PlanOptions | None = None, *, collisions: ArmCollisions | bool | None = True,
+                       seed: int = 0, min_separation_deg: float = 20.0) -> list[np.ndarray]:
+    """``n`` random arm poses that satisfy the plan's constraints, wrist axes at least ``min_separation_deg`` apart
+    (the simulator's sampler with the plan's checks): what a user picking poses by hand might record."""
+    options = PlanOptions() if options is None else options
+    _check_inputs(arm, camera, arm_T_camera, options)
+    collisions = _collisions(arm, collisions, options)
+    constraints = _Constraints(_Predictor(arm, camera, options), arm_T_camera, collisions)
+    poses, _, _ = _sample(arm, constraints, n, n, options, np.random.default_rng(seed),
+                          min_separation_deg=min_separation_deg)
+    return poses
+
+
+def _collisions(arm: Arm, collisions, options: PlanOptions) -> ArmCollisions | None:
+    if collisions is True:
+        return ArmCollisions(arm, floor_height=options.floor_height)
+    return None if collisions is False or collisions is None else collisions
+
+
+def _refine(poses: list[np.ndarray], infos: np.ndarray, prior: np.ndarray, predictor: _Predictor,
+            constraints: _Constraints, scenes: list[SpinScene], *, rng: np.random.Generator,
+            options: PlanOptions) -> tuple[list[np.ndarray], np.ndarray]:
+    """Local search after the choice: ``refine_steps`` times, one chosen pose moved by a small random step (that
+    keeps every constraint) and kept if the criterion drops."""
+    poses, infos = list(poses), infos.copy()
+    current = float(_criterion(np.linalg.inv(prior[None] + infos.sum(axis=0)), options))
+    for step in range(options.refine_steps):
+        k = step % len(poses)
+        trial = predictor.arm.clip_joint_angles(poses[k] + rng.normal(scale=0.1, size=len(poses[k])))
+        if constraints.problem(trial) is not None:
+            continue
+        info = np.array([predictor.information(scene, trial) for scene in scenes])
+        score = float(_criterion(np.linalg.inv(prior[None] + infos.sum(axis=0) - infos[k] + info), options))
+        if score < current:
+            poses[k], infos[k], current = trial, info, score
+    return poses, infos
+
+
+def _choose(infos: np.ndarray, prior: np.ndarray, n: int, options: PlanOptions) -> list[int]:
+    """Greedy D-optimal choice of ``n`` candidates (the log-determinant of the information in worst-axis units,
+    summed over the guess samples: well defined while the first poses leave directions undetermined), then
+    exchanges (one pose for another) while the worst axis' 1σ drops."""
+    def score(base: np.ndarray) -> np.ndarray:
+        """Criterion of ``base`` (S, 6, 6) plus each candidate's information: (C,)."""
+        return _criterion(np.linalg.inv(base[None] + infos), options)
+
+    D = _unit_scale(options)
+    base = np.repeat(prior[None], infos.shape[1], axis=0)
+    chosen: list[int] = []
+    for _ in range(n):
+        scaled = (base[None] + infos) * np.outer(D, D)
+        gains = -np.linalg.slogdet(scaled)[1].sum(axis=-1)
+        gains[chosen] = np.inf
+        best = int(np.argmin(gains))
+        chosen.append(best)
+        base = base + infos[best]
+    current = float(_criterion(np.linalg.inv(base), options))
+    for _ in range(4 * n):
+        improved = False
+        for slot in range(n):
+            without = base - infos[chosen[slot]]
+            scores = score(without)
+            scores[chosen] = np.inf
+            best = int(np.argmin(scores))
+            if scores[best] < current * (1.0 - 1e-6):
+                base = without + infos[best]
+                chosen[slot] = best
+                current = float(scores[best])
+                improved = True
+        if not improved:
+            break
+    return chosen
+
+
+def predicted_spins(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, joint_angles: Sequence,
+                    options: PlanOptions | None = None) -> list:
+    """The noise-free tracks (:class:`gtsam_rotid.dataset.Measurement`, at ``prediction_fps``) the prediction sees
+    for each pose at the guess: what the camera would record of the typical texture (for pictures)."""
+    options = PlanOptions() if options is None else options
+    predictor = _Predictor(arm, camera, options)
+    scene = predictor.scene(arm_T_camera)
+    out = []
+    for q in joint_angles:
+        try:
+            out.append(scene.measurement(arm.joint_angle_vector(q), predictor._rng)[0])
+        except InputError:  # nothing in view
+            out.append(None)
+    return out
+
+
+def dataset_information(dataset: Dataset, arm_T_camera: gtsam.Pose3, options: PlanOptions | None = None
+                        ) -> np.ndarray:
+    """The information (6x6) of an existing dataset's tracks at ``arm_T_camera``, with the plan's pixel noise and
+    axis floor: what new poses add to."""
+    options = PlanOptions() if options is None else options
+    builder = RotIdGraph(dataset.arm, dataset.camera, model="projected", track_sigma_px=options.pixel_sigma)
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(builder.pose_key, arm_T_camera)
+    floor = 2.0 * options.axis_floor_px**2 * np.eye(2)
+    for k, measurement in enumerate(dataset):
+        try:
+            builder.add_measurement(graph, values, k, measurement, tie_covariance=floor)
+        except InputError:
+            continue
+    if graph.size() == 0:
+        raise SimulationError("no measurement of the dataset has two usable tracks")
+    return pose_information(graph, values, builder.pose_key)

@@ -1,0 +1,71 @@
+"""The picture of a plan (report layer): the planned wrist axes, the arm in each pose and the camera in 3-D, and
+the predicted image of each spin's arcs."""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from .arm import Arm
+from .camera import Camera
+from .planning import Prediction
+from .plots import AXIS_HALF_LENGTH, FRUSTUM_FRACTION, _track_colours, new_figure
+
+
+def plot_plan(arm: Arm, camera: Camera, prediction: Prediction, spins: list) -> Figure:
+    """Left: each pose's wrist axis (solid) and arm skeleton (thin), the camera's frustum and axes, in the arm-base
+    frame. Right: the arcs the camera would see of a typical texture in each pose (``spins``: from
+    :func:`gtsam_rotid.planning.predicted_spins`), one colour per pose, over the image."""
+    fig = new_figure(12.0, 5.5)
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    image = fig.add_subplot(1, 2, 2)
+    colours = _track_colours(len(prediction.joint_angles))
+    pose = prediction.arm_T_camera
+    R, C = pose.rotation().matrix(), np.asarray(pose.translation(), dtype=float)
+    points = [C, np.zeros(3)]
+    for k, q in enumerate(prediction.joint_angles):
+        axis = arm.wrist_axis(q)
+        segment = axis.points_at([-AXIS_HALF_LENGTH, AXIS_HALF_LENGTH])
+        skeleton = np.vstack([np.zeros(3), arm.joint_origins(q)])
+        ax.plot(*skeleton.T, "-o", color=colours[k], lw=0.8, ms=2, alpha=0.5)
+        ax.plot(*segment.T, color=colours[k], lw=2.5, label=f"pose {k}")
+        points.extend(segment)
+        points.extend(skeleton)
+    points = np.array(points)
+    size = float(np.max(np.ptp(points, axis=0))) or 1.0
+    depth = FRUSTUM_FRACTION * size
+    w, h = camera.width, camera.height
+    corners = np.array([[-0.5, -0.5, 1], [w - 0.5, -0.5, 1], [w - 0.5, h - 0.5, 1], [-0.5, h - 0.5, 1.0]])
+    far = C + depth * (corners @ np.linalg.inv(camera.K).T) @ R.T
+    for corner in far:
+        ax.plot(*np.column_stack([C, corner]), color="0.3", lw=0.8)
+    ax.plot(*np.vstack([far, far[:1]]).T, color="0.3", lw=0.8, label="camera (guess)")
+    for i, colour in enumerate(("tab:red", "tab:green", "tab:blue")):
+        ax.plot(*np.column_stack([C, C + 0.5 * depth * R[:, i]]), color=colour, lw=1.5)
+    ax.scatter(0.0, 0.0, 0.0, color="k", marker="s", s=20, label="arm base")
+    centre, half = 0.5 * (points.min(axis=0) + points.max(axis=0)), 0.55 * size
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_zlim(centre[2] - half, centre[2] + half)
+    ax.set_box_aspect((1, 1, 1))
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.legend(loc="upper left", fontsize=7)
+    s = prediction.sigma
+    ax.set_title(f"planned wrist axes; predicted 1σ {s[:3].max():.3g}° / {s[3:].max():.3g} mm (worst axes)",
+                 fontsize=9)
+    for k, spin in enumerate(spins):
+        if spin is None:
+            continue
+        for track in spin.tracks:
+            image.plot(track.pixels[:, 0], track.pixels[:, 1], ".", ms=1.0, color=colours[k])
+        image.plot([], [], ".", color=colours[k], label=f"pose {k}")
+    image.set_xlim(-0.5, w - 0.5)
+    image.set_ylim(h - 0.5, -0.5)
+    image.set_aspect("equal")
+    image.set_xlabel("u (px)")
+    image.set_ylabel("v (px)")
+    image.set_title("predicted arcs of a typical texture (noise-free), per pose", fontsize=9)
+    image.legend(loc="upper right", fontsize=7, markerscale=4)
+    return fig

@@ -1,0 +1,227 @@
+"""Pose planning and accuracy prediction (issue 16): the prediction against an independent Cramér-Rao bound, the
+plan's constraints checked by the simulator and by Pinocchio, plans against random poses, degenerate pose sets,
+next best poses, and the command line."""
+
+import math
+import sys
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from gtsam_rotid import simulate
+from gtsam_rotid.arm import Arm
+from gtsam_rotid.cli import main
+from gtsam_rotid.collisions import ArmCollisions
+from gtsam_rotid.planning import (
+    PlanningError,
+    PlanOptions,
+    plan_poses,
+    predict_accuracy,
+    predicted_spins,
+    random_valid_poses,
+)
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+#: a quick search: few candidates and guess samples
+QUICK = PlanOptions(candidates=40, guess_samples=2, pixel_sigma=math.sqrt(1.5), axis_floor_px=0.0)
+
+
+@pytest.fixture(scope="module")
+def kinova():
+    return Arm.from_robot("kinova")
+
+
+@pytest.fixture(scope="module")
+def collisions(kinova):
+    return ArmCollisions(kinova)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return simulate.reference_scene(seed=0, duration=20.0)
+
+
+def test_prediction_matches_an_independent_cramer_rao_bound(scene):
+    """The prediction (typical texture at the guess, its own graph) against the bound of the simulated scene's own
+    tracks (the benchmark's pose-bound graph at the true circles): same poses, camera and recording."""
+    from accuracy import crlb
+
+    dataset, truth = scene
+    bound = np.sqrt(np.diag(crlb(dataset, truth, 1.5)))
+    options = QUICK.with_(guess_samples=1)
+    prediction = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera,
+                                  [m.joint_angles for m in truth.measurements], options)
+    ratio = np.sqrt(np.diag(prediction.covariance)) / bound
+    print("prediction / bound", ratio)
+    # the scene's 12 features are drawn at random, the prediction's spread evenly: the same to ~10 %
+    assert np.all((ratio > 0.9) & (ratio < 1.1)), ratio
+    assert prediction.observability.is_observable
+    assert len(prediction.problems) == 6
+
+
+def test_prediction_scales_with_noise_and_spin_length(scene, kinova):
+    dataset, truth = scene
+    poses = [m.joint_angles for m in truth.measurements]
+    base = predict_accuracy(kinova, dataset.camera, truth.arm_T_camera, poses, QUICK.with_(guess_samples=1))
+    noisy = predict_accuracy(kinova, dataset.camera, truth.arm_T_camera, poses,
+                             QUICK.with_(guess_samples=1, pixel_sigma=2 * QUICK.pixel_sigma))
+    np.testing.assert_allclose(noisy.sigma, 2 * base.sigma, rtol=1e-3)
+    floored = predict_accuracy(kinova, dataset.camera, truth.arm_T_camera, poses,
+                               QUICK.with_(guess_samples=1, axis_floor_px=0.3))
+    assert np.all(floored.sigma > base.sigma)
+
+
+def test_single_crossing_poses_are_predicted_degenerate():
+    dataset, truth = simulate.single_crossing_scene(seed=0, duration=2.0)
+    prediction = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera,
+                                  [m.joint_angles for m in truth.measurements], QUICK.with_(guess_samples=1))
+    assert not prediction.observability.is_observable
+    crossing = np.array(truth.config["crossing_point"])
+    ray = crossing - truth.arm_T_camera.translation()
+    undetermined = truth.arm_T_camera.rotation().matrix() @ prediction.observability.unobservable_directions[0][3:]
+    assert abs(undetermined @ ray) / np.linalg.norm(ray) > 0.99  # along the ray to the common point
+
+
+def test_collisions_self_floor_and_lines_of_sight(kinova, collisions):
+    assert collisions.self_collision(np.zeros(kinova.dof)) is not None  # the Jaco2's zero pose folds into itself
+    _, truth = simulate.reference_scene(seed=0, duration=1.0)
+    for m in truth.measurements:
+        assert collisions.self_collision(m.joint_angles) is None
+    # the base link (a cylinder about the z axis at the origin) between a camera and a point behind it
+    centre = np.array([2.0, 0.0, 0.08])
+    assert collisions.hidden(truth.measurements[0].joint_angles, centre, [[-0.3, 0.0, 0.08]])[0]
+    assert not collisions.hidden(truth.measurements[0].joint_angles, centre, [[1.5, 0.0, 0.08]])[0]
+    # an independent check of the floor: the lowest vertex of each link's collision mesh, placed by Pinocchio
+    rng = np.random.default_rng(3)
+    model, data = kinova.model, kinova.model.createData()
+    geometry_data = collisions.model.createData()
+    for _ in range(20):
+        q = kinova.random_joint_angles(rng)
+        pin.updateGeometryPlacements(model, data, collisions.model, geometry_data, kinova.configuration(q))
+        lowest = min((np.asarray(g.geometry.vertices()) @ np.asarray(m.rotation)[2] + m.translation[2]).min()
+                     for g, m in zip(collisions.model.geometryObjects, geometry_data.oMg, strict=True)
+                     if g.parentJoint > 1)
+        assert (collisions.below_floor(q) is not None) == (lowest < 0.0)
+
+
+def test_plan_satisfies_its_constraints_and_beats_random_poses(kinova, collisions):
+    config = simulate.SceneConfig(duration=20.0)
+    _, truth = simulate.simulate(config.with_(duration=1.0), seed=0)
+    guess = truth.arm_T_camera
+    plan = plan_poses(kinova, config.camera, guess, 6, QUICK, collisions=collisions)
+    assert len(plan.joint_angles) == 6 and plan.prediction.observability.is_observable
+    for q in plan.joint_angles:
+        assert kinova.within_limits(q)
+        assert collisions.self_collision(q) is None and collisions.below_floor(q) is None
+    # the simulator accepts them at the true camera (its own image, distance and view-angle checks) and records
+    # the spins; the calibration of that recording is within its covariance of the truth
+    from gtsam_rotid.estimate import calibrate
+
+    dataset, truth2 = simulate.simulate(config.with_(joint_angles=tuple(tuple(q) for q in plan.joint_angles)),
+                                        seed=5)
+    result = calibrate(dataset)
+    error = truth2.arm_T_camera.localCoordinates(result.arm_T_camera)
+    assert error @ np.linalg.solve(plan.prediction.covariance, error) < 22.5  # 99.9 % for 6 dof
+    worst = plan.prediction.worst
+    for seed in range(3):
+        random = predict_accuracy(kinova, config.camera, guess,
+                                  random_valid_poses(kinova, config.camera, guess, 6, QUICK, collisions=collisions,
+                                                     seed=seed), QUICK)
+        assert worst[0] < random.worst[0] and worst[1] < random.worst[1]
+
+
+def test_next_best_pose_resolves_a_single_crossing(kinova, collisions):
+    dataset, truth = simulate.single_crossing_scene(seed=0, duration=2.0, n_measurements=4)
+    poses = [m.joint_angles for m in truth.measurements]
+    options = QUICK.with_(guess_samples=1)
+    before = predict_accuracy(kinova, dataset.camera, truth.arm_T_camera, poses, options)
+    plan = plan_poses(kinova, dataset.camera, truth.arm_T_camera, 1, options, collisions=collisions,
+                      prior_information=before.information)
+    after = predict_accuracy(kinova, dataset.camera, truth.arm_T_camera, poses + plan.joint_angles, options)
+    assert not before.observability.is_observable and after.observability.is_observable
+    assert plan.prediction.observability.is_observable
+    assert plan.sigma_before is not None and plan.sigma_before.max() > 1e5 * plan.prediction.sigma.max()
+
+
+def test_plan_refuses_a_camera_that_sees_no_workable_pose(kinova, collisions):
+    away = gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, 5.0]))  # 5 m up, looking up
+    with pytest.raises(PlanningError, match="satisfy the constraints"):
+        plan_poses(kinova, simulate.SceneConfig().camera, away, 6, QUICK.with_(max_draws=300),
+                   collisions=collisions)
+    with pytest.raises(PlanningError, match="pixel_sigma"):
+        PlanOptions(pixel_sigma=-1.0).check()
+
+
+def test_predicted_spins_are_in_the_image(scene):
+    dataset, truth = scene
+    spins = predicted_spins(dataset.arm, dataset.camera, truth.arm_T_camera,
+                            [m.joint_angles for m in truth.measurements], QUICK)
+    assert all(s is not None and len(s.tracks) >= 2 for s in spins)
+    assert all(dataset.camera.in_image(t.pixels).all() for s in spins for t in s.tracks)
+
+
+def _camera_yaml(path: Path) -> Path:
+    path.write_text("image_width: 640\nimage_height: 480\ncamera_matrix:\n  rows: 3\n  cols: 3\n  data: [570.0, 0, "
+                    "319.5, 0, 570.0, 239.5, 0, 0, 1]\ndistortion_coefficients:\n  rows: 1\n  cols: 5\n"
+                    "  data: [0, 0, 0, 0, 0]\n")
+    return path
+
+
+def test_cli_plan_then_predict(tmp_path, capsys):
+    camera = _camera_yaml(tmp_path / "camera.yaml")
+    guess = ["-0.45", "0.25", "0.95", "125.6", "0", "72.6"]  # the reference scene's camera
+    poses = tmp_path / "poses.csv"
+    common = ["--robot", "kinova", "--camera", str(camera), "--camera-guess", *guess, "--no-progress"]
+    assert main(["plan", *common, "-n", "6", "--candidates", "30", "-o", str(poses), "--plot",
+                 str(tmp_path / "plan.png")]) == 0
+    out = capsys.readouterr().out
+    assert "PREDICTED 1σ" in out and "all six degrees of freedom" in out
+    lines = poses.read_text().splitlines()
+    assert lines[0].split(",") == Arm.from_robot("kinova").joint_names and len(lines) == 7
+    assert (tmp_path / "plan.png").stat().st_size > 10_000
+    # nothing is overwritten
+    assert main(["plan", *common, "--candidates", "30", "-o", str(poses)]) == 1
+    assert "exists" in capsys.readouterr().err
+    assert main(["predict", *common, "--poses", str(poses)]) == 0
+    assert "PREDICTED 1σ" in capsys.readouterr().out
+    # a degenerate set: one pose only
+    one = tmp_path / "one.csv"
+    one.write_text("\n".join(lines[:2]) + "\n")
+    assert main(["predict", *common, "--poses", str(one)]) == 3
+    assert "DEGENERATE" in capsys.readouterr().out
+
+
+def test_report_of_a_single_crossing_gives_the_pose_to_add(kinova):
+    from gtsam_rotid.estimate import calibrate
+    from gtsam_rotid.report import make_report
+
+    dataset, truth = simulate.single_crossing_scene(seed=1, duration=6.0)
+    result = calibrate(dataset)
+    assert not result.observability.is_observable
+    report = make_report(result, dataset)
+    assert report.next_pose is not None and list(report.next_pose) == kinova.joint_names
+    assert "the arm pose that helps most" in report.suggestion
+    assert report.to_dict()["observability"]["next_pose_rad"] == report.next_pose
+    # with that pose added, the poses determine the calibration (predicted at the truth)
+    poses = [m.joint_angles for m in truth.measurements] + [np.array(list(report.next_pose.values()))]
+    after = predict_accuracy(kinova, dataset.camera, truth.arm_T_camera, poses, QUICK.with_(guess_samples=1))
+    assert after.observability.is_observable
+    assert make_report(result, dataset, next_pose=False).next_pose is None
+
+
+def test_cli_plan_next_pose_for_a_recorded_dataset(tmp_path, capsys):
+    recorded = tmp_path / "recorded"
+    assert main(["simulate", "--scene", "single-crossing", "--duration", "6", "-o", str(recorded)]) == 0
+    capsys.readouterr()
+    guess = ["-0.45", "0.25", "0.95", "125.6", "0", "72.6"]
+    out = tmp_path / "next.csv"
+    assert main(["plan", "--dataset", str(recorded), "--camera-guess", *guess, "--candidates", "30",
+                 "--no-progress", "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "goes from not determined to" in printed and "all six degrees of freedom" in printed
+    assert "PREDICTED 1σ from 1 new pose(s) and what is already recorded" in printed
+    assert len(out.read_text().splitlines()) == 2  # header and one pose
