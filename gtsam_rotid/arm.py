@@ -262,6 +262,13 @@ class Arm:
         wrapped = np.where(self._continuous, (angles + np.pi) % (2 * np.pi) - np.pi, angles)
         return np.clip(wrapped, self.lower_limits, self.upper_limits)
 
+    def wrist_range(self) -> float | None:
+        """How far (rad) the spinning joint can turn between its limits; None for a continuous or unbounded one."""
+        if self._continuous[self.wrist_index]:
+            return None
+        span = float(self.upper_limits[self.wrist_index] - self.lower_limits[self.wrist_index])
+        return span if np.isfinite(span) and 0.0 < span < 1e3 else None
+
     def clip_joint_angles(self, joint_angles) -> np.ndarray:
         """Bounded joints clipped to their limits, continuous ones wrapped to [-pi, pi)."""
         return self._limit(self.joint_angle_vector(joint_angles))

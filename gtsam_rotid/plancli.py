@@ -54,12 +54,15 @@ def _add_common(p: argparse.ArgumentParser, *, dataset: bool) -> None:
                    help=f"the tracker's floor on each spin's image axis (default {PlanOptions.axis_floor_px:g}: "
                         "the corner tracker's; 0 for simulated tracks)")
     p.add_argument("--features", type=int, default=12, metavar="N",
-                   help="features on the end effector assumed (default 12, 3-6 cm from the axis)")
+                   help="features on the end effector assumed (default 12, spread over the spinning links' "
+                        "collision meshes)")
     p.add_argument("--floor-height", type=float, default=0.0, metavar="Z",
                    help="height (m, arm frame) of the floor or table no link may pass (default 0)")
     p.add_argument("--no-floor", action="store_true", help="no floor or table plane")
     p.add_argument("--depth-range", nargs=2, type=float, default=(0.5, 1.6), metavar=("NEAR", "FAR"),
                    help="workable camera-to-wrist distances in m (default 0.5 1.6)")
+    p.add_argument("--no-collisions", action="store_true",
+                   help="skip the collision and occlusion checks (a URDF without <collision> meshes)")
     p.add_argument("--plot", metavar="PNG", help="also draw the poses: axes and camera in 3-D, the predicted arcs")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -75,7 +78,8 @@ def add_plan_parsers(subparsers) -> None:
                     "neither end-on nor side-on, and the arm's other links not hiding the end effector. Writes a "
                     "CSV (a header row of the joint names, one row per pose, radians) that `track --joints` and "
                     "`predict --poses` read, and prints the predicted 1 sigma per axis. With --dataset: the next "
-                    "best pose(s) to add to an existing recording.")
+                    "best pose(s) to add to an existing recording (robot and camera from it; the guess: its "
+                    "calibration's estimate). Exit code 0: the poses determine the calibration; 3: they do not.")
     _add_common(p, dataset=True)
     p.add_argument("-n", type=int, default=None, metavar="N",
                    help="how many poses (default 6; 1 with --dataset: the next best pose)")
@@ -84,8 +88,6 @@ def add_plan_parsers(subparsers) -> None:
     p.add_argument("--candidates", type=int, default=PlanOptions.candidates, metavar="N",
                    help=f"valid random poses to choose from (default {PlanOptions.candidates})")
     p.add_argument("--seed", type=int, default=0, help="random seed of the search (default 0)")
-    p.add_argument("--no-collisions", action="store_true",
-                   help="skip the collision and occlusion checks (a URDF without <collision> meshes)")
     p.add_argument("-o", "--output", required=True, metavar="POSES_CSV", help="the joint-angle file to write")
     p.set_defaults(func=cmd_plan)
 
@@ -101,6 +103,14 @@ def add_plan_parsers(subparsers) -> None:
 
 
 def _options(args, **extra) -> PlanOptions:
+    flags = {"--guess-sigma": min(args.guess_sigma), "--spin-seconds": args.spin_seconds, "--fps": args.fps,
+             "--pixel-sigma": args.pixel_sigma, "--axis-floor-px": args.axis_floor_px, "--features": args.features}
+    for flag, value in flags.items():
+        strictly = flag in ("--spin-seconds", "--fps", "--pixel-sigma", "--features")
+        if not math.isfinite(value) or value < 0 or (strictly and value == 0):
+            raise InputError(f"{flag} must be a {'positive number' if strictly else 'number >= 0'}, got {value:g}")
+    if not 0 <= args.depth_range[0] < args.depth_range[1]:
+        raise InputError(f"--depth-range NEAR FAR must have 0 <= NEAR < FAR (m), got {args.depth_range}")
     options = PlanOptions(spin_seconds=args.spin_seconds, fps=args.fps, wrist_speed=args.wrist_speed,
                           pixel_sigma=args.pixel_sigma, axis_floor_px=args.axis_floor_px, n_features=args.features,
                           floor_height=None if args.no_floor else args.floor_height,
@@ -114,6 +124,18 @@ def _arm(args) -> Arm:
     if args.urdf:
         return Arm.from_urdf(args.urdf, wrist_joint=args.wrist_joint)
     return Arm.from_robot(args.robot, wrist_joint=args.wrist_joint)
+
+
+def _collisions(args, arm, options):
+    from .collisions import ArmCollisions
+    from .errors import ArmError
+
+    if args.no_collisions:
+        return None
+    try:
+        return ArmCollisions(arm, args.package_dir, options.floor_height)
+    except ArmError as error:
+        raise ArmError(f"{error}; --no-collisions plans without collision and occlusion checks") from None
 
 
 def _progress(args):
@@ -146,8 +168,6 @@ def _plot(args, arm, camera, prediction) -> None:
 
 
 def cmd_plan(args) -> int:
-    from .collisions import ArmCollisions
-
     output = check_output(args.output, args.overwrite)
     if args.plot:
         check_output(args.plot, args.overwrite)
@@ -156,7 +176,14 @@ def cmd_plan(args) -> int:
     options = _options(args, candidates=args.candidates, seed=args.seed)
     if args.dataset:
         dataset = Dataset.load(args.dataset)
-        arm = _arm(args) if (args.robot or args.urdf) else dataset.arm
+        arm = dataset.arm
+        if args.robot or args.urdf:
+            given = _arm(args).description()
+            differ = [k for k in ("name", "wrist_joint", "urdf_sha256") if given.get(k) != arm.description().get(k)]
+            if differ:
+                raise InputError(f"{args.dataset} was recorded with another robot model ("
+                                 + ", ".join(f"{k}: {arm.description().get(k)!r}" for k in differ)
+                                 + "); leave out --robot/--urdf to plan for the dataset's own")
         camera = load_camera(args.camera) if args.camera else dataset.camera
         prior = dataset_information(dataset, guess, options)
         print(f"{args.dataset}: {len(dataset)} spin(s) recorded; planning what to add")
@@ -165,7 +192,7 @@ def cmd_plan(args) -> int:
             raise InputError("plan needs --robot or --urdf and --camera (or --dataset to take them from)")
         arm, camera = _arm(args), load_camera(args.camera)
     n = args.n if args.n is not None else (1 if args.dataset else 6)
-    collisions = None if args.no_collisions else ArmCollisions(arm, args.package_dir, options.floor_height)
+    collisions = _collisions(args, arm, options)
     plan = plan_poses(arm, camera, guess, n, options, collisions=collisions, prior_information=prior,
                       progress=_progress(args))
     rows = [",".join(arm.joint_names)] + [",".join(repr(float(v)) for v in q) for q in plan.joint_angles]
@@ -176,20 +203,27 @@ def cmd_plan(args) -> int:
         print("WARNING: no collision or occlusion check was made (--no-collisions)")
     if args.plot:
         _plot(args, arm, camera, plan.prediction)
+    if not plan.prediction.observability.is_observable:
+        print(f"NOT ENOUGH: the {n} pose(s) planned do not determine the calibration"
+              + ("; one spin determines at most 3 of the 6 directions: plan three or more" if n < 3 and not
+                 args.dataset else "; plan more poses (-n)"))
+        return 3
     return 0
 
 
 def cmd_predict(args) -> int:
-    from .collisions import ArmCollisions
-
     if args.plot:
         check_output(args.plot, args.overwrite)
     arm, camera = _arm(args), load_camera(args.camera)
     poses = read_joint_file(args.poses, arm, degrees=args.degrees)
     if poses.is_time_series:
         raise InputError(f"{args.poses}: a time series of joint states; predict reads one row per pose")
+    for k, q in enumerate(poses.positions):
+        problem = arm.limit_problem(q)
+        if problem is not None:
+            raise InputError(f"{args.poses}, pose {k}: {problem}")
     options = _options(args)
-    collisions = ArmCollisions(arm, args.package_dir, options.floor_height)
+    collisions = _collisions(args, arm, options)
     prediction = predict_accuracy(arm, camera, camera_guess(args.camera_guess), list(poses.positions), options,
                                   collisions=collisions)
     print("\n".join(prediction_words(prediction)))

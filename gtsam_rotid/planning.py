@@ -19,6 +19,7 @@ one point determine nothing along the ray to it, so the criterion never chooses 
 from __future__ import annotations
 
 import math
+import re
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
@@ -39,6 +40,11 @@ from .simulate import SceneConfig, SpinScene
 from .trackparams import AXIS_FLOOR_PX
 from .uncertainty import Observability, analyse_observability, pose_information
 
+#: A camera guess farther than this (m) from the arm's base is taken for a mistake of units.
+MAX_GUESS_DISTANCE_M = 20.0
+#: Draws without one pose that satisfies the constraints after which the search gives up.
+HOPELESS_DRAWS = 4000
+
 #: (deg, deg, deg, mm, mm, mm) per unit of the Pose3 tangent (rad, m)
 UNITS = np.array([math.degrees(1.0)] * 3 + [1000.0] * 3)
 
@@ -58,10 +64,13 @@ class PlanOptions:
     #: pixel noise of a tracked point, and the tracker's floor on each image axis (px; 0 for simulated tracks)
     pixel_sigma: float = 0.5
     axis_floor_px: float = AXIS_FLOOR_PX["auto"]
-    #: the texture: features at these distances from the spinning axis and along it from the joint origin (m)
+    #: the texture: features at these distances from the spinning axis and along it from the joint origin (m);
+    #: None: the end effector's own surface (the spinning links' collision hulls: 10th-90th percentile along the
+    #: axis, half to all of the 90th-percentile radius) when collisions are checked, else the simulator's
+    #: (0.03, 0.06) and (0.0, 0.10)
     n_features: int = 12
-    radius_range: tuple = (0.03, 0.06)
-    offset_range: tuple = (0.0, 0.10)
+    radius_range: tuple | None = None
+    offset_range: tuple | None = None
     #: constraints: camera-to-wrist distance, angle of the axis to the viewing ray, image margin (px), lowest
     #: height of the spinning links (m, arm frame), floor plane height (None: no floor), largest fraction of the
     #: features' circles the arm's other links may hide
@@ -87,6 +96,9 @@ class PlanOptions:
     worst_axis_deg: float = 0.05
     #: the prediction's frame rate (information scales with the points; fewer points, each less noisy)
     prediction_fps: float = 10.0
+    #: a spinning joint with limits (the Panda's ±166°) turns back and forth over its range: the prediction then
+    #: sees that arc only, as often as the spin's length allows (False: the simulator's unlimited spin)
+    respect_wrist_limits: bool = True
     seed: int = 0
 
     def with_(self, **changes) -> PlanOptions:
@@ -99,6 +111,20 @@ class PlanOptions:
                            wrist_speed=self.wrist_speed, noise_var=self.pixel_sigma**2,
                            axis_view_angle_deg=self.axis_view_angle_deg, depth_range=self.depth_range,
                            image_margin=self.image_margin, min_height=self.min_height)
+
+    def with_texture(self, arm: Arm, collisions: ArmCollisions | None) -> PlanOptions:
+        """These options with ``radius_range`` and ``offset_range`` filled in (see their comment)."""
+        if self.radius_range is not None and self.offset_range is not None:
+            return self
+        radius, offset = (0.03, 0.06), (0.0, 0.10)
+        if collisions is not None:
+            points = collisions.spinning_points(400)
+            axis = arm.wrist_axis_local()
+            along = points @ axis
+            radial = np.linalg.norm(points - np.outer(along, axis), axis=1)
+            r = float(np.percentile(radial, 90))
+            radius, offset = (0.5 * r, r), (float(np.percentile(along, 10)), float(np.percentile(along, 90)))
+        return replace(self, radius_range=self.radius_range or radius, offset_range=self.offset_range or offset)
 
     def check(self) -> None:
         positive = {"spin_seconds": self.spin_seconds, "fps": self.fps, "pixel_sigma": self.pixel_sigma,
@@ -135,6 +161,8 @@ class Prediction:
     problems: list[str | None] = field(default_factory=list)
     #: the prediction includes an existing calibration's information (``prior_information``)
     with_prior: bool = False
+    #: the arc (deg) the spinning joint's limits allow, when shorter than the spin (it turns back and forth)
+    spin_range_deg: float | None = None
 
     @property
     def sigma(self) -> np.ndarray:
@@ -215,8 +243,20 @@ class _Predictor:
         self.arm, self.camera, self.options = arm, camera, options
         step = max(1, int(round(options.fps / options.prediction_fps)))
         self.fps = options.fps / step
-        self.config = options.scene_config(camera).with_(fps=self.fps, noise_var=0.0, min_track_length=3)
-        self.sigma_px = options.pixel_sigma / math.sqrt(step)  # fewer points, each carrying `step` points' worth
+        spin = abs(options.wrist_speed) * options.spin_seconds
+        span = arm.wrist_range() if options.respect_wrist_limits else None
+        #: the arc (rad) the spinning joint's limits allow, when shorter than the spin; the spin starts at a limit
+        self.limited_span = span if span is not None and span < spin else None
+        duration, repeats = options.spin_seconds, 1.0
+        self.wrist_start = None
+        if self.limited_span is not None:
+            duration, repeats = self.limited_span / abs(options.wrist_speed), spin / self.limited_span
+            w = arm.wrist_index
+            self.wrist_start = arm.lower_limits[w] if options.wrist_speed > 0 else arm.upper_limits[w]
+        self.config = options.scene_config(camera).with_(fps=self.fps, noise_var=0.0, min_track_length=3,
+                                                         duration=duration)
+        # fewer points, each carrying `step` points' worth (and the arc's repeats, back and forth)
+        self.sigma_px = options.pixel_sigma / math.sqrt(step * repeats)
         self.features = typical_features(options)
         self.tie_covariance = 2.0 * options.axis_floor_px**2 * np.eye(2)
         self._rng = np.random.default_rng(0)
@@ -238,6 +278,9 @@ class _Predictor:
                              min_track_points=MIN_ELLIPSE_POINTS, min_track_extent_px=MIN_TRACK_EXTENT_PX)
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         values.insert(builder.pose_key, scene.arm_T_camera)
+        if self.wrist_start is not None:
+            joint_angles = np.array(joint_angles, dtype=float)
+            joint_angles[self.arm.wrist_index] = self.wrist_start
         try:
             measurement, _ = scene.measurement(joint_angles, self._rng)
             builder.add_measurement(graph, values, 0, measurement, tie_covariance=self.tie_covariance)
@@ -321,10 +364,12 @@ class _Constraints:
         return None
 
 
+_NUMBER = re.compile(r"(?<![\w.])-?\d+(\.\d+)?(?![\w.])")
+
+
 def _reason(problem: str) -> str:
-    """A refusal's kind, for counting: its words without the numbers."""
-    words = [w for w in problem.split() if not any(c.isdigit() or c == "%" for c in w)]
-    return " ".join(words[:4])
+    """A refusal's kind, for counting: its words with each number (not a digit inside a name) written #."""
+    return _NUMBER.sub("#", problem)
 
 
 def _check_inputs(arm: Arm, camera: Camera, guess: gtsam.Pose3, options: PlanOptions) -> None:
@@ -334,6 +379,10 @@ def _check_inputs(arm: Arm, camera: Camera, guess: gtsam.Pose3, options: PlanOpt
         raise PlanningError(f"camera must be a gtsam_rotid Camera, got {type(camera).__name__}")
     if not isinstance(guess, gtsam.Pose3):
         raise PlanningError(f"the camera guess must be a gtsam.Pose3 (arm_T_camera), got {type(guess).__name__}")
+    distance = float(np.linalg.norm(guess.translation()))
+    if not math.isfinite(distance) or distance > MAX_GUESS_DISTANCE_M:
+        raise PlanningError(f"the camera guess is {distance:.4g} m from the arm's base; its X Y Z are metres (and "
+                            "ROLL PITCH YAW degrees)")
     options.check()
 
 
@@ -346,7 +395,7 @@ def predict_accuracy(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, joint_
     ``prior_information`` (6x6): an existing calibration's information, added to the poses'. Each pose's
     constraint problems at the guess are listed in ``problems`` (a pose that breaks one is still predicted).
     """
-    options = PlanOptions() if options is None else options
+    options = (PlanOptions() if options is None else options).with_texture(arm, collisions)
     _check_inputs(arm, camera, arm_T_camera, options)
     poses = [arm.joint_angle_vector(q) for q in joint_angles]
     predictor = _Predictor(arm, camera, options)
@@ -355,17 +404,19 @@ def predict_accuracy(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, joint_
     scenes = predictor.sample_scenes(arm_T_camera)
     infos = np.array([[predictor.information(scene, q) for scene in scenes] for q in poses])
     return _prediction(arm_T_camera, poses, infos.reshape(len(poses), len(scenes), 6, 6), prior, options,
-                       [constraints.problem(q) for q in poses])
+                       [constraints.problem(q) for q in poses], predictor)
 
 
-def _prediction(guess, poses, infos: np.ndarray, prior: np.ndarray, options: PlanOptions, problems) -> Prediction:
+def _prediction(guess, poses, infos: np.ndarray, prior: np.ndarray, options: PlanOptions, problems,
+                predictor: _Predictor | None = None) -> Prediction:
     """``infos`` (poses, samples, 6, 6) -> the Prediction (the covariance averaged over the samples)."""
     total = prior[None] + infos.sum(axis=0) if len(poses) else np.repeat(prior[None], infos.shape[1], axis=0)
     at_guess = total[0]
     observability = analyse_observability(at_guess, guess)
     covariances = [analyse_observability(t, guess).covariance(t) for t in total]
+    span = None if predictor is None or predictor.limited_span is None else math.degrees(predictor.limited_span)
     return Prediction(guess, poses, at_guess, np.mean(covariances, axis=0), observability,
-                      [infos[k, 0] for k in range(len(poses))], options, list(problems), bool(np.any(prior)))
+                      [infos[k, 0] for k in range(len(poses))], options, list(problems), bool(np.any(prior)), span)
 
 
 def plan_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: int = 6, options: PlanOptions | None = None,
@@ -385,6 +436,7 @@ def plan_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: int = 6, 
         raise PlanningError(f"n must be a positive number of poses, got {n!r}")
     start = time.perf_counter()
     collisions = _collisions(arm, collisions, options)
+    options = options.with_texture(arm, collisions)
     predictor = _Predictor(arm, camera, options)
     constraints = _Constraints(predictor, arm_T_camera, collisions)
     candidates, draws, refused = _sample(arm, constraints, options.candidates, n, options,
@@ -399,7 +451,7 @@ def plan_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: int = 6, 
     chosen = _choose(infos, prior + REGULARISER, n, options)
     poses, chosen_infos = _refine([candidates[c] for c in chosen], infos[chosen], prior + REGULARISER, predictor,
                                   constraints, scenes, rng=np.random.default_rng(options.seed + 1), options=options)
-    prediction = _prediction(arm_T_camera, poses, chosen_infos, prior, options, [None] * n)
+    prediction = _prediction(arm_T_camera, poses, chosen_infos, prior, options, [None] * n, predictor)
     before = None
     if prior_information is not None:
         before = _prediction(arm_T_camera, [], infos[:0], prior, options, []).sigma
@@ -416,6 +468,8 @@ def _sample(arm: Arm, constraints: _Constraints, count: int, need: int, options:
     deadline = time.perf_counter() + options.search_seconds
     while len(candidates) < count and draws < options.max_draws:
         if len(candidates) >= max(need, count // 3) and time.perf_counter() > deadline:
+            break
+        if not candidates and draws >= HOPELESS_DRAWS:
             break
         # the workable region can be a small part of joint space: half the draws near a pose already found, a
         # quarter aimed by inverse kinematics at a wrist in view, a quarter anywhere
@@ -445,10 +499,11 @@ def _sample(arm: Arm, constraints: _Constraints, count: int, need: int, options:
             refused[_reason(problem)] += 1
     if len(candidates) < need:
         listed = ", ".join(f"{reason} ({n})" for reason, n in refused.most_common(5))
-        raise PlanningError(f"only {len(candidates)} of {draws} random arm poses satisfy the constraints at this "
+        raise PlanningError(f"only {len(candidates)} of {draws} arm poses tried satisfy the constraints at this "
                             f"camera guess (need {need}); refused most often: {listed}. Check the guess (X Y Z in "
-                            f"metres, angles in degrees, the optical frame in the arm's root frame) or relax the "
-                            f"constraints (depth range, image margin, view angle)")
+                            f"metres, ROLL PITCH YAW in degrees, the camera's optical frame, z forward, in the arm's "
+                            f"root frame) or relax the constraints (depth range, image margin, view angle, guess "
+                            f"sigma)")
     return candidates, draws, dict(refused)
 
 
@@ -460,6 +515,7 @@ def random_valid_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: i
     options = PlanOptions() if options is None else options
     _check_inputs(arm, camera, arm_T_camera, options)
     collisions = _collisions(arm, collisions, options)
+    options = options.with_texture(arm, collisions)
     constraints = _Constraints(_Predictor(arm, camera, options), arm_T_camera, collisions)
     poses, _, _ = _sample(arm, constraints, n, n, options, np.random.default_rng(seed),
                           min_separation_deg=min_separation_deg)
@@ -531,7 +587,7 @@ def predicted_spins(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, joint_a
                     options: PlanOptions | None = None) -> list:
     """The noise-free tracks (:class:`gtsam_rotid.dataset.Measurement`, at ``prediction_fps``) the prediction sees
     for each pose at the guess: what the camera would record of the typical texture (for pictures)."""
-    options = PlanOptions() if options is None else options
+    options = (PlanOptions() if options is None else options).with_texture(arm, None)
     predictor = _Predictor(arm, camera, options)
     scene = predictor.scene(arm_T_camera)
     out = []

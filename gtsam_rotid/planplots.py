@@ -53,19 +53,21 @@ def plot_plan(arm: Arm, camera: Camera, prediction: Prediction, spins: list) -> 
     ax.set_zlabel("z (m)")
     ax.legend(loc="upper left", fontsize=7)
     s = prediction.sigma
-    ax.set_title(f"planned wrist axes; predicted 1σ {s[:3].max():.3g}° / {s[3:].max():.3g} mm (worst axes)",
-                 fontsize=9)
+    title = (f"planned wrist axes; predicted 1σ {s[:3].max():.3g}° / {s[3:].max():.3g} mm (worst axes)"
+             if prediction.observability.is_observable else
+             "planned wrist axes: DEGENERATE, they do not determine the calibration")
+    ax.set_title(title, fontsize=9)
     for k, spin in enumerate(spins):
         if spin is None:
             continue
         for track in spin.tracks:
             image.plot(track.pixels[:, 0], track.pixels[:, 1], ".", ms=1.0, color=colours[k])
-        image.plot([], [], ".", color=colours[k], label=f"pose {k}")
+        image.plot([], [], "o", ms=4, color=colours[k], label=f"pose {k}")
     image.set_xlim(-0.5, w - 0.5)
     image.set_ylim(h - 0.5, -0.5)
     image.set_aspect("equal")
     image.set_xlabel("u (px)")
     image.set_ylabel("v (px)")
     image.set_title("predicted arcs of a typical texture (noise-free), per pose", fontsize=9)
-    image.legend(loc="upper right", fontsize=7, markerscale=4)
+    image.legend(loc="upper right", fontsize=7)
     return fig

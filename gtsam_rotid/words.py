@@ -337,11 +337,15 @@ def prediction_words(prediction: Prediction) -> list[str]:
     lines.extend(observability_words(p.observability)[0 if p.observability.is_observable else 1:])
     floor = (f", each spin's image axis off by {o.axis_floor_px:g} px more (the tracker's floor)"
              if o.axis_floor_px > 0 else "")
-    lines.append(f"assumes {o.spin_seconds:g} s spins at {o.wrist_speed:g} rad/s and {o.fps:g} fps, {o.n_features} "
-                 f"features {100 * o.radius_range[0]:g}-{100 * o.radius_range[1]:g} cm from the spinning axis, "
-                 f"{o.pixel_sigma:g} px noise per tracked point{floor}, and the camera where the guess puts it (the "
-                 f"1σ is averaged over {o.guess_samples} camera poses {o.guess_sigma_mm:g} mm and "
-                 f"{o.guess_sigma_deg:g}° about it)")
+    spin = (f"{o.spin_seconds:g} s spins at {o.wrist_speed:g} rad/s (back and forth over the spinning joint's "
+            f"{p.spin_range_deg:.0f}° range)" if p.spin_range_deg is not None else
+            f"{o.spin_seconds:g} s spins at {o.wrist_speed:g} rad/s")
+    lines.append(f"assumes {spin} and {o.fps:g} fps, {o.n_features} "
+                 f"features {100 * o.radius_range[0]:.1f}-{100 * o.radius_range[1]:.1f} cm from the spinning axis and "
+                 f"{100 * o.offset_range[0]:.1f} to {100 * o.offset_range[1]:.1f} cm along it from the joint, "
+                 f"{o.pixel_sigma:g} px noise per tracked point{floor}, and the camera about where the guess puts "
+                 f"it (the 1σ is averaged over {o.guess_samples} camera poses drawn around the guess with 1σ "
+                 f"{o.guess_sigma_mm:g} mm and {o.guess_sigma_deg:g}°, each with its own texture)")
     for k, problem in enumerate(p.problems):
         if problem is not None:
             lines.append(f"pose {k}: {problem}")
@@ -361,5 +365,6 @@ def plan_words(plan: Plan) -> list[str]:
             if s.max() > 1e5:  # an undetermined direction (σ = 1000 km)
                 return "not determined"
             return f"{s[:3].max():.3g}° and {s[3:].max():.3g} mm"
-        lines.append(f"with them the worst 1σ goes from {worst(b)} to {worst(a)}")
+        lines.append(f"with the new pose{'s' if len(plan.joint_angles) > 1 else ''} the worst 1σ goes from "
+                     f"{worst(b)} to {worst(a)}")
     return lines + prediction_words(plan.prediction)

@@ -26,8 +26,9 @@ from gtsam_rotid.planning import (
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-#: a quick search: few candidates and guess samples
-QUICK = PlanOptions(candidates=40, guess_samples=2, pixel_sigma=math.sqrt(1.5), axis_floor_px=0.0)
+#: a quick search (few candidates and guess samples) for the simulator's scenes: its noise and texture
+QUICK = PlanOptions(candidates=40, guess_samples=2, pixel_sigma=math.sqrt(1.5), axis_floor_px=0.0,
+                    radius_range=(0.03, 0.06), offset_range=(0.0, 0.10))
 
 
 @pytest.fixture(scope="module")
@@ -75,6 +76,20 @@ def test_prediction_scales_with_noise_and_spin_length(scene, kinova):
     assert np.all(floored.sigma > base.sigma)
 
 
+def test_a_spinning_joint_with_limits_turns_back_and_forth():
+    """The Panda's joint 7 turns through 332°, less than a 20 s spin at 0.5 rad/s: the prediction sees that arc."""
+    panda = Arm.from_robot("panda")
+    config = simulate.SceneConfig(robot="panda", camera_eye=(1.1, -0.4, 0.8), camera_target=(0.4, 0.0, 0.4))
+    dataset, truth = simulate.simulate(config.with_(duration=1.0), seed=0, arm=panda)
+    poses = [m.joint_angles for m in truth.measurements]
+    options = QUICK.with_(guess_samples=1)
+    limited = predict_accuracy(panda, config.camera, truth.arm_T_camera, poses, options)
+    free = predict_accuracy(panda, config.camera, truth.arm_T_camera, poses, options.with_(respect_wrist_limits=False))
+    assert limited.spin_range_deg == pytest.approx(math.degrees(panda.wrist_range()))
+    assert free.spin_range_deg is None
+    assert np.all(limited.sigma > free.sigma)
+
+
 def test_single_crossing_poses_are_predicted_degenerate():
     dataset, truth = simulate.single_crossing_scene(seed=0, duration=2.0)
     prediction = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera,
@@ -106,6 +121,15 @@ def test_collisions_self_floor_and_lines_of_sight(kinova, collisions):
                      for g, m in zip(collisions.model.geometryObjects, geometry_data.oMg, strict=True)
                      if g.parentJoint > 1)
         assert (collisions.below_floor(q) is not None) == (lowest < 0.0)
+
+
+def test_the_default_texture_is_the_end_effectors_own_surface(kinova, collisions):
+    options = PlanOptions().with_texture(kinova, collisions)
+    # the Jaco2's hand and fingers lie along -z of its wrist joint, up to ~16 cm from it and ~11 cm from the axis
+    assert -0.17 < options.offset_range[0] < options.offset_range[1] < 0.0
+    assert 0.02 < options.radius_range[0] < options.radius_range[1] < 0.11
+    assert PlanOptions().with_texture(kinova, None).offset_range == (0.0, 0.10)
+    assert QUICK.with_texture(kinova, collisions) is QUICK
 
 
 def test_plan_satisfies_its_constraints_and_beats_random_poses(kinova, collisions):
@@ -188,6 +212,23 @@ def test_cli_plan_then_predict(tmp_path, capsys):
     assert "exists" in capsys.readouterr().err
     assert main(["predict", *common, "--poses", str(poses)]) == 0
     assert "PREDICTED 1σ" in capsys.readouterr().out
+    # one pose is never enough: plan says so (exit 3), predict calls it degenerate
+    assert main(["plan", *common, "-n", "1", "--candidates", "20", "-o", str(tmp_path / "one_planned.csv")]) == 3
+    assert "NOT ENOUGH" in capsys.readouterr().out
+    # a guess in millimetres is refused at once; a poses file in degrees is named with its hint
+    millimetres = ["-450", "250", "950", "125.6", "0", "72.6"]
+    assert main(["predict", "--robot", "kinova", "--camera", str(camera), "--camera-guess", *millimetres,
+                 "--poses", str(poses)]) == 1
+    assert "X Y Z are metres" in capsys.readouterr().err
+    panda = Arm.from_robot("panda")
+    degrees = tmp_path / "degrees.csv"
+    degrees.write_text(",".join(panda.joint_names) + "\n10,-20,30,-100,5,90,45\n")
+    assert main(["predict", "--robot", "panda", "--camera", str(camera), "--camera-guess", "1.1", "-0.4", "0.8",
+                 "-118", "0", "-60", "--poses", str(degrees)]) == 1
+    err = capsys.readouterr().err
+    assert "pose 0" in err and "degrees" in err
+    assert main(["plan", *common, "--guess-sigma", "-30", "3", "-o", str(tmp_path / "x.csv")]) == 1
+    assert "--guess-sigma must be" in capsys.readouterr().err
     # a degenerate set: one pose only
     one = tmp_path / "one.csv"
     one.write_text("\n".join(lines[:2]) + "\n")
