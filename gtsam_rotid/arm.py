@@ -162,6 +162,21 @@ class Arm:
         return {f.name: _pose3(f.placement) for f in self.model.frames
                 if f.type == pin.FrameType.BODY and f.parentJoint == 0}
 
+    def urdf_geometry(self, kind: str, package_dirs=None):
+        """The URDF's ``kind`` ("visual" or "collision") geometry as a Pinocchio ``GeometryModel``, mesh paths
+        resolved through ``package_dirs``; :class:`ArmError` for an arm without URDF text or meshes that do not
+        resolve. (example-robot-data arms: load ``example_robot_data.load(name)``'s models instead.)"""
+        if "urdf_xml" not in self._source:
+            raise ArmError("the arm has neither an example-robot-data name nor URDF text to read its meshes from")
+        geometry_type = pin.GeometryType.VISUAL if kind == "visual" else pin.GeometryType.COLLISION
+        dirs = [os.fspath(d) for d in (package_dirs or [])]
+        try:
+            return pin.buildGeomFromUrdfString(self.model, self._source["urdf_xml"], geometry_type,
+                                               package_dirs=dirs)
+        except Exception as exc:
+            raise ArmError(f"Pinocchio cannot read the URDF's {kind} meshes ({exc}); pass package_dirs so that "
+                           f"its mesh paths resolve") from None
+
     def description(self) -> dict:
         """What a calibration result records of the robot: its name, root link, spinning joint, end effector, the
         links fixed to the root (``root_T_link`` as 4x4 lists), every link's name and, for a URDF, the SHA-256 of its

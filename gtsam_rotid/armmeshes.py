@@ -94,19 +94,8 @@ def load_arm_meshes(arm: Arm, package_dirs: Sequence[str | os.PathLike] | None =
     source = arm.to_dict()
     if "robot" in source:
         meshes = _robot_meshes(source["robot"])
-    elif "urdf_xml" in source:
-        import pinocchio as pin
-
-        dirs = [os.fspath(d) for d in (package_dirs or [])]
-        try:
-            visual = pin.buildGeomFromUrdfString(arm.model, source["urdf_xml"], pin.GeometryType.VISUAL,
-                                                 package_dirs=dirs)
-        except Exception as exc:
-            raise ArmError(f"Pinocchio cannot read the URDF's visual meshes ({exc}); pass package_dirs so that "
-                           f"its mesh paths resolve") from None
-        meshes = _meshes_from_geometry_model(arm.model, visual)
     else:
-        raise ArmError("the arm has neither an example-robot-data name nor URDF text to read its meshes from")
+        meshes = _meshes_from_geometry_model(arm.model, arm.urdf_geometry("visual", package_dirs))
     if max(meshes.joint_ids) >= arm.model.njoints:
         raise ArmError("the visual model does not belong to the arm's kinematic model")
     return meshes

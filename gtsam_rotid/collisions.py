@@ -67,18 +67,9 @@ class ArmCollisions:
         source = arm.to_dict()
         if "robot" in source:
             full = _robot_geometry(source["robot"])
-        elif "urdf_xml" in source:
-            dirs = [os.fspath(d) for d in (package_dirs or [])]
-            try:
-                full = pin.buildGeomFromUrdfString(arm.model, source["urdf_xml"], pin.GeometryType.COLLISION,
-                                                   package_dirs=dirs)
-            except Exception as exc:
-                raise ArmError(f"Pinocchio cannot read the URDF's collision meshes ({exc}); pass package_dirs so "
-                               f"that its mesh paths resolve") from None
-            full.addAllCollisionPairs()
         else:
-            raise ArmError("the arm has neither an example-robot-data name nor URDF text to read its collision "
-                           "meshes from")
+            full = arm.urdf_geometry("collision", package_dirs)
+            full.addAllCollisionPairs()
         if full.ngeoms == 0:
             raise ArmError("the arm's URDF has no <collision> geometry to check collisions with")
         model = arm.model

@@ -9,7 +9,7 @@ from matplotlib.figure import Figure
 from .arm import Arm
 from .camera import Camera
 from .planning import Prediction
-from .plots import AXIS_HALF_LENGTH, FRUSTUM_FRACTION, _track_colours, new_figure
+from .plots import AXIS_HALF_LENGTH, FRUSTUM_FRACTION, _track_colours, cube_axes, draw_camera, new_figure
 
 
 def plot_plan(arm: Arm, camera: Camera, prediction: Prediction, spins: list) -> Figure:
@@ -21,8 +21,7 @@ def plot_plan(arm: Arm, camera: Camera, prediction: Prediction, spins: list) -> 
     image = fig.add_subplot(1, 2, 2)
     colours = _track_colours(len(prediction.joint_angles))
     pose = prediction.arm_T_camera
-    R, C = pose.rotation().matrix(), np.asarray(pose.translation(), dtype=float)
-    points = [C, np.zeros(3)]
+    points = [np.asarray(pose.translation(), dtype=float), np.zeros(3)]
     for k, q in enumerate(prediction.joint_angles):
         axis = arm.wrist_axis(q)
         segment = axis.points_at([-AXIS_HALF_LENGTH, AXIS_HALF_LENGTH])
@@ -33,24 +32,9 @@ def plot_plan(arm: Arm, camera: Camera, prediction: Prediction, spins: list) -> 
         points.extend(skeleton)
     points = np.array(points)
     size = float(np.max(np.ptp(points, axis=0))) or 1.0
-    depth = FRUSTUM_FRACTION * size
-    w, h = camera.width, camera.height
-    corners = np.array([[-0.5, -0.5, 1], [w - 0.5, -0.5, 1], [w - 0.5, h - 0.5, 1], [-0.5, h - 0.5, 1.0]])
-    far = C + depth * (corners @ np.linalg.inv(camera.K).T) @ R.T
-    for corner in far:
-        ax.plot(*np.column_stack([C, corner]), color="0.3", lw=0.8)
-    ax.plot(*np.vstack([far, far[:1]]).T, color="0.3", lw=0.8, label="camera (guess)")
-    for i, colour in enumerate(("tab:red", "tab:green", "tab:blue")):
-        ax.plot(*np.column_stack([C, C + 0.5 * depth * R[:, i]]), color=colour, lw=1.5)
+    draw_camera(ax, pose, camera, FRUSTUM_FRACTION * size, "camera (guess)")
     ax.scatter(0.0, 0.0, 0.0, color="k", marker="s", s=20, label="arm base")
-    centre, half = 0.5 * (points.min(axis=0) + points.max(axis=0)), 0.55 * size
-    ax.set_xlim(centre[0] - half, centre[0] + half)
-    ax.set_ylim(centre[1] - half, centre[1] + half)
-    ax.set_zlim(centre[2] - half, centre[2] + half)
-    ax.set_box_aspect((1, 1, 1))
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_zlabel("z (m)")
+    cube_axes(ax, points, size)
     ax.legend(loc="upper left", fontsize=7)
     s = prediction.sigma
     title = (f"planned wrist axes; predicted 1σ {s[:3].max():.3g}° / {s[3:].max():.3g} mm (worst axes)"
@@ -63,8 +47,8 @@ def plot_plan(arm: Arm, camera: Camera, prediction: Prediction, spins: list) -> 
         for track in spin.tracks:
             image.plot(track.pixels[:, 0], track.pixels[:, 1], ".", ms=1.0, color=colours[k])
         image.plot([], [], "o", ms=4, color=colours[k], label=f"pose {k}")
-    image.set_xlim(-0.5, w - 0.5)
-    image.set_ylim(h - 0.5, -0.5)
+    image.set_xlim(-0.5, camera.width - 0.5)
+    image.set_ylim(camera.height - 0.5, -0.5)
     image.set_aspect("equal")
     image.set_xlabel("u (px)")
     image.set_ylabel("v (px)")

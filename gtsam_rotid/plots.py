@@ -215,6 +215,36 @@ def _ellipsoid_surface(centre: np.ndarray, cov: np.ndarray, scale: float, n: int
     return points[..., 0], points[..., 1], points[..., 2]
 
 
+def draw_camera(ax, pose, camera, depth: float, label: str) -> None:
+    """A camera's frustum (its image corners at ``depth`` m; a 60 x 45 degree view without ``camera``) and its x, y,
+    z axes (red, green, blue) at ``pose`` (arm frame), on a 3-D axes."""
+    R, C = pose.rotation().matrix(), np.asarray(pose.translation(), dtype=float)
+    if camera is not None:
+        w, h = camera.width, camera.height
+        corners = np.array([[-0.5, -0.5, 1], [w - 0.5, -0.5, 1], [w - 0.5, h - 0.5, 1], [-0.5, h - 0.5, 1.0]])
+        rays = corners @ np.linalg.inv(camera.K).T
+    else:
+        rays = np.array([[-0.58, -0.41, 1], [0.58, -0.41, 1], [0.58, 0.41, 1], [-0.58, 0.41, 1.0]])
+    far = C + depth * rays @ R.T
+    for corner in far:
+        ax.plot(*np.column_stack([C, corner]), color="0.3", lw=0.8)
+    ax.plot(*np.vstack([far, far[:1]]).T, color="0.3", lw=0.8, label=label)
+    for i, colour in enumerate(("tab:red", "tab:green", "tab:blue")):
+        ax.plot(*np.column_stack([C, C + 0.5 * depth * R[:, i]]), color=colour, lw=1.5)
+
+
+def cube_axes(ax, points: np.ndarray, size: float) -> None:
+    """Equal-scaled 3-D axes (metres) around ``points``, ``size`` across."""
+    centre, half = 0.5 * (points.min(axis=0) + points.max(axis=0)), 0.55 * size
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_zlim(centre[2] - half, centre[2] + half)
+    ax.set_box_aspect((1, 1, 1))
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+
+
 def plot_pose_3d(result, dataset=None, *, ax=None, magnify: float | None = None) -> Figure:
     """Wrist axes (from the dataset, or from the result if it carries them), the camera frustum and axes, and the
     95 % position ellipsoid, in the arm-base frame (metres). The ellipsoid is magnified (``magnify``, default:
@@ -239,23 +269,8 @@ def plot_pose_3d(result, dataset=None, *, ax=None, magnify: float | None = None)
     points = np.array(points)
     size = float(np.max(np.ptp(points, axis=0))) or 1.0
     ax.scatter(0.0, 0.0, 0.0, color="k", marker="s", s=20, label="arm base")
-    # frustum: the image corners at a depth of FRUSTUM_FRACTION of the scene
     depth = FRUSTUM_FRACTION * size
-    camera = dataset.camera if dataset is not None else None
-    if camera is not None:
-        w, h = camera.width, camera.height
-        K_inv = np.linalg.inv(camera.K)
-        corners = np.array([[-0.5, -0.5, 1], [w - 0.5, -0.5, 1], [w - 0.5, h - 0.5, 1], [-0.5, h - 0.5, 1.0]])
-        rays = corners @ K_inv.T
-    else:  # a 60 x 45 degree field of view
-        rays = np.array([[-0.58, -0.41, 1], [0.58, -0.41, 1], [0.58, 0.41, 1], [-0.58, 0.41, 1.0]])
-    far = C + depth * rays @ R.T
-    for corner in far:
-        ax.plot(*np.column_stack([C, corner]), color="0.3", lw=0.8)
-    ring = np.vstack([far, far[:1]])
-    ax.plot(*ring.T, color="0.3", lw=0.8, label="camera frustum")
-    for i, colour in enumerate(("tab:red", "tab:green", "tab:blue")):
-        ax.plot(*np.column_stack([C, C + 0.5 * depth * R[:, i]]), color=colour, lw=1.5)
+    draw_camera(ax, pose, dataset.camera if dataset is not None else None, depth, "camera frustum")
     cov = ros_covariance(pose, result.covariance)[:3, :3]
     if result.covariance_usable:
         largest = math.sqrt(CHI2_95_3DOF * max(np.linalg.eigvalsh(cov).max(), 1e-30))
@@ -276,15 +291,7 @@ def plot_pose_3d(result, dataset=None, *, ax=None, magnify: float | None = None)
     geometry = None if not axes else axis_geometry([axes[k] for k in sorted(axes) if k in used])
     if geometry is not None and geometry.is_crossing:
         ax.scatter(*geometry.point, color="tab:red", marker="*", s=80, label="common point P of the wrist axes")
-    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
-    half = 0.55 * size
-    ax.set_xlim(centre[0] - half, centre[0] + half)
-    ax.set_ylim(centre[1] - half, centre[1] + half)
-    ax.set_zlim(centre[2] - half, centre[2] + half)
-    ax.set_box_aspect((1, 1, 1))
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_zlabel("z (m)")
+    cube_axes(ax, points, size)
     ax.set_title("arm_T_camera in the arm-base frame (camera axes: x red, y green, z blue)", fontsize=9)
     ax.legend(loc="upper left", fontsize=7)
     return fig
