@@ -155,13 +155,14 @@ def _progress(args):
     return update
 
 
-def _plot(args, arm, camera, prediction) -> None:
+def _plot(args, arm, camera, prediction, recorded=()) -> None:
     from .files import staged
     from .planplots import plot_plan
     from .plots import DPI
 
     figure = plot_plan(arm, camera, prediction, predicted_spins(arm, camera, prediction.arm_T_camera,
-                                                                prediction.joint_angles, prediction.options))
+                                                                prediction.joint_angles, prediction.options),
+                       recorded)
     with staged(args.plot, args.overwrite) as staging:
         figure.savefig(staging, dpi=DPI, format="png")
     print(f"drew {args.plot}")
@@ -171,7 +172,7 @@ def cmd_plan(args) -> int:
     output = check_output(args.output, args.overwrite)
     if args.plot:
         check_output(args.plot, args.overwrite)
-    prior = None
+    prior, recorded = None, []
     guess = camera_guess(args.camera_guess)
     options = _options(args, candidates=args.candidates, seed=args.seed)
     if args.dataset:
@@ -186,6 +187,7 @@ def cmd_plan(args) -> int:
                                  + "); leave out --robot/--urdf to plan for the dataset's own")
         camera = load_camera(args.camera) if args.camera else dataset.camera
         prior = dataset_information(dataset, guess, options)
+        recorded = [m.joint_angles for m in dataset]
         print(f"{args.dataset}: {len(dataset)} spin(s) recorded; planning what to add")
     else:
         if not (args.robot or args.urdf) or not args.camera:
@@ -202,7 +204,7 @@ def cmd_plan(args) -> int:
     if args.no_collisions:
         print("WARNING: no collision or occlusion check was made (--no-collisions)")
     if args.plot:
-        _plot(args, arm, camera, plan.prediction)
+        _plot(args, arm, camera, plan.prediction, recorded)
     if not plan.prediction.observability.is_observable:
         print(f"NOT ENOUGH: the {n} pose(s) planned do not determine the calibration"
               + ("; one spin determines at most 3 of the 6 directions: plan three or more" if n < 3 and not

@@ -12,10 +12,11 @@ from .planning import Prediction
 from .plots import AXIS_HALF_LENGTH, FRUSTUM_FRACTION, _track_colours, cube_axes, draw_camera, new_figure
 
 
-def plot_plan(arm: Arm, camera: Camera, prediction: Prediction, spins: list) -> Figure:
-    """Left: each pose's wrist axis (solid) and arm skeleton (thin), the camera's frustum and axes, in the arm-base
-    frame. Right: the arcs the camera would see of a typical texture in each pose (``spins``: from
-    :func:`gtsam_rotid.planning.predicted_spins`), one colour per pose, over the image."""
+def plot_plan(arm: Arm, camera: Camera, prediction: Prediction, spins: list, recorded=()) -> Figure:
+    """Left: each pose's wrist axis (solid) and arm skeleton (thin), the camera's frustum and axes, and the wrist
+    axes of poses already ``recorded`` (joint angles; dashed grey), in the arm-base frame. Right: the arcs the camera
+    would see of a typical texture in each pose (``spins``: from :func:`gtsam_rotid.planning.predicted_spins`), one
+    colour per pose, over the image."""
     fig = new_figure(12.0, 5.5)
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     image = fig.add_subplot(1, 2, 2)
@@ -30,6 +31,10 @@ def plot_plan(arm: Arm, camera: Camera, prediction: Prediction, spins: list) -> 
         ax.plot(*segment.T, color=colours[k], lw=2.5, label=f"pose {k}")
         points.extend(segment)
         points.extend(skeleton)
+    for k, q in enumerate(recorded):
+        segment = arm.wrist_axis(q).points_at([-AXIS_HALF_LENGTH, AXIS_HALF_LENGTH])
+        ax.plot(*segment.T, "--", color="0.5", lw=1.5, label="recorded poses" if k == 0 else None)
+        points.extend(segment)
     points = np.array(points)
     size = float(np.max(np.ptp(points, axis=0))) or 1.0
     draw_camera(ax, pose, camera, FRUSTUM_FRACTION * size, "camera (guess)")

@@ -261,7 +261,8 @@ def test_cli_plan_next_pose_for_a_recorded_dataset(tmp_path, capsys):
     guess = ["-0.45", "0.25", "0.95", "125.6", "0", "72.6"]
     out = tmp_path / "next.csv"
     assert main(["plan", "--dataset", str(recorded), "--camera-guess", *guess, "--candidates", "30",
-                 "--no-progress", "-o", str(out)]) == 0
+                 "--no-progress", "-o", str(out), "--plot", str(tmp_path / "next.png")]) == 0
+    assert (tmp_path / "next.png").stat().st_size > 10_000
     printed = capsys.readouterr().out
     assert "goes from not determined to" in printed and "all six degrees of freedom" in printed
     assert "PREDICTED 1σ from 1 new pose(s) and what is already recorded" in printed
