@@ -32,7 +32,7 @@ from .arm import Arm
 from .camera import Camera
 from .collisions import ArmCollisions
 from .dataset import Dataset
-from .errors import ArmError, InputError, SimulationError
+from .errors import ArmError, InputError
 from .geometry import circle_points
 from .graph import MIN_TRACK_EXTENT_PX, RotIdGraph
 from .initialise import MIN_ELLIPSE_POINTS
@@ -210,18 +210,22 @@ def typical_features(options: PlanOptions) -> tuple[np.ndarray, np.ndarray, np.n
     return radii, offsets, phases
 
 
+def _tangent(deg: float, mm: float) -> np.ndarray:
+    """(deg, mm) per axis -> the Pose3 tangent's (rad x3, m x3)."""
+    return np.array([math.radians(deg)] * 3 + [mm / 1000.0] * 3)
+
+
 def guess_samples(guess: gtsam.Pose3, options: PlanOptions) -> list[gtsam.Pose3]:
     """The guess and ``guess_samples - 1`` camera poses drawn about it (seeded: the same each run)."""
     rng = np.random.default_rng(options.seed + 7919)
-    sigma = np.array([math.radians(options.guess_sigma_deg)] * 3 + [options.guess_sigma_mm / 1000.0] * 3)
+    sigma = _tangent(options.guess_sigma_deg, options.guess_sigma_mm)
     return [guess] + [guess.retract(rng.normal(size=6) * sigma) for _ in range(options.guess_samples - 1)]
 
 
 def _criterion(covariances: np.ndarray, options: PlanOptions) -> np.ndarray:
     """Worst axis' 1σ in units of (``worst_axis_deg``, ``worst_axis_mm``), averaged over guess samples; any batch
     shape (..., S, 6, 6) -> (...)."""
-    scale = UNITS / np.array([options.worst_axis_deg] * 3 + [options.worst_axis_mm] * 3)
-    variances = np.diagonal(covariances, axis1=-2, axis2=-1) * scale**2
+    variances = np.diagonal(covariances, axis1=-2, axis2=-1) / _unit_scale(options) ** 2
     return np.sqrt(np.maximum(variances, 0.0).max(axis=-1)).mean(axis=-1)
 
 
@@ -232,7 +236,7 @@ REGULARISER = 1e-6 * np.eye(6)
 
 def _unit_scale(options: PlanOptions) -> np.ndarray:
     """The worst-axis units in the Pose3 tangent (rad, m)."""
-    return np.array([math.radians(options.worst_axis_deg)] * 3 + [options.worst_axis_mm / 1000.0] * 3)
+    return _tangent(options.worst_axis_deg, options.worst_axis_mm)
 
 
 class _Predictor:
@@ -296,7 +300,7 @@ class _Constraints:
         self.scene = predictor.scene(guess)
         o = predictor.options
         # the guess' 1σ moves the image: the end effector must stay inside by constraint_sigmas of that motion
-        sigma = np.array([math.radians(o.guess_sigma_deg)] * 3 + [o.guess_sigma_mm / 1000.0] * 3)
+        sigma = _tangent(o.guess_sigma_deg, o.guess_sigma_mm)
         self._moved = [predictor.scene(guess.retract(sigma[i] * np.eye(6)[i])) for i in range(6) if sigma[i] > 0]
         self.options = predictor.options
         self.collisions = collisions
@@ -614,5 +618,5 @@ def dataset_information(dataset: Dataset, arm_T_camera: gtsam.Pose3, options: Pl
         except InputError:
             continue
     if graph.size() == 0:
-        raise SimulationError("no measurement of the dataset has two usable tracks")
+        raise PlanningError("no measurement of the dataset has two usable tracks")
     return pose_information(graph, values, builder.pose_key)
