@@ -83,8 +83,7 @@ def observability_words(obs: Observability) -> list[str]:
     Pose3 tangent (rad, m): in mm for a translation, degrees for a rotation, both units named where it mixes
     them."""
     words = []
-    for i, v, sigma in zip(obs.unobservable_indices, obs.unobservable_directions, obs.unobservable_sigmas,
-                           strict=True):
+    for v, sigma in zip(obs.unobservable_directions, obs.unobservable_sigmas, strict=True):
         t_arm = obs.arm_R_camera @ v[3:]
         r_arm = obs.arm_R_camera @ v[:3]
         rotation, translation = np.linalg.norm(v[:3]), np.linalg.norm(v[3:])
@@ -95,18 +94,19 @@ def observability_words(obs: Observability) -> list[str]:
         elif translation < 0.1:  # a rotation
             what = f"poorly determined (1-sigma {np.degrees(sigma * rotation):.3g}°)"
         else:
-            what = (f"poorly determined (1-sigma {sigma:.3g} along it, in the tangent's units rad and m: "
-                    f"{np.degrees(sigma * rotation):.3g}° of rotation with {1000 * sigma * translation:.3g} mm of "
-                    "translation)")
+            what = (f"poorly determined (1-sigma {np.degrees(sigma * rotation):.3g}° of that turn with its "
+                    f"{1000 * sigma * translation:.3g} mm)")
         if rotation < 0.1:
             direction = np.round(t_arm / np.linalg.norm(t_arm), 3)
             words.append(f"the camera position along the arm-frame direction {direction} is {what}")
         elif translation < 0.1:
             axis = np.round(r_arm / np.linalg.norm(r_arm), 3)
             words.append(f"the camera rotation about the arm-frame axis {axis} is {what}")
-        else:
-            words.append(f"a combined rotation (arm-frame axis {np.round(r_arm, 3)}) and translation "
-                         f"({np.round(t_arm, 3)}) of the camera is {what} (eigenvector {i})")
+        else:  # a screw: the turn and the shift that go with it, one sign
+            per_degree = 1000.0 * translation / np.degrees(rotation)
+            words.append(f"turning the camera about the arm-frame axis {np.round(r_arm / rotation, 3)} while "
+                         f"moving it {per_degree:.3g} mm per degree along the arm-frame direction "
+                         f"{np.round(t_arm / translation, 3)} is {what}")
     if obs.is_observable:
         return [f"all six degrees of freedom of arm_T_camera are determined (condition number "
                 f"{obs.condition_number:.3g})"]

@@ -132,19 +132,23 @@ def test_a_null_translation_is_named_by_its_direction_in_the_arm_frame():
     assert abs(printed @ t) < 0.9  # ... not the camera-frame one
 
 
-def test_a_null_rotation_with_translation_is_named_as_both_in_the_arm_frame_with_its_eigenvector():
+def test_a_null_rotation_with_translation_is_named_as_a_turn_with_its_shift_per_degree_in_the_arm_frame():
     null = np.array([0.3, 0.0, 0.0, 0.0, 0.5, 0.2])
     null /= np.linalg.norm(null)
     obs = analyse_observability(with_null(null), POSE)
     words = observability_words(obs)
     assert words[0].startswith("DEGENERATE") and len(words) == 2
-    assert "combined rotation" in words[1] and "not determined at all" in words[1]
-    assert after(words[1], "eigenvector") == obs.unobservable_indices[0] == 0
+    assert words[1].startswith("turning the camera") and "not determined at all" in words[1]
+    assert "eigenvector" not in words[1]
     R = POSE.rotation().matrix()
-    axis, shift = bracketed(words[1], "axis"), bracketed(words[1], "translation (")
-    sign = np.sign(axis @ (R @ null[:3]))
-    np.testing.assert_allclose(axis, sign * R @ null[:3], atol=1e-3)
-    np.testing.assert_allclose(shift, sign * R @ null[3:], atol=1e-3)  # the same sign: one direction
+    axis, shift = bracketed(words[1], "axis"), bracketed(words[1], "direction")
+    rotation, translation = R @ null[:3], R @ null[3:]
+    sign = np.sign(axis @ rotation)
+    np.testing.assert_allclose(axis, sign * rotation / np.linalg.norm(rotation), atol=1e-3)
+    # the same sign: one direction of the tangent, a turn and the shift that goes with it
+    np.testing.assert_allclose(shift, sign * translation / np.linalg.norm(translation), atol=1e-3)
+    per_degree = 1000 * np.linalg.norm(translation) / np.degrees(np.linalg.norm(rotation))
+    assert after(words[1], "moving it") == pytest.approx(per_degree, rel=5e-3)  # printed to 3 digits
 
 
 def test_a_poorly_determined_direction_gives_its_sigma_and_one_within_the_limit_is_not_named():
@@ -175,17 +179,17 @@ def test_a_poorly_determined_sigma_has_its_unit_mm_for_translation_degrees_for_r
     assert abs(printed @ POSE.rotation().matrix()[:, 0]) == pytest.approx(1.0, abs=2e-3)
 
 
-def test_a_poorly_determined_direction_that_mixes_rotation_and_translation_names_the_tangent_units():
+def test_a_poorly_determined_direction_that_mixes_rotation_and_translation_gives_its_sigma_in_degrees_and_mm():
     mixed = np.array([0.3, 0.0, 0.0, 0.0, 0.5, 0.2])
     mixed /= np.linalg.norm(mixed)
     basis, _, _ = np.linalg.svd(mixed.reshape(6, 1), full_matrices=True)
     obs = analyse_observability(basis @ np.diag([1 / 0.2**2, 1e6, 2e6, 5e6, 1e7, 3e7]) @ basis.T, POSE)  # 1σ 0.2
     words = observability_words(obs)[1]
-    assert "combined rotation" in words and "poorly determined" in words
-    assert after(words, "1-sigma") == pytest.approx(0.2, rel=1e-3) and "rad and m" in words
-    # what that moves: 0.2 x the unit vector's parts, in degrees and mm
-    assert after(words, "rad and m:") == pytest.approx(np.degrees(0.2 * np.linalg.norm(mixed[:3])), rel=1e-2)
-    assert after(words, "° of rotation with") == pytest.approx(200 * np.linalg.norm(mixed[3:]), rel=1e-2)
+    assert words.startswith("turning the camera") and "poorly determined" in words
+    # what that moves: 0.2 x the unit vector's parts, in degrees and mm (no tangent units)
+    assert after(words, "1-sigma") == pytest.approx(np.degrees(0.2 * np.linalg.norm(mixed[:3])), rel=1e-2)
+    assert after(words, "of that turn with its") == pytest.approx(200 * np.linalg.norm(mixed[3:]), rel=1e-2)
+    assert "rad and m" not in words
 
 
 def test_each_undetermined_direction_has_its_own_sentence():
