@@ -30,12 +30,12 @@ def _inverse2(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, 
     """Entries (a', b', c') of the inverse of the symmetric 2x2 matrices [[a, b], [b, c]] (m,), with a relative ridge
     of 1e-14 so that a singular (indeterminate) circle gets a finite, minimal-norm-like answer; zero matrices give
     zeros."""
-    ridge = 1e-14 * (a + c)
-    a, c = a + ridge, c + ridge
-    det = a * c - b * b
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):  # a track whose sums are not finite gives NaN, not noise
+        ridge = 1e-14 * (a + c)
+        a, c = a + ridge, c + ridge
+        det = a * c - b * b
         inv = np.where(det > 0.0, 1.0 / det, 0.0)
-    return c * inv, -b * inv, a * inv
+        return c * inv, -b * inv, a * inv
 
 
 def _steps(S: np.ndarray, curvature: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -45,7 +45,8 @@ def _steps(S: np.ndarray, curvature: np.ndarray) -> tuple[np.ndarray, np.ndarray
     a, b, c = _inverse2(S[:, 1, 1], S[:, 1, 2], S[:, 2, 2])
     decrement = 0.5 * (gd * (a * gd + b * gr) + gr * (b * gd + c * gr))  # Gauss-Newton's
     Hdd, Hdr, Hrr = S[:, 1, 1] + curvature[0], S[:, 1, 2] + curvature[1], S[:, 2, 2] + curvature[2]
-    newton = (Hdd > 0.0) & (Hdd * Hrr - Hdr * Hdr > 0.0)
+    with np.errstate(invalid="ignore"):  # NaN sums: not Newton's (the comparison is False)
+        newton = (Hdd > 0.0) & (Hdd * Hrr - Hdr * Hdr > 0.0)
     a, b, c = (np.where(newton, x, y) for x, y in zip(_inverse2(Hdd, Hdr, Hrr), (a, b, c), strict=True))
     return np.column_stack([-(a * gd + b * gr), -(b * gd + c * gr)]), decrement
 

@@ -245,10 +245,11 @@ class CoaxialTracks:
             return
         s, c, rows, V, f = ev.s, ev.c, ev.rows, ev.V, ev.f
         r = rows[_R][:, None]
-        fc = f * c
-        np.multiply(fc, -(rows[_DDRR][:, None] + r * s), out=V[3])
-        np.multiply(fc, rows[_D][:, None], out=V[4])
-        np.multiply(f, 2.0 * r + rows[_OPDR][:, None] * s - r * (c * c), out=V[5])
+        with np.errstate(invalid="ignore"):  # a pixel whose phase has no real solution carries NaN (as in V[0:3])
+            fc = f * c
+            np.multiply(fc, -(rows[_DDRR][:, None] + r * s), out=V[3])
+            np.multiply(fc, rows[_D][:, None], out=V[4])
+            np.multiply(f, 2.0 * r + rows[_OPDR][:, None] * s - r * (c * c), out=V[5])
         ev.has_line_jacobian = True
 
     def _same_quadrant(self, R, d, r, rows, lay: _Layout, idx, si, ci) -> np.ndarray:
