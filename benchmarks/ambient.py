@@ -38,8 +38,13 @@ table (tracker columns as saved), in seconds: for re-evaluating an estimator cha
 ``--spin-model free|rigid`` and ``--axis-floor-px PX`` calibrate with those ``CalibrationOptions``; ``--json FILE``
 also writes every row's numbers.
 
+``--poses planned`` takes the arm poses from :func:`gtsam_rotid.planning.plan_poses` at a guess of the camera (the
+true pose moved by a random 30 mm and 3 degrees per axis, as ``benchmarks/planning.py``) instead of the simulator's
+sampler; the first six the renderer accepts are kept (two spares are planned).
+
 Run: ``python benchmarks/ambient.py [--robots kinova,ur5,panda] [--coverings photo,text,dots] [--seeds 0,1]
-[--variants nominal,short,half,blur] [--duration 20] [--features blobs|corners|auto] [--jobs 2] [--save DIR]``,
+[--variants nominal,short,half,blur] [--duration 20] [--features blobs|corners|auto] [--poses sampled|planned]
+[--jobs 2] [--save DIR]``,
 or ``python benchmarks/ambient.py --load DIR``; ``--quick`` (one 3 s scene) checks that it runs.
 """
 
@@ -96,24 +101,54 @@ VARIANTS = {
 SCENE_FILE, DATASET_DIR = "scene.json", "dataset"
 
 
-def scene_name(robot: str, covering: str, variant: str, seed: int) -> str:
-    return f"{robot}_{covering}_{variant}_seed{seed}"
+#: ``--poses planned``: the camera guess given to the planner is the true pose moved by a random GUESS_MM and
+#: GUESS_DEG (1 sigma per axis, seeded by the scene's seed), as ``benchmarks/planning.py`` does; PLANNED_SPARES more
+#: poses are planned than kept, in case the mesh renderer finds the hand hidden on some (the plan's first are kept)
+GUESS_MM, GUESS_DEG, PLANNED_SPARES = 30.0, 3.0, 2
+
+
+def scene_name(robot: str, covering: str, variant: str, seed: int, poses: str = "sampled") -> str:
+    return f"{robot}_{covering}_{variant}_seed{seed}" + ("" if poses == "sampled" else f"_{poses}")
+
+
+def scene_spins(robot: str, seed: int, duration: float, poses: str = "sampled"):
+    """The scene's simulated dataset and truth: the simulator's sampled poses (CANDIDATES of them), or poses that
+    ``planning.plan_poses`` chose at a perturbed guess of the camera (POSES + PLANNED_SPARES; the simulator's own
+    pose checks off, as in ``benchmarks/planning.py``: the recording happens wherever the true camera sees)."""
+    config = SceneConfig(robot=robot, duration=duration, n_measurements=CANDIDATES, **PLACEMENTS[robot])
+    if poses == "sampled":
+        return simulate.simulate(config, seed)
+    from gtsam_rotid.arm import Arm
+    from gtsam_rotid.geometry import look_at
+    from gtsam_rotid.planning import PlanOptions, plan_poses
+
+    truth_pose = look_at(config.camera_eye, config.camera_target, config.camera_up)
+    sigma = np.array([np.radians(GUESS_DEG)] * 3 + [GUESS_MM / 1000.0] * 3)
+    guess = truth_pose.retract(np.random.default_rng(10_000 + seed).normal(size=6) * sigma)
+    arm = Arm.from_robot(robot)
+    options = PlanOptions(depth_range=config.depth_range, guess_sigma_mm=GUESS_MM, guess_sigma_deg=GUESS_DEG,
+                          respect_wrist_limits=False, spin_seconds=duration, seed=seed)
+    plan = plan_poses(arm, config.camera, guess, POSES + PLANNED_SPARES, options)
+    relaxed = config.with_(joint_angles=tuple(tuple(float(x) for x in q) for q in plan.joint_angles),
+                           n_measurements=len(plan.joint_angles), image_margin=-1e6,
+                           axis_view_angle_deg=(0.0, 90.0), depth_range=(0.0, 1e6), min_height=-1e6)
+    return simulate.simulate(relaxed, seed, arm=arm)
 
 
 def run_scene(robot: str, covering: str, seed: int, variant: str, duration: float, params: TrackerParams,
-              save: str | None = None, options: CalibrationOptions | None = None) -> dict:
+              save: str | None = None, options: CalibrationOptions | None = None, poses: str = "sampled") -> dict:
     """Render, track and calibrate one scene; a dict of the measured numbers (or why it could not run). With
     ``save``, the tracked dataset and the scene's numbers are written under that directory first."""
     cv2.setNumThreads(1)
     length, changes = VARIANTS[variant]
     duration = duration if length is None else length
-    out = {"robot": robot, "covering": covering, "variant": variant, "seed": seed, "duration": duration}
+    out = {"robot": robot, "covering": covering, "variant": variant, "seed": seed, "duration": duration,
+           "poses": poses}
     dataset = truth = None
     try:
         # the simulator's pose sampler knows no meshes: draw spare poses and keep the first POSES the mesh
         # renderer accepts (the hand in the image and not hidden behind the arm for most of the spin)
-        dataset, truth = simulate.simulate(SceneConfig(robot=robot, duration=duration, n_measurements=CANDIDATES,
-                                                       **PLACEMENTS[robot]), seed)
+        dataset, truth = scene_spins(robot, seed, duration, poses)
         meshes = mr.load_arm_meshes(dataset.arm)
         config = mr.MeshRenderConfig(covering=covering, seed=seed, **changes)
         measurements, kept, errors, track_time, frames, off, skipped = [], [], [], 0.0, 0, 0, []
@@ -164,7 +199,7 @@ def run_scene(robot: str, covering: str, seed: int, variant: str, duration: floa
     tracked = None
     try:
         tracked = Dataset(dataset.arm, dataset.camera, usable_measurements,
-                          metadata={**dataset.metadata, "scene": scene_name(robot, covering, variant, seed),
+                          metadata={**dataset.metadata, "scene": scene_name(robot, covering, variant, seed, poses),
                                     "tracker": tracker_metadata(params, corner_tracks)})
     except RotIdError as error:
         out["refused"] = f"{type(error).__name__}: {error}"
@@ -176,7 +211,8 @@ def run_scene(robot: str, covering: str, seed: int, variant: str, duration: floa
 
 
 def _save_scene(directory: str, row: dict, tracked: Dataset | None, truth) -> None:
-    root = Path(directory) / scene_name(row["robot"], row["covering"], row["variant"], row["seed"])
+    root = Path(directory) / scene_name(row["robot"], row["covering"], row["variant"], row["seed"],
+                                        row.get("poses", "sampled"))
     root.mkdir(parents=True, exist_ok=True)
     if tracked is not None:
         tracked.save(root / DATASET_DIR, overwrite=True)
@@ -262,7 +298,8 @@ def print_table(rows: list[dict]) -> None:
     print("|" + " --- |" * 17)
     usable_chi2 = []
     for row in rows:
-        head = f"| {row['robot']} | {row['covering']} | {row['variant']} | {row['seed']} |"
+        planned = " (planned poses)" if row.get("poses", "sampled") != "sampled" else ""
+        head = f"| {row['robot']} | {row['covering']} | {row['variant']}{planned} | {row['seed']} |"
         if "failed" in row:
             print(f"{head} not rendered: {row['failed'][:120]} |" + " |" * 12)
             continue
@@ -318,6 +355,8 @@ def main(argv=None) -> int:
     parser.add_argument("--axis-floor-px", type=float, default=None,
                         help="CalibrationOptions.axis_floor_px (default: what the tracker wrote into the dataset)")
     parser.add_argument("--json", default=None, metavar="FILE", help="also write the rows (every number) to FILE")
+    parser.add_argument("--poses", default="sampled", choices=("sampled", "planned"),
+                        help="the simulator's sampled arm poses, or gtsam_rotid.planning's at a perturbed guess")
     args = parser.parse_args(argv)
     options = CalibrationOptions(axis_floor_px=args.axis_floor_px,
                                  **({} if args.spin_model is None else {"spin_model": args.spin_model}))
@@ -347,10 +386,10 @@ def main(argv=None) -> int:
           f"features={params.features!r}", flush=True)
     if args.jobs > 1:
         from joblib import Parallel, delayed
-        rows = Parallel(n_jobs=args.jobs)(delayed(run_scene)(r, c, s, v, args.duration, params, args.save, options)
-                                          for r, c, v, s in scenes)
+        rows = Parallel(n_jobs=args.jobs)(delayed(run_scene)(r, c, s, v, args.duration, params, args.save, options,
+                                                             args.poses) for r, c, v, s in scenes)
     else:
-        rows = [run_scene(r, c, s, v, args.duration, params, args.save, options) for r, c, v, s in scenes]
+        rows = [run_scene(r, c, s, v, args.duration, params, args.save, options, args.poses) for r, c, v, s in scenes]
     _report(rows, args.json, started)
     return 0
 
