@@ -205,6 +205,8 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
             out.append(f"the measurements' axes disagree with one pose by χ²/dof = {c.chi2 / c.dof:.3g}, more than "
                        f"{MAX_CONSISTENCY_SCALE:g}x their pixel noise: the model does not describe the data (wrong "
                        "intrinsics, joint angles or kinematics, a moved camera, or tracks that are not on the hand)")
+        elif kind == "intrinsics":
+            out.append(intrinsics_words(result))
         elif kind == "unmeasured_scatter":
             c = result.axis_consistency
             out.append(f"the measurements' axes disagree with one pose beyond their pixel noise (χ² = {c.chi2:.3g} "
@@ -223,6 +225,29 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
             out.append(f"not trusted for a reason this version cannot describe ({kind!r}"
                        + (f"; measurements: {named}" if named else "") + ")")
     return out
+
+
+def intrinsics_words(result: CalibrationResult) -> str:
+    """Why the camera's intrinsics are a likely cause of the axes' disagreement (the numbers of
+    ``result.axis_consistency.intrinsics``), and what to check."""
+    c = result.axis_consistency
+    i = None if c is None else c.intrinsics
+    left_out = [m.index for m in result.measurements if m.outlier_kind == OutlierKind.DISAGREES]
+    then = (f"; if they are right, look at measurement(s) {', '.join(str(k) for k in left_out)} (left out as "
+            "disagreeing): their tracks or joint angles" if left_out else "")
+    if not i or i.get("chi2") is None:  # a result file that names the reason without its numbers
+        return ("the image axes disagree with any one pose seen through this camera and agree once its focal length "
+                "and principal point may change: the camera's intrinsics are the likelier cause, and the estimate is "
+                "not trusted. Check the intrinsics first (is the camera file this camera's, at this resolution? "
+                "recalibrate them)" + then)
+    return (f"the image axes of all {len(i['measurements'])} measurements (the left-out ones too) disagree with any "
+            f"one pose seen through this camera (χ² = {i['exact_chi2']:.3g} for {i['exact_dof']} dof, P = "
+            f"{i['exact_p']:.2g}) but agree once its focal length and principal point may change (χ² = "
+            f"{i['chi2']:.3g} for {i['dof']} dof, P = {i['p_value']:.2g}), by about {i['focal_percent']:+.2g} % of the "
+            f"focal length, {i['cx_px']:+.3g} px in cx and {i['cy_px']:+.3g} px in cy (a first-order reading; the "
+            "principal point and the focal length trade off). Wrong intrinsics move every axis together and leave an "
+            "estimate wrong by far more than its covariance says, so it is not trusted. Check the intrinsics first "
+            "(is the camera file this camera's, at this resolution? recalibrate them)" + then)
 
 
 def kinematics_words(joint_sigma_deg: float) -> str:

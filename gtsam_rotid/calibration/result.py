@@ -128,19 +128,26 @@ class AxisConsistency:
     floor_px: float = 0.0
     #: the pose covariance (6x6, Pose3 tangent) that floor adds; used when the result is assembled, not saved
     floor_covariance: np.ndarray | None = field(default=None, repr=False, compare=False)
+    #: the same axes, every measurement's (the left-out ones too), tested with the camera's focal length and principal
+    #: point free (:func:`gtsam_rotid.calibration.modelcheck.intrinsics_check`); None where not run
+    intrinsics: dict | None = None
 
     @property
     def consistent(self) -> bool:
         return self.scale == 1.0
 
     def to_dict(self) -> dict:
-        return {"chi2": self.chi2, "dof": self.dof, "p_value": self.p_value, "scale": self.scale,
-                "floor_px": self.floor_px}
+        out = {"chi2": self.chi2, "dof": self.dof, "p_value": self.p_value, "scale": self.scale,
+               "floor_px": self.floor_px}
+        if self.intrinsics is not None:
+            out["intrinsics"] = dict(self.intrinsics)
+        return out
 
     @classmethod
     def from_dict(cls, data: dict) -> AxisConsistency:
+        intrinsics = data.get("intrinsics")
         return cls(float(data["chi2"]), int(data["dof"]), float(data["p_value"]), float(data["scale"]),
-                   float(data.get("floor_px", 0.0)))
+                   float(data.get("floor_px", 0.0)), intrinsics=None if intrinsics is None else dict(intrinsics))
 
 
 #: An alternative whose chi-square exceeds the estimate's by less than this (likelihood ratio 1000:1) makes the
@@ -283,6 +290,8 @@ UNTRUSTED_KINDS = {
     "inconsistent": "the measurements disagree far beyond their noise",
     "too_uncertain": "the uncertainty is too large to be a calibration",
     "unmeasured_scatter": "the measurements disagree beyond their noise and are too few to measure by how much",
+    "intrinsics": "the camera's focal length or principal point explains the axes' disagreement better than the "
+                  "joint angles do",
 }
 
 

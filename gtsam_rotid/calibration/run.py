@@ -16,6 +16,7 @@ from .choice import choose_start
 from .initial import _initial, axis_miss_rms, poor_start
 from .joint import Fitted, _joint, _weighted
 from .lm import _builder
+from .modelcheck import intrinsics_check
 from .options import MIN_MEASUREMENTS, CalibrationOptions, Method
 from .result import CalibrationResult, MeasurementReport, OutlierKind
 from .setup import _Setup, arc_span_deg
@@ -116,6 +117,8 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
     weak_used = [m.index for m in result.measurements if m.weak and m.used]
     if weak_used and (c is None or c.p_value < RESTART_P or len(strong) < MIN_MEASUREMENTS):
         out["thin_evidence"] = weak_used
+    if c is not None and c.intrinsics is not None and c.intrinsics.get("likely"):
+        out["intrinsics"] = [int(k) for k in c.intrinsics.get("measurements", [])]
     if c is not None and c.dof > 0 and c.chi2 / c.dof > MAX_CONSISTENCY_SCALE:
         out["inconsistent"] = [m.index for m in result.measurements if m.used]
     elif c is not None and not c.consistent and c.dof <= 2:
@@ -146,16 +149,33 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
     if len(runs) > 1:  # the image axes cannot choose between the starts: the joint fit of the circles does
         choice = choose_start(arm, camera, measurements, setup, runs, anchors, options)
         if method is Method.JOINT:
-            return replace(choice.joint, alternatives=choice.alternatives, joint_sigma_deg=options.joint_sigma_deg,
+            return replace(_checked_intrinsics(camera, setup, choice.stage1, choice.joint),
+                           alternatives=choice.alternatives, joint_sigma_deg=options.joint_sigma_deg,
                            axis_floor_px=setup.floor_px), setup
         runs, anchors = [(runs[choice.best][0], choice.stage1)], [anchors[choice.best]]
         alternatives = choice.alternatives
     init_pose, stage1 = runs[0]
     fitted = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
     _check_scale(fitted.result, setup, fitted.stage1, options)
-    return replace(fitted.result, alternatives=alternatives,
+    return replace(_checked_intrinsics(camera, setup, fitted.stage1, fitted.result), alternatives=alternatives,
                    joint_sigma_deg=0.0 if method is Method.PAPER else options.joint_sigma_deg,
                    axis_floor_px=0.0 if method is Method.PAPER else setup.floor_px), setup
+
+
+def _checked_intrinsics(camera, setup: _Setup, stage1, result: CalibrationResult) -> CalibrationResult:
+    """The result with its axes' test extended by :func:`modelcheck.intrinsics_check` (every measurement's axis,
+    each at the pixel noise its report gives); unchanged where the axes are not tested (the paper's method, fewer than
+    four measurements used) or the check cannot run."""
+    c = result.axis_consistency
+    if c is None or not result.observability.is_observable:
+        return result
+    sigma2 = {r.index: float(r.residual_rms_px) ** 2 for r in result.measurements
+              if np.isfinite(r.residual_rms_px) and r.residual_rms_px > 0.0}
+    try:
+        check = intrinsics_check(camera, setup, stage1, result.arm_T_camera, sigma2)
+    except (np.linalg.LinAlgError, ValueError):
+        return result
+    return result if check is None else replace(result, axis_consistency=replace(c, intrinsics=check))
 
 
 def _close_enough(camera, setup: _Setup, runs, anchors, options) -> tuple[list, list]:

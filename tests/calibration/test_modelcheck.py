@@ -1,0 +1,68 @@
+"""calibration.modelcheck: a camera whose focal length or principal point is off is not hidden behind one
+measurement called an outlier (the result is flagged, with the intrinsics' change that explains the axes); exact
+intrinsics, and one wrong joint reading, are not blamed on the camera."""
+
+import numpy as np
+import pytest
+
+from gtsam_rotid import Camera, Dataset, Measurement, simulate
+from gtsam_rotid.calibration.result import CalibrationResult
+from gtsam_rotid.estimate import calibrate
+from gtsam_rotid.words import summary, untrusted_words
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return simulate.reference_scene(seed=0)  # 60 s spins: the axes pattern of a wrong camera stands clear
+
+
+def with_intrinsics(dataset, focal=1.0, cx=0.0, cy=0.0):
+    camera = dataset.camera
+    K = np.array(camera.K, dtype=float)
+    K[0, 0] *= focal
+    K[1, 1] *= focal
+    K[0, 2] += cx
+    K[1, 2] += cy
+    return Dataset(dataset.arm, Camera(K, camera.width, camera.height, camera.dist), list(dataset))
+
+
+def chi2_of_error(result, truth):
+    e = result.error_to(truth.arm_T_camera)
+    return float(e @ np.linalg.solve(result.covariance, e))
+
+
+@pytest.mark.parametrize("focal, cx, expected", [(1.05, 0.0, ("focal_percent", -5.0, 1.0)),
+                                                 (1.0, 20.0, ("cx_px", -20.0, 4.0))])
+def test_wrong_intrinsics_are_flagged_not_blamed_on_one_measurement(scene, focal, cx, expected, tmp_path):
+    dataset, truth = scene
+    result = calibrate(with_intrinsics(dataset, focal, cx))
+    assert chi2_of_error(result, truth) > 100.0  # what is at stake: a wrong number the covariance does not cover
+    assert not result.covariance_usable and "intrinsics" in result.untrusted
+    check = result.axis_consistency.intrinsics
+    assert check["likely"] and check["exact_p"] < 1e-3 and check["p_value"] >= 0.01
+    # the change that explains the axes undoes the error in the intrinsic that was off (the others take up a little:
+    # the principal point and the focal length trade off)
+    name, value, tolerance = expected
+    assert check[name] == pytest.approx(value, abs=tolerance)
+    words = " ".join(untrusted_words(result))
+    assert "Check the intrinsics first" in words and f"{check['focal_percent']:+.2g} %" in words
+    assert "COVARIANCE UNUSABLE" in summary(result)
+    result.save(tmp_path / "r.json")  # the test's numbers survive the file
+    assert CalibrationResult.load(tmp_path / "r.json").axis_consistency.intrinsics == check
+
+
+def test_exact_intrinsics_and_one_wrong_joint_reading_are_not_blamed_on_the_camera(scene):
+    dataset, truth = scene
+    result = calibrate(dataset)
+    assert result.covariance_usable and "intrinsics" not in result.untrusted
+    assert not result.axis_consistency.intrinsics["likely"]
+    measurements = list(dataset)
+    q = np.array(measurements[2].joint_angles, dtype=float)
+    q[1] += np.radians(1.0)  # the shoulder reading of one pose is off
+    wrong = Dataset(dataset.arm, dataset.camera, [*measurements[:2], Measurement(q, measurements[2].tracks),
+                                                  *measurements[3:]])
+    result = calibrate(wrong)
+    assert "intrinsics" not in result.untrusted and not result.axis_consistency.intrinsics["likely"]
+    assert result.axis_consistency.intrinsics["exact_p"] < 1e-3  # the axes did disagree: the joint reading
+    assert result.measurements[2].outlier and result.covariance_usable
+    assert chi2_of_error(result, truth) < 22.46
