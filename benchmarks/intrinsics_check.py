@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from gtsam_rotid import Camera, Dataset, Measurement, simulate
+from gtsam_rotid import Dataset, Measurement, simulate
 from gtsam_rotid.errors import RotIdError
 from gtsam_rotid.estimate import calibrate
 
@@ -37,18 +37,12 @@ CASES = {
 
 
 def case_dataset(dataset: Dataset, focal: float, cx: float, cy: float, wrong_joint: bool) -> Dataset:
-    camera = dataset.camera
-    K = np.array(camera.K, dtype=float)
-    K[0, 0] *= focal
-    K[1, 1] *= focal
-    K[0, 2] += cx
-    K[1, 2] += cy
     measurements = list(dataset)
     if wrong_joint:
         q = np.array(measurements[2].joint_angles, dtype=float)
         q[1] += np.radians(1.0)
         measurements[2] = Measurement(q, measurements[2].tracks)
-    return Dataset(dataset.arm, Camera(K, camera.width, camera.height, camera.dist), measurements)
+    return Dataset(dataset.arm, dataset.camera.with_intrinsics_changed(focal, cx, cy), measurements)
 
 
 def run(dataset: Dataset, truth) -> dict:

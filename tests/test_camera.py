@@ -93,3 +93,13 @@ def test_bad_point_shape_rejected():
 def test_a_principal_point_outside_the_image_is_refused(cx, cy):
     with pytest.raises(CameraError, match=r"principal point .* outside the 640x480 image"):
         Camera(np.array([[570.0, 0.0, cx], [0.0, 570.0, cy], [0.0, 0.0, 1.0]]), 640, 480)
+
+
+def test_a_camera_with_its_intrinsics_changed_keeps_the_rest():
+    camera = Camera(np.array([[500.0, 0.0, 320.0], [0.0, 510.0, 240.0], [0.0, 0.0, 1.0]]), 640, 480,
+                    np.array([0.1, -0.05, 0.0, 0.0]))
+    changed = camera.with_intrinsics_changed(1.05, 20.0, -10.0)
+    np.testing.assert_allclose(changed.K, [[525.0, 0.0, 340.0], [0.0, 535.5, 230.0], [0.0, 0.0, 1.0]])
+    assert (changed.width, changed.height) == (640, 480)
+    np.testing.assert_array_equal(changed.dist, camera.dist)
+    assert camera.K[0, 0] == 500.0  # the original is untouched

@@ -44,12 +44,7 @@ IMPROVEMENT_Z = 3.09
 
 
 def _camera(camera: Camera, theta) -> Camera:
-    K = np.array(camera.K, dtype=float)
-    K[0, 0] *= 1.0 + theta[0]
-    K[1, 1] *= 1.0 + theta[0]
-    K[0, 2] += theta[1]
-    K[1, 2] += theta[2]
-    return Camera(K, camera.width, camera.height, camera.dist)
+    return camera.with_intrinsics_changed(1.0 + theta[0], theta[1], theta[2])
 
 
 def _distances(camera: Camera, setup: _Setup, stage1, k: int, pose) -> np.ndarray:

@@ -5,7 +5,7 @@ intrinsics, and one wrong joint reading, are not blamed on the camera."""
 import numpy as np
 import pytest
 
-from gtsam_rotid import Camera, Dataset, Measurement, simulate
+from gtsam_rotid import Dataset, Measurement, simulate
 from gtsam_rotid.calibration.result import CalibrationResult
 from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.words import summary, untrusted_words
@@ -17,13 +17,7 @@ def scene():
 
 
 def with_intrinsics(dataset, focal=1.0, cx=0.0, cy=0.0):
-    camera = dataset.camera
-    K = np.array(camera.K, dtype=float)
-    K[0, 0] *= focal
-    K[1, 1] *= focal
-    K[0, 2] += cx
-    K[1, 2] += cy
-    return Dataset(dataset.arm, Camera(K, camera.width, camera.height, camera.dist), list(dataset))
+    return Dataset(dataset.arm, dataset.camera.with_intrinsics_changed(focal, cx, cy), list(dataset))
 
 
 def chi2_of_error(result, truth):
