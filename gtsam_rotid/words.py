@@ -69,7 +69,7 @@ def summary(result: CalibrationResult) -> str:
     lines.append("  " + kinematics_words(result.joint_sigma_deg))
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
-        flag = f"  OUTLIER ({outlier_words(m)})" if m.outlier else ""
+        flag = f"  OUTLIER ({outlier_words(m, 'intrinsics' in result.untrusted)})" if m.outlier else ""
         n_rejected = len(m.rejected_tracks)
         lines.append(f"  measurement {m.index}: {m.n_tracks} tracks, {m.n_points} points, residual RMS "
                      f"{m.residual_rms_px:.3f} px, weight {m.weight:.2f}, {n_rejected} "
@@ -129,14 +129,20 @@ def axis_consistency_sentence(c: AxisConsistency) -> str:
     if c.scale == 1.0 and c.p_value < UNSCALED_BELOW_P:  # only a test switched off leaves such a P unscaled
         return (f"{head}: the axes disagree beyond their pixel noise, but the covariance was not scaled (the test's "
                 "level, CalibrationOptions.axis_consistency_p, is below this P)")
+    i = c.intrinsics or {}
+    # the used axes may agree while the left-out one carries the camera's error
+    tail = ("" if not (i.get("likely") and i.get("chi2") is not None) else
+            f"; all the measurements' axes, the left-out ones too: χ² = {i['exact_chi2']:.3g} for {i['exact_dof']} "
+            f"dof through this camera, {i['chi2']:.3g} for {i['dof']} dof with its focal length and principal point "
+            "free (see the verdict)")
     if c.scale == 1.0:
-        return f"{head}: consistent with the pixel noise"
+        return f"{head}: consistent with the pixel noise" + tail
     floor = ("" if c.floor_px <= 0.0 else
              f", or, in the directions where that is larger, each axis is given a floor of {c.floor_px:.2g} px "
              "(a bias the tracks of one pose share does not shrink with more tracks)")
     return (f"{head}: the axes disagree beyond their pixel noise (errors shared across tracks: a tracker "
             f"bias, joint angles, kinematics or intrinsics); the covariance is scaled by {c.scale:.3g} "
-            + ("(χ²/(dof − 2): the scale's mean given the scatter)" if c.dof > 2 else "(χ²/dof)") + floor)
+            + ("(χ²/(dof − 2): the scale's mean given the scatter)" if c.dof > 2 else "(χ²/dof)") + floor + tail)
 
 
 def evidence_words(m: MeasurementReport) -> str:
@@ -145,9 +151,10 @@ def evidence_words(m: MeasurementReport) -> str:
     return f"{m.n_tracks} track{'' if m.n_tracks == 1 else 's'}, {m.n_points} points{arc}"
 
 
-def outlier_words(m: MeasurementReport) -> str:
+def outlier_words(m: MeasurementReport, camera_suspect: bool = False) -> str:
     """Why a measurement is an outlier (its ``outlier_kind`` and ``outlier_values``) and what to do; "" when it is
-    not one."""
+    not one. ``camera_suspect``: the result suspects the intrinsics (``untrusted["intrinsics"]``), which are then to
+    be checked before a disagreeing measurement's joint angles."""
     v = m.outlier_values
     if not m.outlier:
         return ""
@@ -165,6 +172,9 @@ def outlier_words(m: MeasurementReport) -> str:
                             "check its joint angles only if that does not help")
         if "short_arc_deg" in v:
             return words + "its tracks or its joint angles are off. " + short_arc_words({m.index: v["short_arc_deg"]})
+        if camera_suspect:
+            return words + ("check the camera's intrinsics first (a wrong camera moves every axis), then its joint "
+                            "angles")
         return words + "check its joint angles"
     if m.outlier_kind == OutlierKind.RESIDUAL:
         return f"residual RMS {m.residual_rms_px:.2f} px > {v['ratio']:g}x the median {v['median']:.2f} px"
@@ -243,11 +253,12 @@ def intrinsics_words(result: CalibrationResult) -> str:
     return (f"the image axes of all {len(i['measurements'])} measurements (the left-out ones too) disagree with any "
             f"one pose seen through this camera (χ² = {i['exact_chi2']:.3g} for {i['exact_dof']} dof, P = "
             f"{i['exact_p']:.2g}) but agree once its focal length and principal point may change (χ² = "
-            f"{i['chi2']:.3g} for {i['dof']} dof, P = {i['p_value']:.2g}), by about {i['focal_percent']:+.2g} % of the "
-            f"focal length, {i['cx_px']:+.3g} px in cx and {i['cy_px']:+.3g} px in cy (a first-order reading; the "
-            "principal point and the focal length trade off). Wrong intrinsics move every axis together and leave an "
-            "estimate wrong by far more than its covariance says, so it is not trusted. Check the intrinsics first "
-            "(is the camera file this camera's, at this resolution? recalibrate them)" + then)
+            f"{i['chi2']:.3g} for {i['dof']} dof, P = {i['p_value']:.2g}), changed by about "
+            f"{i['focal_percent']:+.2g} % in focal length, {i['cx_px']:+.3g} px in cx and {i['cy_px']:+.3g} px in cy "
+            "(a first-order reading; the principal point and the focal length trade off). Wrong intrinsics move every "
+            "axis together and leave an estimate wrong by far more than its covariance says, so it is not trusted. "
+            "Check the intrinsics first (is the camera file this camera's, at this resolution? recalibrate them)"
+            + then)
 
 
 def kinematics_words(joint_sigma_deg: float) -> str:

@@ -8,7 +8,7 @@ import pytest
 from gtsam_rotid import Dataset, Measurement, simulate
 from gtsam_rotid.calibration.result import CalibrationResult
 from gtsam_rotid.estimate import calibrate
-from gtsam_rotid.words import summary, untrusted_words
+from gtsam_rotid.words import axis_consistency_sentence, outlier_words, summary, untrusted_words
 
 
 @pytest.fixture(scope="module")
@@ -39,8 +39,15 @@ def test_wrong_intrinsics_are_flagged_not_blamed_on_one_measurement(scene, focal
     name, value, tolerance = expected
     assert check[name] == pytest.approx(value, abs=tolerance)
     words = " ".join(untrusted_words(result))
-    assert "Check the intrinsics first" in words and f"{check['focal_percent']:+.2g} %" in words
-    assert "COVARIANCE UNUSABLE" in summary(result)
+    assert "Check the intrinsics first" in words and f"{check['focal_percent']:+.2g} % in focal length" in words
+    text = summary(result)
+    assert "COVARIANCE UNUSABLE" in text
+    left_out = [m for m in result.measurements if m.outlier]  # not blamed on its joints before the camera
+    assert all("check the camera's intrinsics first" in outlier_words(m, True) for m in left_out)
+    assert "check its joint angles" not in text
+    # the axes' test of the measurements used may pass: its sentence also gives every axis' test
+    sentence = axis_consistency_sentence(result.axis_consistency)
+    assert f"χ² = {check['exact_chi2']:.3g} for {check['exact_dof']} dof through this camera" in sentence
     result.save(tmp_path / "r.json")  # the test's numbers survive the file
     assert CalibrationResult.load(tmp_path / "r.json").axis_consistency.intrinsics == check
 
