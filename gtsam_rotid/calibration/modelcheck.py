@@ -22,6 +22,12 @@ from .stage2 import _axis_rows, _refitted_chi2
 
 #: The intrinsics freed: the focal length (fx and fy together, relative) and the principal point (px).
 INTRINSICS = ("focal", "cx", "cy")
+#: The exact camera must fail the test of all axes below this P ...
+EXACT_P = 1e-3
+#: ... and the freed intrinsics pass it at this P ...
+FREED_P = 0.01
+#: ... and improve the chi-square by more than its 99.9 % point (the normal's z) for the intrinsics' dof ...
+IMPROVEMENT_Z = 3.09
 #: ... and explain the axes better than one wrong measurement does (the others exact, its two distances free), by
 #: Akaike's criterion: the intrinsics have one parameter more, worth this much chi-square. A wrong shoulder reading
 #: of 1 degree on one pose was otherwise read as a camera error on 3 of 10 reference scenes.
@@ -34,13 +40,6 @@ MAX_FOCAL_PERCENT, MAX_CENTRE_FRACTION = 10.0, 0.06
 ITERATIONS = 8
 #: Finite-difference steps of the test points' distances by each (relative focal change, px, px).
 STEPS = (1e-5, 1e-2, 1e-2)
-#: The exact camera must fail the test of all axes below this P ...
-EXACT_P = 1e-3
-#: ... and the freed intrinsics pass it at this P ...
-FREED_P = 0.01
-#: ... and improve the chi-square by more than its 99.9 % point (the normal's z) for the intrinsics' dof, for the
-#: intrinsics to be the likelier cause.
-IMPROVEMENT_Z = 3.09
 
 
 def _camera(camera: Camera, theta) -> Camera:
