@@ -106,7 +106,8 @@ def _measurement_title(result, k: int, what: str, fit: TrackFit, digits: int) ->
     title = f"measurement {k}: {what}"
     if report is not None:
         title += (f", residual RMS {report.residual_rms_px:.{digits}f} px, weight {report.weight:.2f}"
-                  + (f", OUTLIER ({outlier_words(report)})" if report.outlier else ""))
+                  + (f", OUTLIER ({outlier_words(report, 'intrinsics' in (result.untrusted or {}))})"
+                     if report.outlier else ""))
     if fit.problem:
         title += f"\n{fit.problem}"
     return title
