@@ -111,6 +111,19 @@ def scene_name(robot: str, covering: str, variant: str, seed: int, poses: str = 
     return f"{robot}_{covering}_{variant}_seed{seed}" + ("" if poses == "sampled" else f"_{poses}")
 
 
+def perturbed_guess(truth_pose, seed: int, mm: float = GUESS_MM, deg: float = GUESS_DEG):
+    """The camera guess a user would give: ``truth_pose`` moved by a random ``mm`` and ``deg`` (1 sigma per axis),
+    seeded by the scene's seed (``benchmarks/planning.py`` uses the same)."""
+    sigma = np.array([np.radians(deg)] * 3 + [mm / 1000.0] * 3)
+    return truth_pose.retract(np.random.default_rng(10_000 + seed).normal(size=6) * sigma)
+
+
+def relaxed(config: SceneConfig) -> SceneConfig:
+    """``config`` with the simulator's own pose checks (made for sampling) off: given poses are recorded wherever the
+    true camera sees, and its visibility model drops what leaves the image."""
+    return config.with_(image_margin=-1e6, axis_view_angle_deg=(0.0, 90.0), depth_range=(0.0, 1e6), min_height=-1e6)
+
+
 def scene_spins(robot: str, seed: int, duration: float, poses: str = "sampled"):
     """The scene's simulated dataset and truth: the simulator's sampled poses (CANDIDATES of them), or poses that
     ``planning.plan_poses`` chose at a perturbed guess of the camera (POSES + PLANNED_SPARES; the simulator's own
@@ -122,17 +135,14 @@ def scene_spins(robot: str, seed: int, duration: float, poses: str = "sampled"):
     from gtsam_rotid.geometry import look_at
     from gtsam_rotid.planning import PlanOptions, plan_poses
 
-    truth_pose = look_at(config.camera_eye, config.camera_target, config.camera_up)
-    sigma = np.array([np.radians(GUESS_DEG)] * 3 + [GUESS_MM / 1000.0] * 3)
-    guess = truth_pose.retract(np.random.default_rng(10_000 + seed).normal(size=6) * sigma)
+    guess = perturbed_guess(look_at(config.camera_eye, config.camera_target, config.camera_up), seed)
     arm = Arm.from_robot(robot)
     options = PlanOptions(depth_range=config.depth_range, guess_sigma_mm=GUESS_MM, guess_sigma_deg=GUESS_DEG,
                           respect_wrist_limits=False, spin_seconds=duration, seed=seed)
     plan = plan_poses(arm, config.camera, guess, POSES + PLANNED_SPARES, options)
-    relaxed = config.with_(joint_angles=tuple(tuple(float(x) for x in q) for q in plan.joint_angles),
-                           n_measurements=len(plan.joint_angles), image_margin=-1e6,
-                           axis_view_angle_deg=(0.0, 90.0), depth_range=(0.0, 1e6), min_height=-1e6)
-    return simulate.simulate(relaxed, seed, arm=arm)
+    recorded = relaxed(config).with_(joint_angles=tuple(tuple(float(x) for x in q) for q in plan.joint_angles),
+                                     n_measurements=len(plan.joint_angles))
+    return simulate.simulate(recorded, seed, arm=arm)
 
 
 def run_scene(robot: str, covering: str, seed: int, variant: str, duration: float, params: TrackerParams,

@@ -50,6 +50,8 @@ def _setup(robot: str):
 
 def run_seed(robot: str, seed: int, trials: int, guess_sigma: tuple[float, float]) -> dict:
     """Plan and draw random poses at a perturbed guess, then simulate and calibrate each set ``trials`` times."""
+    from ambient import perturbed_guess, relaxed
+
     from gtsam_rotid.arm import Arm
     from gtsam_rotid.errors import RotIdError
     from gtsam_rotid.estimate import calibrate
@@ -58,9 +60,7 @@ def run_seed(robot: str, seed: int, trials: int, guess_sigma: tuple[float, float
 
     config, truth_pose = _setup(robot)
     arm = Arm.from_robot(robot)
-    rng = np.random.default_rng(10_000 + seed)
-    sigma = np.array([math.radians(guess_sigma[1])] * 3 + [guess_sigma[0] / 1000.0] * 3)
-    guess = truth_pose.retract(rng.normal(size=6) * sigma)
+    guess = perturbed_guess(truth_pose, seed, *guess_sigma)
     options = PlanOptions(pixel_sigma=math.sqrt(config.noise_var), axis_floor_px=0.0, depth_range=config.depth_range,
                           radius_range=config.radius_range, offset_range=config.offset_range,
                           respect_wrist_limits=False,  # the simulator spins the Panda's wrist past its limits
@@ -71,16 +71,13 @@ def run_seed(robot: str, seed: int, trials: int, guess_sigma: tuple[float, float
     random_poses = random_valid_poses(arm, config.camera, guess, 6, options, seed=seed)
     sets = {"planned": (plan.joint_angles, plan.prediction),
             "random": (random_poses, predict_accuracy(arm, config.camera, guess, random_poses, options))}
-    # the recording happens whatever the true camera sees: the simulator's own pose checks (made for sampling) are
-    # off, and its visibility model drops what leaves the image
-    relaxed = config.with_(image_margin=-1e6, axis_view_angle_deg=(0.0, 90.0), depth_range=(0.0, 1e6),
-                           min_height=-1e6)
+    recorded = relaxed(config)  # the recording happens whatever the true camera sees
     strict = SpinScene(config, arm, np.random.default_rng(0))
     for name, (poses, prediction) in sets.items():
         errors, unusable, flagged = [], [], []
         out[name] = {"outside": [p for p in (strict.pose_problem(q) for q in poses) if p is not None]}
         for trial in range(trials):
-            scene = relaxed.with_(joint_angles=tuple(tuple(q) for q in poses))
+            scene = recorded.with_(joint_angles=tuple(tuple(q) for q in poses))
             try:
                 dataset, truth = simulate(scene, seed=1000 * seed + trial, arm=arm)
                 result = calibrate(dataset)

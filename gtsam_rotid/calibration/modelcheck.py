@@ -14,11 +14,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..camera import Camera
-from ..factors import line_distances
-from ..graph import axis_test_points, chi2_quantile
+from ..graph import chi2_quantile
 from ..uncertainty import chi2_sf
 from .setup import _Setup
-from .stage2 import _axis_rows, _refitted_chi2
+from .stage2 import _axis_distances, _axis_rows, _refitted_chi2
 
 #: The intrinsics freed: the focal length (fx and fy together, relative) and the principal point (px).
 INTRINSICS = ("focal", "cx", "cy")
@@ -46,11 +45,6 @@ def _camera(camera: Camera, theta) -> Camera:
     return camera.with_intrinsics_changed(1.0 + theta[0], theta[1], theta[2])
 
 
-def _distances(camera: Camera, setup: _Setup, stage1, k: int, pose) -> np.ndarray:
-    points = np.array([pose.transformTo(p) for p in axis_test_points(setup.axes[k])])
-    return line_distances(stage1[k].image_axis, camera.project(points, distort=False))
-
-
 def _rows(camera: Camera, setup: _Setup, stage1, ks, pose, sigma2, theta, free: bool):
     """The axes' rows (:func:`stage2._axis_rows`) through the camera changed by ``theta``, their Jacobians extended
     by the intrinsics' (central differences) when ``free``."""
@@ -64,8 +58,8 @@ def _rows(camera: Camera, setup: _Setup, stage1, ks, pose, sigma2, theta, free: 
         for i, step in enumerate(STEPS):
             delta = np.zeros(len(INTRINSICS))
             delta[i] = step
-            plus = _distances(_camera(camera, theta + delta), setup, stage1, k, pose)
-            minus = _distances(_camera(camera, theta - delta), setup, stage1, k, pose)
+            plus = _axis_distances(_camera(camera, theta + delta), setup.axes[k], stage1[k], pose)[0]
+            minus = _axis_distances(_camera(camera, theta - delta), setup.axes[k], stage1[k], pose)[0]
             G[:, i] = (plus - minus) / (2.0 * step)
         out.append((e, cov, np.hstack([J, G])))
     return out
