@@ -28,7 +28,9 @@ Factories (thin ``gtsam.CustomFactor`` wrappers over the pure functions in :mod:
 - :func:`make_rigid_circle_factor` (:mod:`.rigid`) — the rigid-spin model: one track's 2-D reprojection errors
   at phase ``theta_f + phi0_j`` with the spin angles ``theta_f`` shared by all tracks of the measurement
   (keys: line, track ``(d, r, phi0)``, spin-angle chunks); :func:`initial_spin` and :func:`spin_priors` start
-  it and fix its gauge. Not used by the estimators yet.
+  it and fix its gauge (the whole rigid graph: tests and small problems).
+- :func:`make_rigid_line_factor` (:mod:`.rigid_line`) — the same model with every track's ``(d, r, phi0)`` and
+  the spin angles projected out (key: line): what the estimators use.
 - :func:`make_coaxial_line_factor` (:mod:`.coaxial`) — all tracks of one measurement, their circles projected out
   (key: line), over a :class:`CoaxialTracks`.
 
@@ -37,7 +39,7 @@ Modules: :mod:`.geometry` (parametrisation, projection, image lines, projected c
 image conic's certificates); :mod:`.coaxial_tracks` (all tracks of a measurement at once) with
 :mod:`.coaxial_coefficients` (its per-track coefficient tables), :mod:`.coaxial_layout` (its padded pixel layout)
 and :mod:`.coaxial_solve` (the circles projected out); :mod:`.coaxial` (the variable-projection line factor); the
-factor modules :mod:`.circle`, :mod:`.axis`, :mod:`.pose_circle` and :mod:`.rigid`.
+factor modules :mod:`.circle`, :mod:`.axis`, :mod:`.pose_circle`, :mod:`.rigid` and :mod:`.rigid_line`.
 """
 
 from .axis import make_axis_to_line_factor, make_axis_to_line_variable_factor
@@ -68,12 +70,15 @@ from .rigid import (
     spin_chunk_index,
     spin_priors,
 )
+from .rigid_line import RigidLineFactor, RigidTracks, make_rigid_line_factor
 
 __all__ = [
     "CircleTrack",
     "CoaxialLineFactor",
     "CoaxialTracks",
     "FKAxis",
+    "RigidLineFactor",
+    "RigidTracks",
     "SpinInit",
     "axis_point_residuals",
     "chunk_segments",
@@ -93,6 +98,7 @@ __all__ = [
     "make_coaxial_line_factor",
     "make_pose_circle_point_factor",
     "make_rigid_circle_factor",
+    "make_rigid_line_factor",
     "project",
     "projected_circle",
     "rigid_spin_residuals",

@@ -147,7 +147,7 @@ class CoaxialLineFactor:
         rot = values.atRot3(self.line_key)
         if H is None and self._refused(rot):
             self.refused += 1
-            return np.full(self.tracks.n_points, REFUSED_RESIDUAL)
+            return np.full(this.dim(), REFUSED_RESIDUAL)
         state = self._state(rot)
         if H is None:
             return self._residual(state, self._scales(state)[1])
@@ -182,6 +182,18 @@ class CoaxialLineFactor:
         if state is not None:
             self._last = state
             return state
+        state = self._solve(rot, R)
+        self._cache[key] = state
+        self._cache.move_to_end(key)
+        if len(self._cache) > self._cache_size:
+            self._cache.popitem(last=False)
+        if self._home is None:
+            self._home = state
+        self._last = state
+        return state
+
+    def _solve(self, rot: gtsam.Rot3, R: np.ndarray) -> _LineState:
+        """The circles projected out at the line ``rot`` (matrix ``R``), solved from its anchor (:meth:`_anchor`)."""
         tracks = self.tracks
         anchor, w, norm = self._anchor(rot)
         # the whole solve is a function of (anchor, line) only: its phases and curvature terms start from the
@@ -209,13 +221,6 @@ class CoaxialLineFactor:
         self.solves += 1
         self.evaluations += evaluations
         self.work += work
-        self._cache[key] = state
-        self._cache.move_to_end(key)
-        if len(self._cache) > self._cache_size:
-            self._cache.popitem(last=False)
-        if self._home is None:
-            self._home = state
-        self._last = state
         return state
 
     def _anchors(self) -> list[_LineState]:

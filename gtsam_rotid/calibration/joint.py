@@ -13,21 +13,18 @@ import numpy as np
 from ..dataset import Track
 from ..errors import RotIdError
 from ..factors import (
-    chunk_segments,
+    RigidTracks,
     closest_phases,
     image_line_from_rot3,
     initial_spin,
     make_axis_to_line_variable_factor,
     make_circle_point_factor,
-    make_rigid_circle_factor,
-    spin_priors,
+    make_rigid_line_factor,
 )
-from ..factors.rigid import DEFAULT_CHUNK_SIZE
 from ..graph import (
     CIRCLE_STRIDE,
     Model,
     axis_test_points,
-    chi2_quantile,
     tie_noise_model,
     track_huber,
 )
@@ -241,13 +238,11 @@ class _RigidFit(NamedTuple):
 def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options) -> _RigidFit | None:
     """The joint graph with the rigid spin (docs/design.md §4), started from the free-phase joint solution ``free``.
 
-    Every track with frame indices gets a (d, r, phi0) variable and 2-D reprojection factors (one per
-    two-chunk segment, Huber per segment) at phase ``theta_f + phi0``, the spin angles ``theta_f`` being
-    shared by the measurement's tracks; tracks without frames keep their free-phase factor. Returns
-    (pose, covariance or None, iterations, error, converged), or None when no track has frames.
+    Per measurement, its tracks with frame indices share one spin angle per frame and have one phase offset each,
+    projected out with their circles by one :func:`make_rigid_line_factor` on its line variable (Huber per track);
+    tracks without frames keep their free-phase circle-point factor. Returns None when no track has frames.
     """
     K = camera.K
-    C = DEFAULT_CHUNK_SIZE
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(POSE_KEY, free.atPose3(POSE_KEY))
     rigid_tracks = 0
@@ -259,39 +254,27 @@ def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options) -> _Ri
                                                     POSE_KEY, keys_k.line_key, axis_test_points(setup.axes[k]), K))
         spun = []
         for j, (d, r) in zip(keys_k.tracks, _circles(keys_k, free), strict=True):
-            circle_key = gtsam.symbol("c", k * CIRCLE_STRIDE + j)
             ideal = setup.prepared[k].usable[j].ideal
             frames = Track.from_any(measurements[k].tracks[j]).frames
             if frames is None:
+                circle_key = gtsam.symbol("c", k * CIRCLE_STRIDE + j)
                 values.insert(circle_key, np.array([d, r]))
                 noise = gtsam.noiseModel.Robust.Create(track_huber(len(ideal)),
                                                        gtsam.noiseModel.Isotropic.Sigma(len(ideal), sigmas[k]))
                 graph.add(make_circle_point_factor(noise, keys_k.line_key, circle_key, ideal, K))
                 continue
-            spun.append((j, d, r, ideal, frames, closest_phases(K, R, d, r, ideal)))
+            spun.append((d, r, ideal, frames, closest_phases(K, R, d, r, ideal)))
         if not spun:
             continue
         rigid_tracks += len(spun)
-        first = int(min(t[4].min() for t in spun))
-        init = initial_spin([(t[4], t[5]) for t in spun], C, first)
-
-        def chunk_key(c, k=k):
-            return gtsam.symbol("s", k * CIRCLE_STRIDE + int(c))
-
-        track_keys = [gtsam.symbol("t", k * CIRCLE_STRIDE + t[0]) for t in spun]
-        for c, theta in init.theta.items():
-            values.insert(chunk_key(c), np.asarray(theta, dtype=float))
-        for i, (_, d, r, ideal, frames, _) in enumerate(spun):
-            values.insert(track_keys[i], np.array([d, r, init.phi0[i]]))
-            for idx in chunk_segments(frames, C, 2, first):
-                n = 2 * len(idx)
-                noise = gtsam.noiseModel.Robust.Create(
-                    gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(chi2_quantile(n))),
-                    gtsam.noiseModel.Isotropic.Sigma(n, sigmas[k]))
-                graph.add(make_rigid_circle_factor(noise, keys_k.line_key, track_keys[i], chunk_key, ideal[idx],
-                                                   frames[idx], K, C, first))
-        for prior in spin_priors(init, chunk_key, track_keys):
-            graph.add(prior)
+        tracks = RigidTracks([(t[2], t[3]) for t in spun])
+        first = int(tracks.frame_ids[0])
+        span = int(tracks.frame_ids[-1]) - first + 1
+        init = initial_spin([(t[3], t[4]) for t in spun], span, first)
+        theta = init.theta[0][tracks.frame_ids - first]
+        factor = make_rigid_line_factor(keys_k.line_key, tracks, K, [(t[0], t[1]) for t in spun], init.phi0,
+                                        theta, sigma_px=sigmas[k], robust=lambda n: track_huber(2 * n))
+        graph.add(factor.factor)
     if rigid_tracks == 0:
         return None
     result, iterations, error, converged = _lm(graph, values, options.max_iterations, anchor=True)

@@ -1,0 +1,416 @@
+"""The rigid spin projected out: one factor per measurement on its line variable (variable projection).
+
+The rigid-spin model of :mod:`.rigid` (docs/design.md §4): within a measurement every feature turns with one spin
+angle per frame, ``phi_i = theta_{f_i} + phi0_j``; each track has a circle ``(d, r)`` and a phase offset ``phi0``.
+:mod:`.rigid` puts all of these into the graph (one variable per track and per 32 frames); here they are projected
+out, as :mod:`.coaxial` projects out the free-phase circles: :func:`make_rigid_line_factor` builds ONE
+``gtsam.CustomFactor`` per measurement on its line variable only. At a line ``R`` it solves the inner problem
+
+    ``min over (d_j, r_j, phi0_j, theta_f) of sum_j rho_j(|e_j| / sigma)``, ``e_i = u(theta_{f_i} + phi0_j) - u_obs_i``
+
+by Gauss-Newton (IRLS for the robust kernel, one per track as in :mod:`.coaxial`), and returns the 2-D reprojection
+errors there, interleaved ``[du_0, dv_0, du_1, dv_1, ...]`` (2N values), with the variable-projection Jacobian
+(Kaufman's form) ``P H_R``, ``P = I - J (J^T W J)^-1 J^T W`` (``J`` the inner Jacobian: ``(d, r, phi0)`` of each track
+and ``theta`` of each frame). So LM on the line variables follows the full rigid graph's reduced problem and
+``gtsam.Marginals`` gives its line (and pose) marginals, with one variable per measurement instead of one per track
+and per chunk of frames.
+
+The inner normal equations are sparse: each pixel touches its track's three parameters and its frame's angle, so
+the frames' block is diagonal and is eliminated first (Schur complement; ``3m x 3m`` dense system for ``m``
+tracks); every sum is a ``np.bincount`` over all pixels at once.
+
+Gauge: ``theta_f + k, phi0_j - k`` over a connected component of tracks (linked by shared frames) changes nothing;
+``phi0`` of the first track of each component is held at its start (not an inner variable). Frames that no track
+sees have no angle. The first-order change of the inner variables with the line (``-X w``, ``X = (J^T W J)^-1 J^T W
+H_R``) starts the solves of LM's trial lines from the last linearisation point, and the caching, anchors and trust
+region are those of :class:`.coaxial.CoaxialLineFactor`.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import gtsam
+import numpy as np
+
+from .coaxial import CoaxialLineFactor, _robust_setup, _robust_terms
+from .coaxial_solve import CIRCLE_TOL
+from .rigid import _track_components
+
+__all__ = ["RigidLineFactor", "RigidTracks", "make_rigid_line_factor"]
+
+#: A line variable further than this (rad) from its anchor starts its inner solve from the anchor's solution
+#: without the first-order prediction.
+PREDICT_MAX_RAD = 0.2
+
+
+class RigidTracks:
+    """One measurement's tracks with frame indices, flattened: every pixel's track, its (compacted) frame, and the
+    gauge (the first track of each connected component keeps its ``phi0``).
+
+    Args:
+        tracks: per track ``(pixels (N_j, 2) ideal, frames (N_j,) int)``; a track may not see a frame twice.
+    """
+
+    def __init__(self, tracks):
+        pixels, frames, owner = [], [], []
+        for j, (p, f) in enumerate(tracks):
+            p = np.asarray(p, dtype=float).reshape(-1, 2)
+            f = np.asarray(f).reshape(-1)
+            if len(f) != len(p):
+                raise ValueError(f"track {j}: {len(f)} frames for {len(p)} pixels")
+            if len(f) and not np.issubdtype(f.dtype, np.integer):
+                raise TypeError(f"track {j}: frames must be integers, got dtype {f.dtype}")
+            if len(np.unique(f)) != len(f):
+                raise ValueError(f"track {j} sees a frame twice")
+            if not np.all(np.isfinite(p)):
+                raise ValueError(f"track {j} has pixels that are not finite")
+            pixels.append(p)
+            frames.append(f.astype(np.int64))
+            owner.append(np.full(len(p), j))
+        self.n_tracks = len(pixels)
+        if self.n_tracks == 0 or not sum(len(p) for p in pixels):
+            raise ValueError("need at least one track with pixels")
+        self.pixels = np.concatenate(pixels)
+        self.counts = np.array([len(p) for p in pixels])
+        self.n_points = len(self.pixels)
+        self.track = np.concatenate(owner)
+        self.frame_ids, self.frame = np.unique(np.concatenate(frames), return_inverse=True)
+        self.n_frames = len(self.frame_ids)
+        local = np.split(self.frame, np.cumsum(self.counts)[:-1])
+        self.components = _track_components([(f, None) for f in local], self.n_frames)
+        #: (3m,) inner track parameters ``(d, r, phi0)`` per track that are free (the gauge's phi0 are held)
+        self.free = np.ones(3 * self.n_tracks, dtype=bool)
+        self.free[[3 * comp[0] + 2 for comp in self.components]] = False
+        # flat indices of the pixels' entries in the (3m, F) track-frame coupling, per track parameter
+        self._coupling = [(3 * self.track + a) * self.n_frames + self.frame for a in range(3)]
+        for a in (self.pixels, self.track, self.frame, self.free, self.counts):
+            a.setflags(write=False)
+
+
+class _Inner:
+    """An evaluation of the rigid spin at one line and inner point: residuals and derivatives per pixel."""
+
+    __slots__ = ("x", "e", "a", "sse", "_G", "_v", "_H_R")
+
+    def __init__(self, tracks: RigidTracks, K: np.ndarray, R: np.ndarray, x: np.ndarray):
+        m = tracks.n_tracks
+        self.x = x
+        d, r, p = x[0:3 * m:3][tracks.track], x[1:3 * m:3][tracks.track], x[2:3 * m:3][tracks.track]
+        phi = x[3 * m:][tracks.frame] + p
+        s, c = np.sin(phi), np.cos(phi)
+        rs, rc = r * s, r * c
+        M = K @ R
+        v0 = 1.0 + rs
+        y = M[:, 0:1] * v0 + M[:, 1:2] * d + M[:, 2:3] * rc  # (3, N): K X with X = R v, v = (1 + r s, d, r c)
+        iz = 1.0 / y[2]
+        u = y[:2] * iz
+        self.e = u - tracks.pixels.T  # (2, N)
+        # G_k = du_k/dv = (M[k] - u_k M[2]) / y2, (2, 3, N)
+        G = (M[:2, :, None] - u[:, None, :] * M[2][None, :, None]) * iz
+        # a: (3, 2, N) derivatives of (du, dv) wrt (d, r, phi) (phi: both phi0 and theta)
+        self.a = np.stack([G[:, 1], G[:, 0] * s + G[:, 2] * c, G[:, 0] * rc - G[:, 2] * rs])
+        self.sse = np.bincount(tracks.track, weights=np.einsum("kn,kn->n", self.e, self.e), minlength=m)
+        self._G, self._v, self._H_R = G, (v0, d, rc), None
+
+    @property
+    def H_R(self) -> np.ndarray:
+        """(3, 2, N) derivatives wrt the line's tangent (``R * Exp(w)``): rows ``v x g_k``."""
+        if self._H_R is None:
+            (g0, g1, g2), (v0, v1, v2) = self._G.transpose(1, 0, 2), self._v
+            self._H_R = np.stack([v1 * g2 - v2 * g1, v2 * g0 - v0 * g2, v0 * g1 - v1 * g0])
+        return self._H_R
+
+
+class _Normal:
+    """The inner Gauss-Newton normal equations at an evaluation, the frames' diagonal block eliminated."""
+
+    def __init__(self, tracks: RigidTracks, ev: _Inner, w_pixel: np.ndarray):
+        m, F = tracks.n_tracks, tracks.n_frames
+        a = ev.a
+        wa = a * w_pixel  # (3, 2, N)
+        t, f = tracks.track, tracks.frame
+        A = np.zeros((m, 3, 3))
+        for i in range(3):
+            for k in range(i, 3):
+                A[:, i, k] = A[:, k, i] = np.bincount(t, weights=np.einsum("sn,sn->n", wa[i], a[k]), minlength=m)
+        self.D = np.bincount(f, weights=np.einsum("sn,sn->n", wa[2], a[2]), minlength=F)
+        self.D = np.maximum(self.D, 1e-300)
+        cross = [np.einsum("sn,sn->n", wa[i], a[2]) for i in range(3)]
+        self.B = np.bincount(np.concatenate(tracks._coupling), weights=np.concatenate(cross),
+                             minlength=3 * m * F).reshape(3 * m, F)
+        S = np.zeros((3 * m, 3 * m))
+        idx = np.arange(m)
+        for i in range(3):
+            for k in range(3):
+                S[3 * idx + i, 3 * idx + k] = A[:, i, k]
+        C = self.B / np.sqrt(self.D)
+        S -= C @ C.T  # one operand transposed: BLAS syrk, half the work of (B / D) @ B.T
+        held = np.flatnonzero(~tracks.free)
+        S[held, :] = 0.0
+        S[:, held] = 0.0
+        S[held, held] = 1.0
+        self.S, self.held, self.wa, self.tracks = S, held, wa, tracks
+
+    def project(self, V: np.ndarray, gradients: bool = False) -> tuple[np.ndarray, ...]:
+        """``(J^T W J)^-1 J^T W V`` for per-pixel columns ``V`` (q, 2, N): (3m, q) and (F, q); with ``gradients``
+        also ``J^T W V`` (held entries 0)."""
+        tracks, wa = self.tracks, self.wa
+        m, F = tracks.n_tracks, tracks.n_frames
+        q = V.shape[0]
+        gt = np.empty((3 * m, q))
+        gf = np.empty((F, q))
+        for c in range(q):
+            for i in range(3):
+                gt[i::3, c] = np.bincount(tracks.track, weights=np.einsum("sn,sn->n", wa[i], V[c]), minlength=m)
+            gf[:, c] = np.bincount(tracks.frame, weights=np.einsum("sn,sn->n", wa[2], V[c]), minlength=F)
+        gt[self.held] = 0.0
+        xt, xf = self.solve(gt, gf)
+        return (xt, xf, gt, gf) if gradients else (xt, xf)
+
+    def solve(self, gt: np.ndarray, gf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The solution of the normal equations with right-hand sides ``(gt, gf)`` (held entries 0)."""
+        rhs = gt - self.B @ (gf / self.D[:, None])
+        rhs[self.held] = 0.0  # S is the identity there
+        xt = np.linalg.solve(self.S, rhs)
+        xf = (gf - self.B.T @ xt) / self.D[:, None]
+        return xt, xf
+
+
+class _RigidState:
+    """The inner solution at one line variable, and what the factor needs there."""
+
+    __slots__ = ("rot", "R", "ev", "converged", "evaluations", "normal", "X", "_J")
+
+    def __init__(self, rot, R, ev: _Inner, converged: bool, evaluations: int, normal: _Normal):
+        self.rot, self.R, self.ev = rot, R, ev
+        self.converged, self.evaluations = converged, evaluations
+        self.normal = normal  # the inner normal equations at ev, weighted by its IRLS weights
+        self.X = None  # (3m + F, 3) (J^T W J)^-1 J^T W H_R once linearised
+        self._J = None  # (3, 2, N) P H_R
+
+    @property
+    def sse(self) -> np.ndarray:
+        return self.ev.sse
+
+
+class RigidLineFactor(CoaxialLineFactor):
+    """One measurement's rigid-spin variable-projection factor (``.factor``) and what it knows about its tracks.
+
+    Built by :func:`make_rigid_line_factor`; the caching, anchors, trust region, robust kernel and the inspection
+    methods' conventions are :class:`.coaxial.CoaxialLineFactor`'s. Residuals are 2-D per pixel (``2N`` values,
+    interleaved); ``residuals`` returns them as (N, 2).
+
+    Attributes:
+        factor: the ``gtsam.CustomFactor`` (key ``line_key``, dimension 2N, unit noise model).
+        tracks: the :class:`RigidTracks`.
+        sigma_px: the pixel noise (per image coordinate).
+        counts: (m,) points per track.
+    """
+
+    __slots__ = ()
+
+    def __init__(self, line_key: int, tracks: RigidTracks, K, circles, phi0, theta, sigma_px: float = 1.0,
+                 robust=None, *, tol: float = CIRCLE_TOL, max_evaluations: int = 30, cache_size: int = 4):
+        circles = np.array(circles, dtype=float).reshape(-1, 2)
+        phi0 = np.array(phi0, dtype=float).reshape(-1)
+        theta = np.array(theta, dtype=float).reshape(-1)
+        if len(circles) != tracks.n_tracks or len(phi0) != tracks.n_tracks:
+            raise ValueError(f"need one (d, r) and one phi0 per track ({tracks.n_tracks}), got {len(circles)} "
+                             f"and {len(phi0)}")
+        if len(theta) != tracks.n_frames:
+            raise ValueError(f"need one spin angle per frame seen ({tracks.n_frames}), got {len(theta)}")
+        if not np.isfinite(sigma_px) or sigma_px <= 0:
+            raise ValueError(f"sigma_px must be a positive number of pixels, got {sigma_px!r}")
+        self.line_key = line_key
+        self.tracks = tracks
+        self.K = np.asarray(K, dtype=float).reshape(3, 3)
+        self.sigma_px = float(sigma_px)
+        self.counts = tracks.counts
+        self.tol = float(tol)
+        self.max_evaluations = int(max_evaluations)
+        x0 = np.empty(3 * tracks.n_tracks + tracks.n_frames)
+        x0[0:3 * tracks.n_tracks:3], x0[1:3 * tracks.n_tracks:3] = circles[:, 0], circles[:, 1]
+        x0[2:3 * tracks.n_tracks:3], x0[3 * tracks.n_tracks:] = phi0, theta
+        self._start = x0
+        self._huber_k, self._estimators = _robust_setup(robust, tracks.counts)
+        self._cache: OrderedDict[bytes, _RigidState] = OrderedDict()
+        self._pinned: OrderedDict[bytes, _RigidState] = OrderedDict()
+        self._home: _RigidState | None = None
+        self._cache_size = max(1, int(cache_size))
+        self._last: _RigidState | None = None
+        self.refused = 0
+        self.solves = 0
+        self.evaluations = 0
+        self.work = 0.0
+        twin = object.__new__(type(self))  # no cycle through C++ (see CoaxialLineFactor)
+        twin.__dict__ = self.__dict__
+        self.factor = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2 * tracks.n_points), [line_key],
+                                         twin._error_function)
+
+    # ------------------------------------------------------------------------------------------------------------
+
+    def _irls(self, sse: np.ndarray) -> np.ndarray:
+        if self._huber_k is None and self._estimators is None:
+            return np.ones(self.tracks.n_tracks)
+        return _robust_terms(np.sqrt(np.maximum(sse, 0.0)) / self.sigma_px, self._huber_k, self._estimators)[0]
+
+    def _solve(self, rot: gtsam.Rot3, R: np.ndarray) -> _RigidState:
+        """The inner problem at ``rot`` by Gauss-Newton (IRLS), from its anchor's solution moved by its first-order
+        change, with step halving where the robust cost rises."""
+        tracks, K = self.tracks, self.K
+        anchor, w, norm = self._anchor(rot)
+        if anchor is None:
+            x = self._start.copy()
+        else:
+            x = anchor.ev.x.copy()
+            if norm <= PREDICT_MAX_RAD and anchor.X is not None:
+                change = -anchor.X @ w
+                if np.all(np.isfinite(change)):
+                    x += change
+        ev = _Inner(tracks, K, R, x)
+        cost = self._cost(ev.sse)
+        converged, evaluations = False, 1
+        while True:
+            normal = _Normal(tracks, ev, self._irls(ev.sse)[tracks.track] / self.sigma_px**2)
+            xt, xf, gt, gf = normal.project(ev.e[None], gradients=True)
+            decrement = float(gt[:, 0] @ xt[:, 0] + gf[:, 0] @ xf[:, 0])  # g^T (J^T W J)^-1 g, whitened
+            if decrement <= self.tol * max(cost, 1e-300) or decrement < 1e-20 * tracks.n_points:
+                converged = True
+                break
+            if evaluations >= self.max_evaluations:
+                break
+            step, t = -np.concatenate([xt[:, 0], xf[:, 0]]), 1.0
+            while True:
+                trial = _Inner(tracks, K, R, x + t * step)
+                evaluations += 1
+                trial_cost = self._cost(trial.sse)
+                if trial_cost <= cost or evaluations >= self.max_evaluations or t < 1e-3:
+                    break
+                t *= 0.5
+            if not trial_cost <= cost:
+                break
+            x, ev, cost = x + t * step, trial, trial_cost
+        state = _RigidState(rot, R, ev, converged, evaluations, normal)
+        self.solves += 1
+        self.evaluations += evaluations
+        self.work += evaluations
+        return state
+
+    def _cost(self, sse: np.ndarray) -> float:
+        """The robust cost (sum of losses of the tracks' whitened norms)."""
+        x = np.sqrt(np.maximum(sse, 0.0)) / self.sigma_px
+        if self._huber_k is None and self._estimators is None:
+            return float(0.5 * np.sum(x * x))
+        return float(np.sum(_robust_terms(x, self._huber_k, self._estimators)[1]))
+
+    def _per_row(self, per_track: np.ndarray) -> np.ndarray:
+        return per_track[self.tracks.track]
+
+    def _residual(self, state: _RigidState, scale: np.ndarray) -> np.ndarray:
+        return (state.ev.e * self._per_row(scale)).T.reshape(-1)
+
+    def _projected(self, state: _RigidState) -> np.ndarray:
+        """(3, 2, N) ``P H_R`` (unweighted rows; the projection weighted by the IRLS weights of the state's residuals);
+        sets ``state.X``."""
+        if state._J is None:
+            tracks, ev = self.tracks, state.ev
+            xt, xf = state.normal.project(ev.H_R)
+            state.X = np.concatenate([xt, xf])
+            m = tracks.n_tracks
+            # J X per pixel: sum over (d, r, phi0) of a * X_track, plus a_phi * X_theta
+            Xt = xt.reshape(m, 3, 3)[tracks.track]  # (N, param, line)
+            Xf = xf[tracks.frame]  # (N, line)
+            JX = np.einsum("asn,nal->lsn", ev.a, Xt) + ev.a[2][None] * Xf.T[:, None, :]
+            state._J = ev.H_R - JX
+        return state._J
+
+    def _jacobian(self, state: _RigidState, scale: np.ndarray) -> np.ndarray:
+        """(2N, 3) ``P H_R``, rows scaled."""
+        J = self._projected(state) * self._per_row(scale)[None, None]
+        return J.transpose(2, 1, 0).reshape(-1, 3)
+
+    # ------------------------------------------------------------------------------------------------------------
+    # inspection
+
+    def _inner(self, x=None) -> np.ndarray:
+        return self._state(self._rot(x)).ev.x
+
+    def circles(self, x=None) -> np.ndarray:
+        """(m, 2) projected-out circles (d, r) at the line variable."""
+        inner = self._inner(x)
+        m = self.tracks.n_tracks
+        return np.column_stack([inner[0:3 * m:3], inner[1:3 * m:3]])
+
+    def phase_offsets(self, x=None) -> np.ndarray:
+        """(m,) each track's ``phi0`` at the line variable (the gauge: the first track of each component's is held)."""
+        return self._inner(x)[2:3 * self.tracks.n_tracks:3].copy()
+
+    def spin_angles(self, x=None) -> np.ndarray:
+        """(F,) spin angle of each frame seen (``tracks.frame_ids``) at the line variable."""
+        return self._inner(x)[3 * self.tracks.n_tracks:].copy()
+
+    def track_rms(self, x=None) -> np.ndarray:
+        """(m,) residual RMS (px per image coordinate) of each track (0 for an empty track)."""
+        sse = self.track_sse(x)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self.counts > 0, np.sqrt(sse / np.maximum(2 * self.counts, 1)), 0.0)
+
+    def converged(self, x=None) -> np.ndarray:
+        """(m,) whether the inner solve converged (one solve for all tracks)."""
+        return np.full(self.tracks.n_tracks, self._state(self._rot(x)).converged)
+
+    def residuals(self, x=None) -> np.ndarray:
+        """(N, 2) pixel residuals (unweighted) of all tracks at the projected-out spin."""
+        return self._state(self._rot(x)).ev.e.T.copy()
+
+    def phases(self, x=None) -> np.ndarray:
+        """(N,) phases ``theta_f + phi0_j`` of the pixels, wrapped to [-pi, pi)."""
+        inner, tracks = self._inner(x), self.tracks
+        phi = inner[3 * tracks.n_tracks:][tracks.frame] + inner[2:3 * tracks.n_tracks:3][tracks.track]
+        return np.mod(phi + np.pi, 2.0 * np.pi) - np.pi
+
+    def track_scores(self, x=None) -> np.ndarray:
+        """(m, 3) each track's part ``J_j^T e_j`` of the gradient at the line variable (whitened, robust-weighted)."""
+        state = self._state(self._rot(x))
+        irls = self._scales(state)[0]
+        row = self._per_row(irls)
+        Je = np.einsum("lsn,sn->ln", self._projected(state), state.ev.e) * row * row
+        return np.stack([np.bincount(self.tracks.track, weights=Je[k], minlength=self.tracks.n_tracks)
+                         for k in range(3)], axis=1)
+
+    def track_information(self, x=None) -> np.ndarray:
+        """(m, 3, 3) each track's ``J_j^T J_j`` (weighted, the spin projected out)."""
+        state = self._state(self._rot(x))
+        row = self._per_row(self._scales(state)[0])
+        J = self._projected(state) * row
+        m = self.tracks.n_tracks
+        out = np.empty((m, 3, 3))
+        for i in range(3):
+            for k in range(i, 3):
+                out[:, i, k] = out[:, k, i] = np.bincount(self.tracks.track, weights=np.einsum(
+                    "sn,sn->n", J[i], J[k]), minlength=m)
+        return out
+
+
+def make_rigid_line_factor(line_key: int, tracks, K, circles, phi0, theta, *, sigma_px: float = 1.0,
+                           robust=None, tol: float = CIRCLE_TOL, max_evaluations: int = 30) -> RigidLineFactor:
+    """One rigid-spin variable-projection factor for all framed tracks of one measurement, keyed on its line variable.
+
+    Args:
+        line_key: key of the measurement's ``gtsam.Rot3`` line variable.
+        tracks: a :class:`RigidTracks`, or per track ``(ideal pixels (N_j, 2), frames (N_j,))``.
+        K: (3, 3) intrinsic matrix.
+        circles: (m, 2) initial (d, r) per track; phi0: (m,) initial phase offsets (held where they fix the gauge);
+        theta: (F,) initial spin angle of each frame seen, in the order of ``tracks.frame_ids`` (ascending).
+        sigma_px: pixel noise per image coordinate.
+        robust: as :func:`.coaxial.make_coaxial_line_factor` (per track, on its whole whitened norm).
+        tol, max_evaluations: the inner solve's relative decrement tolerance and evaluation budget.
+
+    Returns:
+        :class:`RigidLineFactor`; add ``.factor`` to the graph.
+    """
+    if not isinstance(tracks, RigidTracks):
+        tracks = RigidTracks(tracks)
+    return RigidLineFactor(line_key, tracks, K, circles, phi0, theta, sigma_px, robust, tol=tol,
+                           max_evaluations=max_evaluations)
