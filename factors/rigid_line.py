@@ -42,6 +42,14 @@ __all__ = ["RigidLineFactor", "RigidTracks", "make_rigid_line_factor"]
 #: A line variable further than this (rad) from its anchor starts its inner solve from the anchor's solution
 #: without the first-order prediction.
 PREDICT_MAX_RAD = 0.2
+#: Trust region of the inner steps: no track's circle ``(d, r)`` moves by more than this times its radius in one
+#: step (nor by the first-order prediction, which is then left out). Without it, a track whose circle is weakly
+#: determined (a small thin ellipse: offset and radius trade off) can be thrown far along the axis, to a circle
+#: near infinity whose projection still fits a short arc, where Gauss-Newton runs off.
+MAX_CIRCLE_STEP = 0.5
+#: Frames per group in the Schur complement's ``C C^T`` (a track is seen in a few groups, so most track pairs share
+#: none and their block is never computed).
+GROUP_FRAMES = 200
 
 
 class RigidTracks:
@@ -82,10 +90,45 @@ class RigidTracks:
         #: (3m,) inner track parameters ``(d, r, phi0)`` per track that are free (the gauge's phi0 are held)
         self.free = np.ones(3 * self.n_tracks, dtype=bool)
         self.free[[3 * comp[0] + 2 for comp in self.components]] = False
-        # flat indices of the pixels' entries in the (3m, F) track-frame coupling, per track parameter
-        self._coupling = [(3 * self.track + a) * self.n_frames + self.frame for a in range(3)]
-        for a in (self.pixels, self.track, self.frame, self.free, self.counts):
+        self._indices: dict[tuple, np.ndarray] = {}
+        self._group_layout()
+        for a in (self.pixels, self.track, self.frame, self.free, self.counts, self._coupling):
             a.setflags(write=False)
+
+    def _group_layout(self) -> None:
+        """The track-frame coupling of the normal matrix (3m x F, one entry per pixel and track parameter: a track
+        sees a frame once) stored by groups of about ``GROUP_FRAMES`` frames, each a dense block of the rows of the
+        tracks seen in it only: ``_groups`` holds (rows, first frame, end, ``np.ix_`` of the rows, offset in the
+        flat store), ``_coupling`` each pixel's flat position per parameter (3N), ``_coupling_size`` the store's."""
+        self._groups, offset = [], 0
+        position = np.empty((3, self.n_points), dtype=np.int64)
+        group = self.frame // GROUP_FRAMES
+        for g, first in enumerate(range(0, self.n_frames, GROUP_FRAMES)):
+            end = min(first + GROUP_FRAMES, self.n_frames)
+            here = np.flatnonzero(group == g)
+            seen, local = np.unique(self.track[here], return_inverse=True)
+            rows = (3 * seen[:, None] + np.arange(3)).reshape(-1)
+            for a in range(3):
+                position[a, here] = offset + (3 * local + a) * (end - first) + self.frame[here] - first
+            self._groups.append((rows, first, end, np.ix_(rows, rows), offset))
+            offset += len(rows) * (end - first)
+        self._coupling, self._coupling_size = position.reshape(-1), offset
+
+    def _index(self, rows: int, q: int = 1, by_frame: bool = False) -> np.ndarray:
+        """Bincount targets of a (rows, q, N) array of per-pixel values summed per track (target ``(i * m + track) *
+        q + c``; with ``rows`` 3, ``(3 track + i) q + c``: the inner parameters' order) or per frame."""
+        key = (rows, q, by_frame)
+        if key not in self._indices:
+            i = np.arange(rows)[:, None, None]
+            c = np.arange(q)[None, :, None]
+            if by_frame:
+                target = (i * self.n_frames + self.frame) * q + c
+            elif rows == 3:
+                target = (3 * self.track + i) * q + c
+            else:
+                target = (i * self.n_tracks + self.track) * q + c
+            self._indices[key] = np.ascontiguousarray(target.reshape(-1))
+        return self._indices[key]
 
 
 class _Inner:
@@ -127,54 +170,57 @@ class _Normal:
 
     def __init__(self, tracks: RigidTracks, ev: _Inner, w_pixel: np.ndarray):
         m, F = tracks.n_tracks, tracks.n_frames
+        self.tracks = tracks
         a = ev.a
         wa = a * w_pixel  # (3, 2, N)
-        t, f = tracks.track, tracks.frame
-        A = np.zeros((m, 3, 3))
-        for i in range(3):
-            for k in range(i, 3):
-                A[:, i, k] = A[:, k, i] = np.bincount(t, weights=np.einsum("sn,sn->n", wa[i], a[k]), minlength=m)
-        self.D = np.bincount(f, weights=np.einsum("sn,sn->n", wa[2], a[2]), minlength=F)
-        self.D = np.maximum(self.D, 1e-300)
-        cross = [np.einsum("sn,sn->n", wa[i], a[2]) for i in range(3)]
-        self.B = np.bincount(np.concatenate(tracks._coupling), weights=np.concatenate(cross),
-                             minlength=3 * m * F).reshape(3 * m, F)
+        P = np.einsum("isn,ksn->ikn", wa, a)  # (3, 3, N): per pixel, products of the (d, r, phi) derivatives
+        A = np.bincount(tracks._index(9), weights=P.reshape(-1), minlength=9 * m).reshape(3, 3, m)
+        self.root = np.sqrt(np.maximum(np.bincount(tracks.frame, weights=P[2, 2], minlength=F), 1e-300))  # D^1/2
+        # C = B D^-1/2, B (3m, F) the track-frame block of the normal matrix, S = A - C C^T, all by frame groups
+        self._C = np.zeros(tracks._coupling_size)
+        self._C[tracks._coupling] = (P[:, 2] / self.root[tracks.frame]).reshape(-1)
         S = np.zeros((3 * m, 3 * m))
         idx = np.arange(m)
-        for i in range(3):
-            for k in range(3):
-                S[3 * idx + i, 3 * idx + k] = A[:, i, k]
-        C = self.B / np.sqrt(self.D)
-        S -= C @ C.T  # one operand transposed: BLAS syrk, half the work of (B / D) @ B.T
+        S.reshape(m, 3, m, 3)[idx, :, idx, :] = A.transpose(2, 0, 1)
+        for _, _, _, block, Cg in self._blocks():
+            S[block] -= Cg @ Cg.T
         held = np.flatnonzero(~tracks.free)
         S[held, :] = 0.0
         S[:, held] = 0.0
         S[held, held] = 1.0
-        self.S, self.held, self.wa, self.tracks = S, held, wa, tracks
+        self.S, self.held, self.wa = S, held, wa
+
+    def _blocks(self):
+        """Per frame group: its rows, first frame, end, the rows' ``np.ix_`` block and its part of C (rows x
+        frames)."""
+        for rows, first, end, block, offset in self.tracks._groups:
+            yield rows, first, end, block, self._C[offset:offset + len(rows) * (end - first)].reshape(-1, end - first)
 
     def project(self, V: np.ndarray, gradients: bool = False) -> tuple[np.ndarray, ...]:
         """``(J^T W J)^-1 J^T W V`` for per-pixel columns ``V`` (q, 2, N): (3m, q) and (F, q); with ``gradients``
         also ``J^T W V`` (held entries 0)."""
-        tracks, wa = self.tracks, self.wa
+        tracks = self.tracks
         m, F = tracks.n_tracks, tracks.n_frames
         q = V.shape[0]
-        gt = np.empty((3 * m, q))
-        gf = np.empty((F, q))
-        for c in range(q):
-            for i in range(3):
-                gt[i::3, c] = np.bincount(tracks.track, weights=np.einsum("sn,sn->n", wa[i], V[c]), minlength=m)
-            gf[:, c] = np.bincount(tracks.frame, weights=np.einsum("sn,sn->n", wa[2], V[c]), minlength=F)
+        G = np.einsum("isn,qsn->iqn", self.wa, V)  # (3, q, N)
+        gt = np.bincount(tracks._index(3, q), weights=G.reshape(-1), minlength=3 * m * q).reshape(3 * m, q)
+        gf = np.bincount(tracks._index(1, q, by_frame=True), weights=G[2].reshape(-1), minlength=F * q).reshape(F, q)
         gt[self.held] = 0.0
         xt, xf = self.solve(gt, gf)
         return (xt, xf, gt, gf) if gradients else (xt, xf)
 
     def solve(self, gt: np.ndarray, gf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The solution of the normal equations with right-hand sides ``(gt, gf)`` (held entries 0)."""
-        rhs = gt - self.B @ (gf / self.D[:, None])
+        gf = gf / self.root[:, None]
+        rhs = gt.copy()
+        for rows, first, end, _, Cg in self._blocks():
+            rhs[rows] -= Cg @ gf[first:end]
         rhs[self.held] = 0.0  # S is the identity there
         xt = np.linalg.solve(self.S, rhs)
-        xf = (gf - self.B.T @ xt) / self.D[:, None]
-        return xt, xf
+        xf = gf.copy()
+        for rows, first, end, _, Cg in self._blocks():
+            xf[first:end] -= Cg.T @ xt[rows]
+        return xt, xf / self.root[:, None]
 
 
 class _RigidState:
@@ -257,7 +303,8 @@ class RigidLineFactor(CoaxialLineFactor):
 
     def _solve(self, rot: gtsam.Rot3, R: np.ndarray) -> _RigidState:
         """The inner problem at ``rot`` by Gauss-Newton (IRLS), from its anchor's solution moved by its first-order
-        change, with step halving where the robust cost rises."""
+        change, with steps shortened to the trust region ``MAX_CIRCLE_STEP`` and halved where the robust cost
+        rises."""
         tracks, K = self.tracks, self.K
         anchor, w, norm = self._anchor(rot)
         if anchor is None:
@@ -266,7 +313,7 @@ class RigidLineFactor(CoaxialLineFactor):
             x = anchor.ev.x.copy()
             if norm <= PREDICT_MAX_RAD and anchor.X is not None:
                 change = -anchor.X @ w
-                if np.all(np.isfinite(change)):
+                if np.all(np.isfinite(change)) and self._circle_change(x, change) <= MAX_CIRCLE_STEP:
                     x += change
         ev = _Inner(tracks, K, R, x)
         cost = self._cost(ev.sse)
@@ -280,7 +327,8 @@ class RigidLineFactor(CoaxialLineFactor):
                 break
             if evaluations >= self.max_evaluations:
                 break
-            step, t = -np.concatenate([xt[:, 0], xf[:, 0]]), 1.0
+            step = -np.concatenate([xt[:, 0], xf[:, 0]])
+            t = min(1.0, MAX_CIRCLE_STEP / max(self._circle_change(x, step), 1e-300))
             while True:
                 trial = _Inner(tracks, K, R, x + t * step)
                 evaluations += 1
@@ -296,6 +344,12 @@ class RigidLineFactor(CoaxialLineFactor):
         self.evaluations += evaluations
         self.work += evaluations
         return state
+
+    def _circle_change(self, x: np.ndarray, change: np.ndarray) -> float:
+        """The largest change of a track's circle ``(d, r)`` relative to its radius."""
+        m = self.tracks.n_tracks
+        circles, moves = x[:3 * m].reshape(m, 3)[:, :2], change[:3 * m].reshape(m, 3)[:, :2]
+        return float(np.max(np.abs(moves).max(axis=1) / np.maximum(np.abs(circles[:, 1]), 1e-12)))
 
     def _cost(self, sse: np.ndarray) -> float:
         """The robust cost (sum of losses of the tracks' whitened norms)."""

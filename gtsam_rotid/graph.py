@@ -31,11 +31,16 @@ from .dataset import Measurement, Track
 from .errors import InputError
 from .factors import (
     CoaxialLineFactor,
+    CoaxialTracks,
     FKAxis,
+    RigidLineFactor,
+    RigidTracks,
+    initial_spin,
     make_axis_to_line_variable_factor,
     make_circle_point_factor,
     make_coaxial_line_factor,
     make_pose_circle_point_factor,
+    make_rigid_line_factor,
     rot3_from_line,
 )
 from .initialise import MIN_ELLIPSE_POINTS, Ellipse, fit_ellipse
@@ -98,10 +103,11 @@ def axis_test_points(axis) -> np.ndarray:
 
 @dataclass
 class PreparedTrack:
-    """A usable track: its ideal (undistorted) pixels and its ellipse."""
+    """A usable track: its ideal (undistorted) pixels, its ellipse, and its pixels' frame indices (or None)."""
 
     ideal: np.ndarray
     ellipse: Ellipse
+    frames: np.ndarray | None = None
 
 
 @dataclass
@@ -132,7 +138,7 @@ def prepare_tracks(camera: Camera, measurement: Measurement, k: int = 0, *,
         if ellipse is None:
             rejected[j] = "no ellipse fits its points"
             continue
-        usable[j] = PreparedTrack(ideal, ellipse)
+        usable[j] = PreparedTrack(ideal, ellipse, track.frames)
     return PreparedMeasurement(usable, rejected)
 
 
@@ -149,8 +155,9 @@ class MeasurementKeys:
     scale: float  # camera-to-axis distance (m) of the initial line: metric = unit * scale
     rejected: dict[int, str] = field(default_factory=dict)  # track index -> reason
     #: the "projected" model's one factor for all tracks (no circle variables; ``circle_factors`` holds its
-    #: index): read the circles, per-track residuals and weights from it
-    coaxial: CoaxialLineFactor | None = None
+    #: index): read the circles, per-track residuals and weights from it. A :class:`RigidLineFactor` (a subclass,
+    #: 2-D residuals per pixel) where the rigid spin models the measurement's phases.
+    coaxial: CoaxialLineFactor | RigidLineFactor | None = None
 
 
 def initial_circle(camera_point: np.ndarray, camera_direction: np.ndarray, rays: np.ndarray,
@@ -204,6 +211,17 @@ class Model(StrEnum):
     PROJECTED = "projected"
 
 
+class SpinModel(StrEnum):
+    """How the phases of one spin's features are modelled (``RotIdGraph(spin_model=...)``, docs/design.md §4)."""
+
+    #: a free phase per observation: each pixel is compared with the nearest point of its circle
+    FREE = "free"
+    #: one spin angle per frame, shared by all the measurement's tracks, and one phase offset per track
+    #: (:mod:`gtsam_rotid.factors.rigid_line`). The ``"projected"`` model, for measurements whose tracks all have
+    #: frame indices; the others keep the free phase.
+    RIGID = "rigid"
+
+
 class RotIdGraph:
     """Adds rotation-identification variables and factors to a user's graph.
 
@@ -217,20 +235,27 @@ class RotIdGraph:
         min_track_points, min_track_extent_px: tracks with fewer points, or whose pixels span a smaller
             image extent, are rejected.
         robust: optional ``gtsam.noiseModel.mEstimator`` applied per track (whole-track weighting: GTSAM
-            evaluates it on the track's whole whitened norm), or a callable ``n_points -> mEstimator`` so that
-            its threshold can follow the track length (see :func:`track_huber`).
+            evaluates it on the track's whole whitened norm), or a callable ``n_residuals -> mEstimator`` so that
+            its threshold can follow the track length (see :func:`track_huber`; a track has one residual per
+            point, two with the rigid spin).
+        spin_model: ``"free"`` (default) or ``"rigid"`` (see :class:`SpinModel`; ``"projected"`` model only).
     """
 
     def __init__(self, arm: Arm, camera: Camera, *, pose_key: int = gtsam.symbol("T", 0), line_symbol: str = "l",
                  circle_symbol: str = "c", track_sigma_px: float = 1.0, tie_sigma_px: float = 1e-3,
                  min_track_points: int = MIN_TRACK_POINTS, min_track_extent_px: float = MIN_TRACK_EXTENT_PX,
-                 robust=None, model: str | Model = Model.LINE):
+                 robust=None, model: str | Model = Model.LINE, spin_model: str | SpinModel = SpinModel.FREE):
         if line_symbol == circle_symbol:
             raise InputError("line_symbol and circle_symbol must differ")
         try:
             self.model = Model(model)
         except ValueError:
             raise InputError(f"unknown model {model!r}; choose one of {[m.value for m in Model]}") from None
+        try:
+            self.spin_model = SpinModel(spin_model)
+        except ValueError:
+            raise InputError(f"unknown spin_model {spin_model!r}; choose one of {[m.value for m in SpinModel]}"
+                             ) from None
         for name, value in (("track_sigma_px", track_sigma_px), ("tie_sigma_px", tie_sigma_px)):
             if not np.isfinite(value) or value <= 0:
                 raise InputError(f"{name} must be a positive number of pixels, got {value!r}")
@@ -338,7 +363,7 @@ class RotIdGraph:
             raise InputError(f"measurement {k}: only {len(keys.tracks)} usable track(s), need at least 2 "
                              f"(rejected: {keys.rejected})")
         if projected:
-            keys.coaxial = self._coaxial(line_key, prepared, keys.tracks, start_circles, track_sigmas)
+            keys.coaxial = self._coaxial(line_key, prepared, keys.tracks, start_circles, track_sigmas, line_cam)
             new_factors.append(keys.coaxial.factor)
         elif refine_circles:
             new_values = self._refined_circles(new_factors, new_values, keys, line_key, line_cam, arm_T_camera)
@@ -358,13 +383,29 @@ class RotIdGraph:
         return make_circle_point_factor(noise, line_key, circle_key, track.ideal, self.camera.K)
 
     def _coaxial(self, line_key, prepared: PreparedMeasurement, tracks: list[int], start_circles: list[np.ndarray],
-                 track_sigmas: dict[int, float] | None):
-        """The projected model's one factor of a measurement: its tracks' circles solved inside, at the median of
-        their pixel sigmas."""
+                 track_sigmas: dict[int, float] | None, line: gtsam.Rot3):
+        """The projected model's one factor of a measurement: its tracks' circles (and with the rigid spin, their
+        phase offsets and the spin angles) solved inside, at the median of their pixel sigmas. The rigid spin
+        starts from the closest phases of the start circles at the start ``line``."""
         sigmas = [self.track_sigma_px if track_sigmas is None else track_sigmas.get(j, self.track_sigma_px)
                   for j in tracks]
-        return make_coaxial_line_factor(line_key, [prepared.usable[j].ideal for j in tracks], self.camera.K,
-                                        np.array(start_circles), sigma_px=float(np.median(sigmas)), robust=self.robust)
+        ideal = [prepared.usable[j].ideal for j in tracks]
+        frames = [prepared.usable[j].frames for j in tracks]
+        circles = np.array(start_circles)
+        if self.spin_model is SpinModel.FREE or any(f is None for f in frames):
+            return make_coaxial_line_factor(line_key, ideal, self.camera.K, circles,
+                                            sigma_px=float(np.median(sigmas)), robust=self.robust)
+        phases = CoaxialTracks(self.camera.K, ideal).phases(line, circles[:, 0], circles[:, 1])
+        rigid = RigidTracks(list(zip(ideal, frames, strict=True)))
+        first = int(rigid.frame_ids[0])
+        spin = initial_spin(list(zip(frames, np.split(phases, np.cumsum(rigid.counts)[:-1]), strict=True)),
+                            int(rigid.frame_ids[-1]) - first + 1, first)
+        robust = self.robust
+        if callable(robust) and not isinstance(robust, gtsam.noiseModel.mEstimator.Base):
+            robust = lambda n, per_residuals=self.robust: per_residuals(2 * n)  # noqa: E731  (2 residuals a point)
+        return make_rigid_line_factor(line_key, rigid, self.camera.K, circles, spin.phi0,
+                                      spin.theta[0][rigid.frame_ids - first], sigma_px=float(np.median(sigmas)),
+                                      robust=robust)
 
     def _refined_circles(self, factors, circles: gtsam.Values, keys: MeasurementKeys, line_key, line_cam,
                          arm_T_camera) -> gtsam.Values:

@@ -1,5 +1,6 @@
 """The joint estimator: every track's circle factors and the projected-axis ties in one graph on the pose, its
-sandwich covariance, restarts, and the rigid-spin model.
+sandwich covariance, and restarts. With the rigid spin (``CalibrationOptions.spin_model``) the builder gives each
+measurement a rigid-spin factor instead of the free-phase one (:class:`gtsam_rotid.graph.SpinModel`).
 """
 
 from __future__ import annotations
@@ -10,22 +11,10 @@ from typing import NamedTuple
 import gtsam
 import numpy as np
 
-from ..dataset import Track
 from ..errors import RotIdError
-from ..factors import (
-    RigidTracks,
-    closest_phases,
-    image_line_from_rot3,
-    initial_spin,
-    make_axis_to_line_variable_factor,
-    make_circle_point_factor,
-    make_rigid_line_factor,
-)
+from ..factors import RigidLineFactor
 from ..graph import (
-    CIRCLE_STRIDE,
     Model,
-    axis_test_points,
-    tie_noise_model,
     track_huber,
 )
 from ..uncertainty import (
@@ -35,7 +24,7 @@ from ..uncertainty import (
 from .evidence import measurement_reports
 from .lm import _builder, _graph_dof, _lm, _turned
 from .opinion import _second_opinion
-from .options import CalibrationError, Method, SpinModel
+from .options import CalibrationError, Method
 from .result import CalibrationResult
 from .stage1 import _circles, _noise_variance, _Stage1, _track_correlation, _track_stats
 from .stage2 import (
@@ -162,7 +151,8 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     """The joint graph of the measurements ``fit.used`` from ``fit.pose``, with ``fit.stage1``'s lines and circles
     and their pixel noise to start (see :func:`_joint`)."""
     pose, iterations, used, chi2, stage1 = fit.pose, fit.iterations, fit.used, fit.chi2, fit.stage1
-    builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model)
+    builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model,
+                       spin_model=options.spin_model)
     sigmas = {k: float(np.sqrt(stage1[k].sigma2)) for k in used}
     circles = {k: None if builder.model is Model.POSE else dict(stage1[k].circles) for k in used}
     lines = {k: stage1[k].rotation for k in used}
@@ -181,8 +171,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
             watch=lambda v, start_pose=start_pose: start_pose.localCoordinates(v.atPose3(POSE_KEY)))
         iterations += it
         pose = result.atPose3(POSE_KEY)
-        new_sigmas = {k: float(np.sqrt(_noise_variance(_track_stats(graph, keys[k], result), 1, options)))
-                      for k in used}
+        new_sigmas = {k: float(np.sqrt(_joint_variance(graph, keys[k], result, options))) for k in used}
         failed = [setup.index[k] if setup.index else k for k in used if not np.isfinite(new_sigmas[k])]
         if failed:
             raise CalibrationError(f"the joint fit failed: the circles of measurement(s) {failed} have no finite "
@@ -197,17 +186,6 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
     reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, chi2, tied)
     variances = {k: sigmas[k] ** 2 for k in used}
-    if options.spin_model is SpinModel.RIGID and builder.model is not Model.POSE:
-        rigid = _rigid_spin(camera, measurements, setup, keys, result, sigmas, options)
-        if rigid is not None:
-            # the free-phase information is the one whose eigen-analysis names undetermined directions; the
-            # rigid graph is too large for a dense Schur complement and has the same null directions
-            solved = _Solved(rigid.pose, rigid.covariance, info, Method.JOINT, rigid.converged,
-                             iterations + rigid.iterations, rigid.error)
-            pose = rigid.pose
-            return _finish(solved, reports, np.median(list(sigmas.values())),
-                           consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options),
-                           prior=_prior_floor_covariance(camera, setup, stage1, used, pose, variances))
     try:
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
     except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
@@ -225,64 +203,17 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                    prior=_prior_floor_covariance(camera, setup, stage1, used, pose, variances))
 
 
-class _RigidFit(NamedTuple):
-    """The rigid-spin graph's solution."""
-
-    pose: gtsam.Pose3
-    covariance: np.ndarray
-    iterations: int
-    error: float
-    converged: bool
-
-
-def _rigid_spin(camera, measurements, setup, keys, free, sigmas, options) -> _RigidFit | None:
-    """The joint graph with the rigid spin (docs/design.md §4), started from the free-phase joint solution ``free``.
-
-    Per measurement, its tracks with frame indices share one spin angle per frame and have one phase offset each,
-    projected out with their circles by one :func:`make_rigid_line_factor` on its line variable (Huber per track);
-    tracks without frames keep their free-phase circle-point factor. Returns None when no track has frames.
-    """
-    K = camera.K
-    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    values.insert(POSE_KEY, free.atPose3(POSE_KEY))
-    rigid_tracks = 0
-    for k, keys_k in keys.items():
-        R = free.atRot3(keys_k.line_key)
-        values.insert(keys_k.line_key, R)
-        tie_cov = setup.tie_covariance(camera, k, image_line_from_rot3(K, R)[0], free.atPose3(POSE_KEY))
-        graph.add(make_axis_to_line_variable_factor(tie_noise_model(options.tie_sigma_px, tie_cov),
-                                                    POSE_KEY, keys_k.line_key, axis_test_points(setup.axes[k]), K))
-        spun = []
-        for j, (d, r) in zip(keys_k.tracks, _circles(keys_k, free), strict=True):
-            ideal = setup.prepared[k].usable[j].ideal
-            frames = Track.from_any(measurements[k].tracks[j]).frames
-            if frames is None:
-                circle_key = gtsam.symbol("c", k * CIRCLE_STRIDE + j)
-                values.insert(circle_key, np.array([d, r]))
-                noise = gtsam.noiseModel.Robust.Create(track_huber(len(ideal)),
-                                                       gtsam.noiseModel.Isotropic.Sigma(len(ideal), sigmas[k]))
-                graph.add(make_circle_point_factor(noise, keys_k.line_key, circle_key, ideal, K))
-                continue
-            spun.append((d, r, ideal, frames, closest_phases(K, R, d, r, ideal)))
-        if not spun:
-            continue
-        rigid_tracks += len(spun)
-        tracks = RigidTracks([(t[2], t[3]) for t in spun])
-        first = int(tracks.frame_ids[0])
-        span = int(tracks.frame_ids[-1]) - first + 1
-        init = initial_spin([(t[3], t[4]) for t in spun], span, first)
-        theta = init.theta[0][tracks.frame_ids - first]
-        factor = make_rigid_line_factor(keys_k.line_key, tracks, K, [(t[0], t[1]) for t in spun], init.phi0,
-                                        theta, sigma_px=sigmas[k], robust=lambda n: track_huber(2 * n))
-        graph.add(factor.factor)
-    if rigid_tracks == 0:
-        return None
-    result, iterations, error, converged = _lm(graph, values, options.max_iterations, anchor=True)
-    try:
-        covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
-    except RuntimeError:
-        covariance = None
-    return _RigidFit(result.atPose3(POSE_KEY), covariance, iterations, error, converged)
+def _joint_variance(graph, keys, values, options) -> float:
+    """A measurement's pixel noise variance (px^2 per image coordinate) from its residuals in the joint graph: the
+    free phase's point-to-circle distances, or the rigid spin's 2-D errors (their degrees of freedom: two per
+    pixel less each track's circle and phase offset, each frame's angle, and one gauge per group of tracks linked
+    by shared frames)."""
+    factor = keys.coaxial
+    if isinstance(factor, RigidLineFactor):
+        tracks = factor.tracks
+        dof = 2 * tracks.n_points - 3 * tracks.n_tracks + len(tracks.components) - tracks.n_frames - 1
+        return max(float(factor.track_sse(values).sum()) / max(dof, 1), options.min_sigma_px**2)
+    return _noise_variance(_track_stats(graph, keys, values), 1, options)
 
 
 def common_chi2(arm, camera, measurements, setup, results: list[CalibrationResult],
@@ -292,7 +223,8 @@ def common_chi2(arm, camera, measurements, setup, results: list[CalibrationResul
     used = [k for k in range(len(measurements)) if all(r.measurements[k].used for r in results)]
     sigmas = {k: max(min(r.measurements[k].residual_rms_px for r in results), options.min_sigma_px) for k in used}
     skip = {k: set().union(*(r.measurements[k].rejected_tracks for r in results)) for k in used}
-    builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model)
+    builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model,
+                       spin_model=options.spin_model)
     chi2, poses = [], []
     for r in results:
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()

@@ -14,6 +14,7 @@ from ..graph import (
     MIN_TRACK_EXTENT_PX,
     MIN_TRACK_POINTS,
     Model,
+    SpinModel,
 )
 
 MIN_MEASUREMENTS = 3
@@ -25,15 +26,6 @@ class Method(StrEnum):
     PAPER = "paper"
     WEIGHTED = "weighted"
     JOINT = "joint"
-
-
-class SpinModel(StrEnum):
-    """How the phases of one spin's features are modelled (``CalibrationOptions.spin_model``)."""
-
-    #: a free phase per observation
-    FREE = "free"
-    #: one wrist angle per frame and one phase per track (tracks with frame indices, line model only)
-    RIGID = "rigid"
 
 
 def _choice(enum: type[StrEnum], name: str, value) -> StrEnum:
