@@ -7,6 +7,8 @@ from gtsam.symbol_shorthand import L, X
 
 from gtsam_rotid import InputError, simulate
 from gtsam_rotid.estimate import calibrate
+from gtsam_rotid.dataset import Measurement
+from gtsam_rotid.factors import CoaxialLineFactor, RigidLineFactor
 from gtsam_rotid.graph import Model, RotIdGraph, lm_params
 
 
@@ -132,6 +134,36 @@ def test_projected_model_equals_the_line_model_on_noisy_spins():
     sigma = np.sqrt(np.diag(cov_line))
     assert np.all(np.abs(pose_line.localCoordinates(pose_projected)) < 1e-3 * sigma)
     np.testing.assert_allclose(np.sqrt(np.diag(cov_projected)), sigma, rtol=1e-3)
+
+
+def test_rigid_spin_in_a_users_graph():
+    """spin_model="rigid": one rigid-spin factor per measurement whose tracks have frame indices (the free phase for
+    one without), a pose within its covariance of the truth, and a covariance below the free phase's (the rigid
+    spin knows that all features turn together)."""
+    dataset, truth = simulate.reference_scene(seed=5, noise_var=1.5, duration=12.0, n_measurements=4)
+    start = calibrate(dataset, method="weighted")
+    frameless = Measurement(dataset[3].joint_angles, [t.pixels for t in dataset[3].tracks])
+    solved = {}
+    for spin in ("free", "rigid"):
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        values.insert(X(0), start.arm_T_camera)
+        builder = RotIdGraph(dataset.arm, dataset.camera, pose_key=X(0), track_sigma_px=start.sigma_px,
+                             model="projected", spin_model=spin)
+        for k, m in enumerate(list(dataset)[:3] + [frameless]):
+            keys = builder.add_measurement(graph, values, k, m)
+            assert keys.circles == [] and len(keys.circle_factors) == 1
+            rigid = spin == "rigid" and k < 3
+            assert isinstance(keys.coaxial, RigidLineFactor) == rigid and isinstance(keys.coaxial, CoaxialLineFactor)
+            points = sum(len(m.tracks[j].pixels) for j in keys.tracks)
+            assert graph.at(keys.circle_factors[0]).dim() == (2 if rigid else 1) * points
+        result = lm(graph, values, diagonal_damping=False)
+        solved[spin] = (result.atPose3(X(0)), gtsam.Marginals(graph, result).marginalCovariance(X(0)))
+    pose, covariance = solved["rigid"]
+    error = truth.arm_T_camera.localCoordinates(pose)
+    assert error @ np.linalg.solve(covariance, error) < 22.5  # the 99.9 % point for 6 dof
+    assert np.all(np.diag(covariance) < np.diag(solved["free"][1]))
+    with pytest.raises(InputError, match="unknown spin_model 'rigd'"):
+        RotIdGraph(dataset.arm, dataset.camera, spin_model="rigd")
 
 
 def test_tie_covariance_widens_the_tie_and_a_bad_one_adds_nothing(scene):
