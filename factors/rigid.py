@@ -310,40 +310,61 @@ def _track_components(tracks: list, n_frames: int) -> list[list[int]]:
 
 def _place_tracks(tracks: list, components: list[list[int]], n_frames: int) -> np.ndarray:
     """``phi0`` (J,) of the tracks placed one at a time per component (its first track at 0, then the one sharing
-    most pixels with the frames placed so far): the circular mean of ``p_i - theta_{f_i}`` over the shared frames."""
+    most pixels with the frames placed so far, the earliest in component order on a tie): the circular mean of
+    ``p_i - theta_{f_i}`` over the shared frames. The counts of shared pixels are kept up to date from the frames
+    each placement newly covers (not recounted for every track at every step)."""
     phi0 = np.zeros(len(tracks))
     Z = np.zeros(n_frames, dtype=complex)  # sum of unit phasors exp(i theta_f) from the placed tracks
+    covered = np.zeros(n_frames, dtype=bool)
+    frames = np.concatenate([f for f, _ in tracks]) if tracks else np.zeros(0, dtype=int)
+    owner = np.repeat(np.arange(len(tracks)), [len(f) for f, _ in tracks])
+    order = np.argsort(frames, kind="stable")
+    starts = np.searchsorted(frames[order], np.arange(n_frames + 1))  # pixels of frame f: order[starts[f]:starts[f+1]]
     for comp in components:
-        placed = [comp[0]]
-        f, z = tracks[comp[0]]
-        np.add.at(Z, f, z)
-        todo = comp[1:]
-        while todo:
-            shared = [np.count_nonzero(Z[tracks[j][0]]) for j in todo]
-            j = todo.pop(int(np.argmax(shared)))
+        shared = np.zeros(len(tracks), dtype=np.int64)  # pixels of each track at covered frames
+        todo = list(comp)
+        j, first = todo.pop(0), True
+        while True:
             f, z = tracks[j]
-            phi0[j] = np.angle(np.sum(z * np.conj(Z[f])))
+            if not first:
+                phi0[j] = np.angle(np.sum(z * np.conj(Z[f])))
             np.add.at(Z, f, z * np.exp(-1j * phi0[j]))
-            placed.append(j)
+            new = np.unique(f[~covered[f]])
+            covered[new] = True
+            lengths = starts[new + 1] - starts[new]
+            at_new = order[np.repeat(starts[new] - np.cumsum(lengths) + lengths, lengths) + np.arange(lengths.sum())]
+            shared += np.bincount(owner[at_new], minlength=len(tracks))
+            if not todo:
+                break
+            j, first = todo.pop(int(np.argmax(shared[todo]))), False
     return phi0
 
 
 def _phasor_sums(tracks: list, phi0: np.ndarray, n_frames: int) -> np.ndarray:
     """Per frame, the sum over the tracks' pixels at that frame of ``exp(i (p_i - phi0_j))``."""
-    Z = np.zeros(n_frames, dtype=complex)
-    for j, (f, z) in enumerate(tracks):
-        np.add.at(Z, f, z * np.exp(-1j * phi0[j]))
-    return Z
+    if not tracks:
+        return np.zeros(n_frames, dtype=complex)
+    frames = np.concatenate([f for f, _ in tracks])
+    z = np.concatenate([z * np.exp(-1j * phi0[j]) for j, (_, z) in enumerate(tracks)])
+    return np.bincount(frames, weights=z.real, minlength=n_frames) + 1j * np.bincount(frames, weights=z.imag,
+                                                                                       minlength=n_frames)
 
 
 def _refine_offsets(tracks: list, phi0: np.ndarray, n_frames: int, iterations: int) -> None:
     """Alternating circular means, ``phi0`` modified in place: ``theta_f`` over all pixels at ``f``, then each
     ``phi0_j``."""
+    if not tracks:
+        return
+    frames = np.concatenate([f for f, _ in tracks])
+    z = np.concatenate([z for _, z in tracks])
+    owner = np.repeat(np.arange(len(tracks)), [len(f) for f, _ in tracks])
+    seen = np.bincount(owner, minlength=len(tracks)) > 0
     for _ in range(iterations):
         unit = np.exp(1j * np.angle(_phasor_sums(tracks, phi0, n_frames)))
-        for j, (f, z) in enumerate(tracks):
-            if len(f):
-                phi0[j] = np.angle(np.sum(z * np.conj(unit[f])))
+        w = z * np.conj(unit[frames])
+        sums = np.bincount(owner, weights=w.real, minlength=len(tracks)) + 1j * np.bincount(
+            owner, weights=w.imag, minlength=len(tracks))
+        phi0[seen] = np.angle(sums[seen])
 
 
 def _spin_angles(tracks: list, components: list[list[int]], phi0: np.ndarray,

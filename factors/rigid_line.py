@@ -216,7 +216,13 @@ class _Normal:
         for rows, first, end, _, Cg in self._blocks():
             rhs[rows] -= Cg @ gf[first:end]
         rhs[self.held] = 0.0  # S is the identity there
-        xt = np.linalg.solve(self.S, rhs)
+        try:
+            xt = np.linalg.solve(self.S, rhs)
+            finite = bool(np.all(np.isfinite(xt)))
+        except np.linalg.LinAlgError:
+            finite = False
+        if not finite:  # a direction the pixels do not determine (a short arc's radius): the pseudo-inverse's step
+            xt = np.linalg.lstsq(self.S, rhs, rcond=1e-12)[0]  # and projection leave it alone
         xf = gf.copy()
         for rows, first, end, _, Cg in self._blocks():
             xf[first:end] -= Cg.T @ xt[rows]

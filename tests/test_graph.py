@@ -6,8 +6,8 @@ import pytest
 from gtsam.symbol_shorthand import L, X
 
 from gtsam_rotid import InputError, simulate
-from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.dataset import Measurement
+from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.factors import CoaxialLineFactor, RigidLineFactor
 from gtsam_rotid.graph import Model, RotIdGraph, lm_params
 

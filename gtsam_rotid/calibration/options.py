@@ -67,9 +67,10 @@ class CalibrationOptions:
     #: Initial stage-2 RMS (px) above which the start is declared a poor minimum.
     max_initial_rms_px: float = 25.0
     tie_sigma_px: float = 1e-3
-    #: Joint method: ``"free"`` phase per observation, or ``"rigid"`` spin (one wrist angle per frame and one
-    #: phase per track, docs/design.md §4; for tracks with frame indices, line model only). Rigid is slower.
-    spin_model: str = "free"
+    #: Joint method: ``"rigid"`` spin (default: one spin angle per frame shared by all features of a spin, and one
+    #: phase offset per track, docs/design.md §4; for measurements whose tracks all have frame indices, in the
+    #: ``"projected"`` joint model; the others keep the free phase) or ``"free"`` phase per observation.
+    spin_model: str = "rigid"
     #: LM stops when the relative decrease of the error falls below these (stage 1; everything else).
     stage1_tolerance: float = 1e-8
     #: Joint graph: ``"projected"`` (docs/design.md §4's line variables with a projected-axis tie, the circles

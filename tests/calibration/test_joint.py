@@ -17,15 +17,16 @@ def test_joint_is_at_least_as_precise_as_weighted(noisy_scene, monkeypatch):
 
 
 def test_rigid_spin_noise_free_and_noisy(noise_free_scene, noisy_scene):
-    """The rigid-spin joint model (one wrist angle per frame, one phase per track) on the same scenes."""
+    """The rigid-spin joint model (the default: one wrist angle per frame, one phase per track) on the same scenes,
+    against the free phase per observation."""
     from gtsam_rotid.estimate import CalibrationOptions
 
-    options = CalibrationOptions(spin_model="rigid")
+    assert CalibrationOptions().spin_model == "rigid"
     dataset, truth = noise_free_scene
-    result = calibrate(dataset, options=options)
+    result = calibrate(dataset)
     assert np.max(np.abs(result.error_to(truth.arm_T_camera))) < 1e-6
     dataset, truth = noisy_scene
-    rigid, free = calibrate(dataset, options=options), calibrate(dataset)
+    rigid, free = calibrate(dataset), calibrate(dataset, options=CalibrationOptions(spin_model="free"))
     error = rigid.error_to(truth.arm_T_camera)
     assert rigid.covariance_usable and rigid.converged
     assert np.all(np.abs(error) < 4.0 * np.sqrt(np.diag(rigid.covariance)))
