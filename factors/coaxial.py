@@ -311,6 +311,12 @@ class CoaxialLineFactor:
     # ------------------------------------------------------------------------------------------------------------
     # inspection
 
+    @property
+    def inner_dof(self) -> int:
+        """Parameters projected out of the factor (a graph's residual degrees of freedom must count them):
+        ``(d, r)`` per track."""
+        return 2 * self.tracks.n_tracks
+
     def circles(self, x=None) -> np.ndarray:
         """(m, 2) projected-out circles (d, r) at the line variable."""
         ev = self._state(self._rot(x)).ev

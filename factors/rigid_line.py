@@ -393,6 +393,12 @@ class RigidLineFactor(CoaxialLineFactor):
     # ------------------------------------------------------------------------------------------------------------
     # inspection
 
+    @property
+    def inner_dof(self) -> int:
+        """Parameters projected out of the factor: ``(d, r, phi0)`` per track, less the held ``phi0`` (one per
+        group of tracks linked by shared frames), and one spin angle per frame."""
+        return 3 * self.tracks.n_tracks - len(self.tracks.components) + self.tracks.n_frames
+
     def _inner(self, x=None) -> np.ndarray:
         return self._state(self._rot(x)).ev.x
 

@@ -65,9 +65,11 @@ class Chi2Check:
 def chi2_check(result) -> Chi2Check:
     """The χ² consistency of the fit from ``result.final_error`` (= χ²/2 of the final graph).
 
-    The degrees of freedom are ``result.dof`` when the result carries it; otherwise they are counted from the
-    measurement reports (weighted/paper: 2 axis distances per measurement used, minus 6; joint: one residual per
-    point and 2 tie residuals per measurement, minus 6 pose, 3 line and 2 circle parameters per track).
+    The degrees of freedom are ``result.dof`` when the result carries it (the joint graph's residuals less its
+    variables and the parameters its factors project out: each track's circle, with the rigid spin also its phase
+    offset and each frame's spin angle); otherwise they are counted from the measurement reports (weighted/paper:
+    2 axis distances per measurement used, minus 6; joint: one residual per point and 2 tie residuals per
+    measurement, minus 6 pose, 3 line and 2 circle parameters per track).
     """
     used = [m for m in result.measurements if m.weight > 0]
     chi2 = 2.0 * float(result.final_error)

@@ -198,7 +198,8 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         robust = sandwich_marginal(graph, result, POSE_KEY, 6, correlated)
         covariance = covariance if robust is None else robust
     solved = _Solved(pose, covariance, info, Method.JOINT, converged, iterations, error)
-    return _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result),
+    projected = sum(keys[k].coaxial.inner_dof for k in used if keys[k].coaxial is not None)
+    return _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
                    consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options),
                    prior=_prior_floor_covariance(camera, setup, stage1, used, pose, variances))
 
