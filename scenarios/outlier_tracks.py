@@ -7,7 +7,9 @@ criterion: with outliers, the error of ``joint`` (and ``weighted``) stays within
 names what it rejected (at full size: at least 80 % of the wrong arcs, at most 10 % of the good tracks), only the
 measurement with the wrong joint reading is left out, and every error lies inside its reported 99.9 % region.
 "The clean case" is the larger of the clean run's error and its expected error (the root of the trace of its
-reported covariance), for the position (mm) and the rotation (deg) separately: a single clean run can be lucky.
+reported covariance), for the position (mm) and the rotation (deg) separately: a single clean run can be lucky; and
+a case that rightly leaves evidence out (the wrong joint reading's measurement, rejected arcs) may reach 2x its own
+expected error, where that is larger.
 The ``paper`` method, which rejects tracks the same way but keeps every measurement, is shown for comparison.
 
 Run: ``python scenarios/outlier_tracks.py [--quick] [--out DIR] [--seed N]``.
@@ -161,9 +163,11 @@ def main(argv=None) -> int:
                 continue
             p = np.linalg.norm(position_error_mm(result.arm_T_camera, truth.arm_T_camera))
             r = rotation_error_deg(result.arm_T_camera, truth.arm_T_camera)
-            verdict.check(p <= 2 * ref_p and r <= 2 * ref_r,
-                          f"{method}, {case}: error {p:.3f} mm, {r:.4f} deg within 2x the clean case",
-                          robust_when_quick=robust)
+            own_p, own_r = expected_errors(result)  # with less evidence (a measurement left out) it expects more
+            limit_p, limit_r = 2 * max(ref_p, own_p), 2 * max(ref_r, own_r)
+            verdict.check(p <= limit_p and r <= limit_r,
+                          f"{method}, {case}: error {p:.3f} mm, {r:.4f} deg within 2x the clean case or its own "
+                          f"expected error ({limit_p:.3f} mm, {limit_r:.4f} deg)", robust_when_quick=robust)
     for case in ("10 % wrong arcs", "30 % wrong arcs"):
         result = results.get((case, "joint"))
         if result is None:
