@@ -211,8 +211,7 @@ def _joint_variance(graph, keys, values, options) -> float:
     by shared frames)."""
     factor = keys.coaxial
     if isinstance(factor, RigidLineFactor):
-        tracks = factor.tracks
-        dof = 2 * tracks.n_points - 3 * tracks.n_tracks + len(tracks.components) - tracks.n_frames - 1
+        dof = 2 * factor.tracks.n_points - factor.inner_dof - 1
         return max(float(factor.track_sse(values).sum()) / max(dof, 1), options.min_sigma_px**2)
     return _noise_variance(_track_stats(graph, keys, values), 1, options)
 
