@@ -113,6 +113,14 @@ class CoaxialLineFactor:
         circles = np.array(circles, dtype=float).reshape(-1, 2)
         if len(circles) != tracks.n_tracks:
             raise ValueError(f"need one (d, r) per track ({tracks.n_tracks}), got {len(circles)}")
+        self._setup(line_key, tracks, (circles[:, 0].copy(), circles[:, 1].copy()), sigma_px, robust, tol,
+                    max_evaluations, cache_size, tracks.n_points)
+
+    def _setup(self, line_key: int, tracks, start, sigma_px: float, robust, tol: float, max_evaluations: int,
+               cache_size: int, dim: int) -> None:
+        """What every projected-out line factor holds (this and :class:`.rigid_line.RigidLineFactor`): its
+        settings, the start of its first solve, the caches and anchors, the diagnostics, and the CustomFactor of
+        dimension ``dim``, bound to a twin (see the class docstring)."""
         if not np.isfinite(sigma_px) or sigma_px <= 0:
             raise ValueError(f"sigma_px must be a positive number of pixels, got {sigma_px!r}")
         self.line_key = line_key
@@ -121,25 +129,24 @@ class CoaxialLineFactor:
         self.counts = tracks.counts
         self.tol = float(tol)
         self.max_evaluations = int(max_evaluations)
-        self._start = (circles[:, 0].copy(), circles[:, 1].copy())
+        self._start = start
         self._huber_k, self._estimators = _robust_setup(robust, tracks.counts)
         self._cache: OrderedDict[bytes, _LineState] = OrderedDict()
-        #: anchors, the only starts of the circle solves (see _anchor): the states of the last linearisation
-        #: points (LM's accepted lines), never evicted by trial lines, and the first state solved
+        #: anchors, the only starts of the solves (see _anchor): the states of the last linearisation points (LM's
+        #: accepted lines), never evicted by trial lines, and the first state solved
         self._pinned: OrderedDict[bytes, _LineState] = OrderedDict()
         self._home: _LineState | None = None
         self._cache_size = max(1, int(cache_size))
         self._last: _LineState | None = None
-        #: diagnostics: circle solves, the evaluations they took, and their work in passes over all tracks; errors
-        #: refused (outside the trust region, see _refused)
+        #: diagnostics: solves, the evaluations they took, and their work in passes over all tracks; errors refused
+        #: (outside the trust region, see _refused)
         self.refused = 0
         self.solves = 0
         self.evaluations = 0
         self.work = 0.0
         twin = object.__new__(type(self))  # same attributes, no factor slot: no cycle through C++ (see above)
         twin.__dict__ = self.__dict__
-        self.factor = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(tracks.n_points), [line_key],
-                                         twin._error_function)
+        self.factor = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(dim), [line_key], twin._error_function)
 
     # ------------------------------------------------------------------------------------------------------------
 

@@ -28,20 +28,15 @@ region are those of :class:`.coaxial.CoaxialLineFactor`.
 
 from __future__ import annotations
 
-from collections import OrderedDict
-
 import gtsam
 import numpy as np
 
-from .coaxial import CoaxialLineFactor, _robust_setup, _robust_terms
+from .coaxial import PREDICT_MAX_RAD, CoaxialLineFactor, _robust_terms
 from .coaxial_solve import CIRCLE_TOL
 from .rigid import _track_components
 
 __all__ = ["RigidLineFactor", "RigidTracks", "make_rigid_line_factor"]
 
-#: A line variable further than this (rad) from its anchor starts its inner solve from the anchor's solution
-#: without the first-order prediction.
-PREDICT_MAX_RAD = 0.2
 #: Trust region of the inner steps: no track's circle ``(d, r)`` moves by more than this times its radius in one
 #: step (nor by the first-order prediction, which is then left out). Without it, a track whose circle is weakly
 #: determined (a small thin ellipse: offset and radius trade off) can be thrown far along the axis, to a circle
@@ -272,33 +267,11 @@ class RigidLineFactor(CoaxialLineFactor):
                              f"and {len(phi0)}")
         if len(theta) != tracks.n_frames:
             raise ValueError(f"need one spin angle per frame seen ({tracks.n_frames}), got {len(theta)}")
-        if not np.isfinite(sigma_px) or sigma_px <= 0:
-            raise ValueError(f"sigma_px must be a positive number of pixels, got {sigma_px!r}")
-        self.line_key = line_key
-        self.tracks = tracks
         self.K = np.asarray(K, dtype=float).reshape(3, 3)
-        self.sigma_px = float(sigma_px)
-        self.counts = tracks.counts
-        self.tol = float(tol)
-        self.max_evaluations = int(max_evaluations)
         x0 = np.empty(3 * tracks.n_tracks + tracks.n_frames)
         x0[0:3 * tracks.n_tracks:3], x0[1:3 * tracks.n_tracks:3] = circles[:, 0], circles[:, 1]
         x0[2:3 * tracks.n_tracks:3], x0[3 * tracks.n_tracks:] = phi0, theta
-        self._start = x0
-        self._huber_k, self._estimators = _robust_setup(robust, tracks.counts)
-        self._cache: OrderedDict[bytes, _RigidState] = OrderedDict()
-        self._pinned: OrderedDict[bytes, _RigidState] = OrderedDict()
-        self._home: _RigidState | None = None
-        self._cache_size = max(1, int(cache_size))
-        self._last: _RigidState | None = None
-        self.refused = 0
-        self.solves = 0
-        self.evaluations = 0
-        self.work = 0.0
-        twin = object.__new__(type(self))  # no cycle through C++ (see CoaxialLineFactor)
-        twin.__dict__ = self.__dict__
-        self.factor = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2 * tracks.n_points), [line_key],
-                                         twin._error_function)
+        self._setup(line_key, tracks, x0, sigma_px, robust, tol, max_evaluations, cache_size, 2 * tracks.n_points)
 
     # ------------------------------------------------------------------------------------------------------------
 
