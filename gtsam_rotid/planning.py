@@ -44,6 +44,8 @@ from .uncertainty import Observability, analyse_observability, pose_information
 MAX_GUESS_DISTANCE_M = 20.0
 #: Draws without one pose that satisfies the constraints after which the search gives up.
 HOPELESS_DRAWS = 4000
+#: the spin model the search ranks candidate poses by (the predictions use PlanOptions.spin_model)
+SEARCH_SPIN_MODEL = "free"
 
 #: (deg, deg, deg, mm, mm, mm) per unit of the Pose3 tangent (rad, m)
 UNITS = np.array([math.degrees(1.0)] * 3 + [1000.0] * 3)
@@ -99,6 +101,10 @@ class PlanOptions:
     #: a spinning joint with limits (the Panda's ±166°) turns back and forth over its range: the prediction then
     #: sees that arc only, as often as the spin's length allows (False: the simulator's unlimited spin)
     respect_wrist_limits: bool = True
+    #: how the calibration will model the spin (``CalibrationOptions.spin_model``): "rigid" (one angle per frame
+    #: shared by the features, the calibration's default) or "free" (a phase per point). The predictions use it;
+    #: the search ranks candidates by the free phase's information, 3x cheaper and within ~5 % of the rigid one's
+    spin_model: str = "rigid"
     seed: int = 0
 
     def with_(self, **changes) -> PlanOptions:
@@ -137,6 +143,8 @@ class PlanOptions:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
                 raise PlanningError(f"{name} must be a number >= 0, got {value!r}")
+        if self.spin_model not in ("rigid", "free"):
+            raise PlanningError(f"spin_model must be 'rigid' or 'free', got {self.spin_model!r}")
         if self.n_features < 2 or self.guess_samples < 1 or self.candidates < 1:
             raise PlanningError("n_features must be >= 2, guess_samples and candidates >= 1")
 
@@ -277,9 +285,12 @@ class _Predictor:
         return [self.scene(samples[0])] + [SpinScene(self.config, self.arm, rng, arm_T_camera=pose)
                                            for pose in samples[1:]]
 
-    def information(self, scene: SpinScene, joint_angles) -> np.ndarray:
+    def information(self, scene: SpinScene, joint_angles, spin_model: str | None = None) -> np.ndarray:
+        """The 6x6 information of one spin at ``joint_angles`` in ``scene``, with the options' spin model or
+        ``spin_model``."""
         builder = RotIdGraph(self.arm, self.camera, model="projected", track_sigma_px=self.sigma_px,
-                             min_track_points=MIN_ELLIPSE_POINTS, min_track_extent_px=MIN_TRACK_EXTENT_PX)
+                             min_track_points=MIN_ELLIPSE_POINTS, min_track_extent_px=MIN_TRACK_EXTENT_PX,
+                             spin_model=spin_model or self.options.spin_model)
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         values.insert(builder.pose_key, scene.arm_T_camera)
         if self.wrist_start is not None:
@@ -448,13 +459,15 @@ def plan_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: int = 6, 
     scenes = predictor.sample_scenes(arm_T_camera)
     infos = np.empty((len(candidates), len(scenes), 6, 6))
     for c, q in enumerate(candidates):
-        infos[c] = [predictor.information(scene, q) for scene in scenes]
+        infos[c] = [predictor.information(scene, q, SEARCH_SPIN_MODEL) for scene in scenes]
         if progress is not None:
             progress("predictions", c + 1, len(candidates))
     prior = np.zeros((6, 6)) if prior_information is None else np.asarray(prior_information, dtype=float)
     chosen = _choose(infos, prior + REGULARISER, n, options)
     poses, chosen_infos = _refine([candidates[c] for c in chosen], infos[chosen], prior + REGULARISER, predictor,
                                   constraints, scenes, rng=np.random.default_rng(options.seed + 1), options=options)
+    if options.spin_model != SEARCH_SPIN_MODEL:
+        chosen_infos = np.array([[predictor.information(scene, q) for scene in scenes] for q in poses])
     prediction = _prediction(arm_T_camera, poses, chosen_infos, prior, options, [None] * n, predictor)
     before = None
     if prior_information is not None:
@@ -544,7 +557,7 @@ def _refine(poses: list[np.ndarray], infos: np.ndarray, prior: np.ndarray, predi
         trial = predictor.arm.clip_joint_angles(poses[k] + rng.normal(scale=0.1, size=len(poses[k])))
         if constraints.problem(trial) is not None:
             continue
-        info = np.array([predictor.information(scene, trial) for scene in scenes])
+        info = np.array([predictor.information(scene, trial, SEARCH_SPIN_MODEL) for scene in scenes])
         score = float(_criterion(np.linalg.inv(prior[None] + infos.sum(axis=0) - infos[k] + info), options))
         if score < current:
             poses[k], infos[k], current = trial, info, score
@@ -608,7 +621,8 @@ def dataset_information(dataset: Dataset, arm_T_camera: gtsam.Pose3, options: Pl
     """The information (6x6) of an existing dataset's tracks at ``arm_T_camera``, with the plan's pixel noise and
     axis floor: what new poses add to."""
     options = PlanOptions() if options is None else options
-    builder = RotIdGraph(dataset.arm, dataset.camera, model="projected", track_sigma_px=options.pixel_sigma)
+    builder = RotIdGraph(dataset.arm, dataset.camera, model="projected", track_sigma_px=options.pixel_sigma,
+                         spin_model=options.spin_model)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(builder.pose_key, arm_T_camera)
     floor = 2.0 * options.axis_floor_px**2 * np.eye(2)

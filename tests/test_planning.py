@@ -46,14 +46,16 @@ def scene():
     return simulate.reference_scene(seed=0, duration=20.0)
 
 
-def test_prediction_matches_an_independent_cramer_rao_bound(scene):
-    """The prediction (typical texture at the guess, its own graph) against the bound of the simulated scene's own
-    tracks (the benchmark's pose-bound graph at the true circles): same poses, camera and recording."""
-    from accuracy import crlb
+@pytest.mark.parametrize("spin_model", ["rigid", "free"])
+def test_prediction_matches_an_independent_cramer_rao_bound(scene, spin_model):
+    """The prediction (typical texture at the guess, its own graph, thinned frames) against the bound of the
+    simulated scene's own tracks at every frame (the benchmark's graphs at the truth: the rigid spin's, or the
+    pose-bound graph at the true circles for the free phase): same poses, camera and recording."""
+    from accuracy import crlb, crlb_rigid
 
     dataset, truth = scene
-    bound = np.sqrt(np.diag(crlb(dataset, truth, 1.5)))
-    options = QUICK.with_(guess_samples=1)
+    bound = np.sqrt(np.diag((crlb_rigid if spin_model == "rigid" else crlb)(dataset, truth, 1.5)))
+    options = QUICK.with_(guess_samples=1, spin_model=spin_model)
     prediction = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera,
                                   [m.joint_angles for m in truth.measurements], options)
     ratio = np.sqrt(np.diag(prediction.covariance)) / bound
