@@ -7,7 +7,11 @@
    observation; the per-pixel cost is extrapolated to the whole scene. The issue's target: the whole joint
    calibration should take less than one linearisation of the per-pixel graph.
 
-Run: ``python benchmarks/speed.py [--seed 0] [--repeats 3] [--pixel-subset 3000]``.
+3. Cost against the observations (``--scaling``, default 6, 12 and 48 arm poses of 20 s spins of the reference
+   scene's simulator): the joint calibration's time per observation, and against one per-pixel linearisation of the
+   same observations (the issue's target at 48 poses: at most 2x).
+
+Run: ``python benchmarks/speed.py [--seed 0] [--repeats 3] [--pixel-subset 3000] [--scaling 6,12,48]``.
 """
 
 from __future__ import annotations
@@ -69,6 +73,9 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--pixel-subset", type=int, default=3000, help="pixels in the per-pixel comparison")
+    parser.add_argument("--scaling", default="6,12,48",
+                        help="arm poses of 20 s spins whose joint calibration is timed against one per-pixel "
+                             "linearisation of the same observations ('' to skip)")
     args = parser.parse_args(argv)
 
     dataset, truth = simulate.reference_scene(seed=args.seed)
@@ -98,6 +105,18 @@ def main(argv=None) -> int:
     print(f"  per-pixel / per-track: {t_pixel / t_track:.0f}x")
     print(f"  joint calibrate / one per-pixel linearisation: {seconds['joint'] / (t_pixel * n_points):.2f} "
           "(target < 1)")
+    if args.scaling:
+        print("\ncost against the observations: 20 s spins, joint calibrate (best of 2) / one per-pixel linearisation "
+              f"of the same observations at {1e6 * t_pixel:.2f} us each (target at 48 poses: <= 2)")
+        first = None
+        for n in (int(v) for v in args.scaling.split(",")):
+            data = simulate.reference_scene(seed=args.seed, duration=20.0, n_measurements=n)[0]
+            points = sum(m.n_observations for m in data)
+            t = best_time(lambda data=data: calibrate(data), 2)
+            first = first or (t, points)
+            print(f"  {n:3} poses, {points:7} observations: {t:6.2f} s, {1e6 * t / points:5.1f} us per observation "
+                  f"({t / first[0]:.1f}x the time of {first[1] / 1000:.0f}k for {points / first[1]:.1f}x the "
+                  f"observations); / one per-pixel linearisation: {t / (t_pixel * points):.2f}")
     return 0
 
 

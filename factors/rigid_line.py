@@ -17,7 +17,8 @@ and per chunk of frames.
 
 The inner normal equations are sparse: each pixel touches its track's three parameters and its frame's angle, so
 the frames' block is diagonal and is eliminated first (Schur complement; ``3m x 3m`` dense system for ``m``
-tracks); every sum is a ``np.bincount`` over all pixels at once.
+tracks); every sum is one ``np.add.reduceat`` (per track: a track's pixels are contiguous) or ``np.bincount`` (per
+frame) over all pixels at once.
 
 Gauge: ``theta_f + k, phi0_j - k`` over a connected component of tracks (linked by shared frames) changes nothing;
 ``phi0`` of the first track of each component is held at its start (not an inner variable). Frames that no track
@@ -85,9 +86,12 @@ class RigidTracks:
         #: (3m,) inner track parameters ``(d, r, phi0)`` per track that are free (the gauge's phi0 are held)
         self.free = np.ones(3 * self.n_tracks, dtype=bool)
         self.free[[3 * comp[0] + 2 for comp in self.components]] = False
-        self._indices: dict[tuple, np.ndarray] = {}
+        self._indices: dict[int, np.ndarray] = {}
+        #: each non-empty track's first pixel (a track's pixels are contiguous): per-track sums by ``np.add.reduceat``
+        self._nonempty = np.flatnonzero(self.counts > 0)
+        self._starts = (np.cumsum(self.counts) - self.counts)[self._nonempty]
         self._group_layout()
-        for a in (self.pixels, self.track, self.frame, self.free, self.counts, self._coupling):
+        for a in (self.pixels, self.track, self.frame, self.free, self.counts, self._coupling, self._starts):
             a.setflags(write=False)
 
     def _group_layout(self) -> None:
@@ -109,21 +113,21 @@ class RigidTracks:
             offset += len(rows) * (end - first)
         self._coupling, self._coupling_size = position.reshape(-1), offset
 
-    def _index(self, rows: int, q: int = 1, by_frame: bool = False) -> np.ndarray:
-        """Bincount targets of a (rows, q, N) array of per-pixel values summed per track (target ``(i * m + track) *
-        q + c``; with ``rows`` 3, ``(3 track + i) q + c``: the inner parameters' order) or per frame."""
-        key = (rows, q, by_frame)
-        if key not in self._indices:
-            i = np.arange(rows)[:, None, None]
-            c = np.arange(q)[None, :, None]
-            if by_frame:
-                target = (i * self.n_frames + self.frame) * q + c
-            elif rows == 3:
-                target = (3 * self.track + i) * q + c
-            else:
-                target = (i * self.n_tracks + self.track) * q + c
-            self._indices[key] = np.ascontiguousarray(target.reshape(-1))
-        return self._indices[key]
+    def track_sums(self, values: np.ndarray) -> np.ndarray:
+        """(..., N) per-pixel values -> (..., m) their sums per track (0 for an empty track)."""
+        sums = np.add.reduceat(values, self._starts, axis=-1)
+        if len(self._nonempty) == self.n_tracks:
+            return sums
+        out = np.zeros(values.shape[:-1] + (self.n_tracks,))
+        out[..., self._nonempty] = sums
+        return out
+
+    def _frame_index(self, q: int) -> np.ndarray:
+        """Bincount targets ``frame * q + c`` of a (q, N) array of per-pixel values summed per frame."""
+        if q not in self._indices:
+            target = self.frame[None, :] * q + np.arange(q)[:, None]
+            self._indices[q] = np.ascontiguousarray(target.reshape(-1))
+        return self._indices[q]
 
 
 class _Inner:
@@ -148,7 +152,7 @@ class _Inner:
         G = (M[:2, :, None] - u[:, None, :] * M[2][None, :, None]) * iz
         # a: (3, 2, N) derivatives of (du, dv) wrt (d, r, phi) (phi: both phi0 and theta)
         self.a = np.stack([G[:, 1], G[:, 0] * s + G[:, 2] * c, G[:, 0] * rc - G[:, 2] * rs])
-        self.sse = np.bincount(tracks.track, weights=np.einsum("kn,kn->n", self.e, self.e), minlength=m)
+        self.sse = tracks.track_sums(np.einsum("kn,kn->n", self.e, self.e))
         self._G, self._v, self._H_R = G, (v0, d, rc), None
 
     @property
@@ -169,7 +173,7 @@ class _Normal:
         a = ev.a
         wa = a * w_pixel  # (3, 2, N)
         P = np.einsum("isn,ksn->ikn", wa, a)  # (3, 3, N): per pixel, products of the (d, r, phi) derivatives
-        A = np.bincount(tracks._index(9), weights=P.reshape(-1), minlength=9 * m).reshape(3, 3, m)
+        A = tracks.track_sums(P.reshape(9, -1)).reshape(3, 3, m)
         self.root = np.sqrt(np.maximum(np.bincount(tracks.frame, weights=P[2, 2], minlength=F), 1e-300))  # D^1/2
         # C = B D^-1/2, B (3m, F) the track-frame block of the normal matrix, S = A - C C^T, all by frame groups
         self._C = np.zeros(tracks._coupling_size)
@@ -198,8 +202,8 @@ class _Normal:
         m, F = tracks.n_tracks, tracks.n_frames
         q = V.shape[0]
         G = np.einsum("isn,qsn->iqn", self.wa, V)  # (3, q, N)
-        gt = np.bincount(tracks._index(3, q), weights=G.reshape(-1), minlength=3 * m * q).reshape(3 * m, q)
-        gf = np.bincount(tracks._index(1, q, by_frame=True), weights=G[2].reshape(-1), minlength=F * q).reshape(F, q)
+        gt = tracks.track_sums(G.reshape(3 * q, -1)).reshape(3, q, m).transpose(2, 0, 1).reshape(3 * m, q)
+        gf = np.bincount(tracks._frame_index(q), weights=G[2].reshape(-1), minlength=F * q).reshape(F, q)
         gt[self.held] = 0.0
         xt, xf = self.solve(gt, gf)
         return (xt, xf, gt, gf) if gradients else (xt, xf)
@@ -233,7 +237,7 @@ class _RigidState:
         self.rot, self.R, self.ev = rot, R, ev
         self.converged, self.evaluations = converged, evaluations
         self.normal = normal  # the inner normal equations at ev, weighted by its IRLS weights
-        self.X = None  # (3m + F, 3) (J^T W J)^-1 J^T W H_R once linearised
+        self.X = None  # (3m + F, 3) (J^T W J)^-1 J^T W H_R (at ev, by normal)
         self._J = None  # (3, 2, N) P H_R
 
     @property
@@ -299,7 +303,10 @@ class RigidLineFactor(CoaxialLineFactor):
         converged, evaluations = False, 1
         while True:
             normal = _Normal(tracks, ev, self._irls(ev.sse)[tracks.track] / self.sigma_px**2)
-            xt, xf, gt, gf = normal.project(ev.e[None], gradients=True)
+            # the line's derivatives ride along (one factorisation): the projection the Jacobian needs if this is
+            # the last evaluation
+            xt, xf, gt, gf = normal.project(np.concatenate([ev.e[None], ev.H_R]), gradients=True)
+            projected = (xt[:, 1:], xf[:, 1:])
             decrement = float(gt[:, 0] @ xt[:, 0] + gf[:, 0] @ xf[:, 0])  # g^T (J^T W J)^-1 g, whitened
             if decrement <= self.tol * max(cost, 1e-300) or decrement < 1e-20 * tracks.n_points:
                 converged = True
@@ -319,6 +326,7 @@ class RigidLineFactor(CoaxialLineFactor):
                 break
             x, ev, cost = x + t * step, trial, trial_cost
         state = _RigidState(rot, R, ev, converged, evaluations, normal)
+        state.X = np.concatenate(projected)
         self.solves += 1
         self.evaluations += evaluations
         self.work += evaluations
@@ -348,9 +356,10 @@ class RigidLineFactor(CoaxialLineFactor):
         sets ``state.X``."""
         if state._J is None:
             tracks, ev = self.tracks, state.ev
-            xt, xf = state.normal.project(ev.H_R)
-            state.X = np.concatenate([xt, xf])
+            if state.X is None:
+                state.X = np.concatenate(state.normal.project(ev.H_R))
             m = tracks.n_tracks
+            xt, xf = state.X[:3 * m], state.X[3 * m:]
             # J X per pixel: sum over (d, r, phi0) of a * X_track, plus a_phi * X_theta
             Xt = xt.reshape(m, 3, 3)[tracks.track]  # (N, param, line)
             Xf = xf[tracks.frame]  # (N, line)
@@ -415,8 +424,7 @@ class RigidLineFactor(CoaxialLineFactor):
         irls = self._scales(state)[0]
         row = self._per_row(irls)
         Je = np.einsum("lsn,sn->ln", self._projected(state), state.ev.e) * row * row
-        return np.stack([np.bincount(self.tracks.track, weights=Je[k], minlength=self.tracks.n_tracks)
-                         for k in range(3)], axis=1)
+        return self.tracks.track_sums(Je).T
 
     def track_information(self, x=None) -> np.ndarray:
         """(m, 3, 3) each track's ``J_j^T J_j`` (weighted, the spin projected out)."""
@@ -427,8 +435,7 @@ class RigidLineFactor(CoaxialLineFactor):
         out = np.empty((m, 3, 3))
         for i in range(3):
             for k in range(i, 3):
-                out[:, i, k] = out[:, k, i] = np.bincount(self.tracks.track, weights=np.einsum(
-                    "sn,sn->n", J[i], J[k]), minlength=m)
+                out[:, i, k] = out[:, k, i] = self.tracks.track_sums(np.einsum("sn,sn->n", J[i], J[k]))
         return out
 
 

@@ -47,6 +47,7 @@ from .tuning import (
     REFINE_M,
     REFINE_PASSES,
     TIE_PX2,
+    WEAK_MANY_TRACKS,
 )
 
 
@@ -256,10 +257,15 @@ def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsa
 
 
 def _tied_circles(arm, camera, measurements, setup: _Setup, stage1, pose: gtsam.Pose3, options, ks) -> dict:
-    """k -> (line, circles) of measurement k fitted with its line on the FK axis seen from ``pose``."""
+    """k -> (line, circles) of measurement k fitted with its line on the FK axis seen from ``pose``, for those of
+    ``ks`` with fewer than WEAK_MANY_TRACKS kept tracks: with that many a measurement is not weak whatever its arcs
+    (:func:`.evidence._evidence`), and its arc span is measured about stage 1's circles only (the tied fits took a
+    third of the reference scene's joint calibration)."""
     builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
     out = {}
     for k in ks:
+        if len(stage1[k].keys.tracks) >= WEAK_MANY_TRACKS:
+            continue
         fit = _tied_fit(builder, measurements[k], k, setup.prepared[k], stage1[k], pose, options, setup, fresh=True)
         if fit is not None:
             out[k] = fit[1], fit[2]
