@@ -183,13 +183,25 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     lines = {k: stage1[k].rotation for k in used}
     converged = True
     for _round in range(3):
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        values.insert(POSE_KEY, pose)
-        keys = {k: builder.add_measurement(graph, values, k, measurements[k], track_sigmas=dict.fromkeys(
-                    setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
-                    prepared=setup.prepared[k], initial_circles=circles[k], initial_line=lines[k],
-                    refine_circles=circles[k] is None, tie_covariance=setup.tie_covariance(
-                        camera, k, stage1[k].image_axis, pose)) for k in used}
+        graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas, circles,
+                                           lines)
+        # A rigid spin whose inner solve does not converge about its start line is started again about the FK axis
+        # seen from the pose where that fits it better. Stage 1's free phases can fit thin ellipses (minor semi-axes
+        # of 2-4 px at 1.2 px noise) about a line whose tilt is far off (14 degrees on a Panda pose), where no rigid
+        # spin fits: its residuals ran to hundreds of px, its weight (their variance) vanished, and the pose was
+        # left wherever LM stalled, between the stage-2 pose and the other measurements' fit, under a covariance
+        # that no longer counted it (8.5 sigma off, "usable").
+        unfit = [k for k in used if lines[k] is not None and isinstance(keys[k].coaxial, RigidLineFactor)
+                 and not np.all(keys[k].coaxial.converged(values))]
+        if unfit:
+            _, fk_values, fk_keys = _joint_graph(builder, camera, measurements, setup, stage1, unfit, pose, sigmas,
+                                                 circles, lines, fk_start=unfit)
+            better = [k for k in unfit if fk_keys[k].coaxial.error(fk_values) < keys[k].coaxial.error(values)]
+            for k in better:
+                lines[k] = circles[k] = None
+            if better:
+                graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas,
+                                                   circles, lines)
         start_pose = pose
         result, it, error, converged = _lm(
             graph, values, options.max_iterations, anchor=True, watch_tolerance=WATCH_POSE,
@@ -227,6 +239,21 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     return _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
                    consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options),
                    prior=_prior_floor_covariance(camera, setup, stage1, used, pose, variances))
+
+
+def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas, circles, lines, fk_start=()):
+    """The joint graph of measurements ``ks`` at ``pose`` (each at its pixel sigma): those in ``fk_start`` started
+    about the FK axis seen from it (their circles from their tracks' rays), the others from ``lines`` and ``circles``
+    (stage 1's or the last round's). Returns (graph, values, keys by measurement)."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(POSE_KEY, pose)
+    keys = {k: builder.add_measurement(graph, values, k, measurements[k], track_sigmas=dict.fromkeys(
+                setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
+                prepared=setup.prepared[k], initial_circles=None if k in fk_start else circles[k],
+                initial_line=None if k in fk_start else lines[k],
+                refine_circles=k in fk_start or circles[k] is None, tie_covariance=setup.tie_covariance(
+                    camera, k, stage1[k].image_axis, pose)) for k in ks}
+    return graph, values, keys
 
 
 def _joint_variance(graph, keys, values, options) -> float:
