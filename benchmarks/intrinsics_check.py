@@ -1,14 +1,17 @@
-"""Wrong intrinsics flagged, not hidden behind one measurement called an outlier (``calibration.modelcheck``).
+"""Wrong intrinsics and joint offsets flagged, not hidden behind one measurement called an outlier
+(``calibration.modelcheck``).
 
 The reference scene (Jaco2, six ``--duration`` s spins, 1.5 px² noise) of each seed is calibrated through the camera
 file as given and through cameras whose focal length (fx and fy together) or principal point is off, and with one
-pose's shoulder reading 1 degree off (a wrong joint reading: it must not be blamed on the camera). Printed per case:
-how many seeds are flagged ``intrinsics``, how many still call their covariance usable, the median true error
-(worst axis, mm and deg) and the median chi-square of the error under the reported covariance, and the median
-intrinsics change the check reads where it flags. With ``--panda`` the Panda scenes of ``benchmarks/ambient.py``'s
-placement (small hand, exact intrinsics) are also calibrated, to count false flags.
+pose's shoulder reading 1 degree off (a wrong joint reading: it must not be blamed on the camera), and with joint
+offsets (zero-position errors common to every pose: each joint before the wrist read 0.5 degree off, signs drawn per
+seed; issue 17 wants them flagged without refinement). Printed per case: how many seeds are flagged ``intrinsics``
+and ``kinematics``, how many still call their covariance usable, the median true error (worst axis, mm and deg) and
+the median chi-square of the error under the reported covariance, and the median intrinsics change the check reads
+where it flags (refused calibrations are counted apart). With ``--panda`` the Panda scenes of
+``benchmarks/ambient.py``'s placement (small hand, exact intrinsics) are also calibrated, to count false flags.
 
-Run: ``python benchmarks/intrinsics_check.py [--seeds 10] [--duration 20] [--panda 20]``.
+Run: ``python benchmarks/intrinsics_check.py [--seeds 10] [--duration 20] [--panda 20] [--cases NAME,...]``.
 """
 
 from __future__ import annotations
@@ -23,25 +26,35 @@ from gtsam_rotid import Dataset, Measurement, simulate
 from gtsam_rotid.errors import RotIdError
 from gtsam_rotid.estimate import calibrate
 
-#: case -> (focal factor, cx shift px, cy shift px, wrong joint reading)
+#: case -> (focal factor, cx shift px, cy shift px, wrong joint reading, joint offsets deg)
 CASES = {
-    "exact": (1.0, 0.0, 0.0, False),
-    "focal +5 %": (1.05, 0.0, 0.0, False),
-    "focal +3 %": (1.03, 0.0, 0.0, False),
-    "focal -2 %": (0.98, 0.0, 0.0, False),
-    "cx +20 px": (1.0, 20.0, 0.0, False),
-    "cx +10 px": (1.0, 10.0, 0.0, False),
-    "cy -10 px": (1.0, 0.0, -10.0, False),
-    "one shoulder reading +1 deg": (1.0, 0.0, 0.0, True),
+    "exact": (1.0, 0.0, 0.0, False, 0.0),
+    "focal +5 %": (1.05, 0.0, 0.0, False, 0.0),
+    "focal +3 %": (1.03, 0.0, 0.0, False, 0.0),
+    "focal -2 %": (0.98, 0.0, 0.0, False, 0.0),
+    "cx +20 px": (1.0, 20.0, 0.0, False, 0.0),
+    "cx +10 px": (1.0, 10.0, 0.0, False, 0.0),
+    "cy -10 px": (1.0, 0.0, -10.0, False, 0.0),
+    "one shoulder reading +1 deg": (1.0, 0.0, 0.0, True, 0.0),
+    "joint offsets 0.5 deg": (1.0, 0.0, 0.0, False, 0.5),
+    "joint offsets 0.5 deg with focal +3 % and cx +10 px": (1.03, 10.0, 0.0, False, 0.5),
 }
 
 
-def case_dataset(dataset: Dataset, focal: float, cx: float, cy: float, wrong_joint: bool) -> Dataset:
+def case_dataset(dataset: Dataset, focal: float, cx: float, cy: float, wrong_joint: bool, offsets_deg: float,
+                 seed: int = 0) -> Dataset:
     measurements = list(dataset)
     if wrong_joint:
         q = np.array(measurements[2].joint_angles, dtype=float)
         q[1] += np.radians(1.0)
         measurements[2] = Measurement(q, measurements[2].tracks)
+    if offsets_deg:
+        w = dataset.arm.wrist_index
+        signs = np.random.default_rng([17, seed]).choice([-1.0, 1.0], size=w)
+        shift = np.zeros(len(dataset.arm.joint_names))
+        shift[:w] = np.radians(offsets_deg) * signs
+        measurements = [Measurement(dataset.joint_angles(k) - shift, m.tracks, name=m.name)
+                        for k, m in enumerate(measurements)]
     return Dataset(dataset.arm, dataset.camera.with_intrinsics_changed(focal, cx, cy), measurements)
 
 
@@ -52,7 +65,8 @@ def run(dataset: Dataset, truth) -> dict:
         return {"refused": str(error)}
     e = result.error_to(truth.arm_T_camera)
     check = (result.axis_consistency.intrinsics or {}) if result.axis_consistency is not None else {}
-    return {"flagged": "intrinsics" in result.untrusted, "usable": result.covariance_usable,
+    return {"flagged": "intrinsics" in result.untrusted, "kinematics": "kinematics" in result.untrusted,
+            "usable": result.covariance_usable,
             "mm": 1000.0 * float(np.max(np.abs(truth.arm_T_camera.rotation().matrix() @ e[3:]))),
             "deg": float(np.degrees(np.max(np.abs(e[:3])))),
             "chi2": float(e @ np.linalg.solve(result.covariance, e)),
@@ -64,23 +78,26 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--duration", type=float, default=20.0)
     parser.add_argument("--panda", type=int, default=0, help="also this many Panda scenes (exact intrinsics)")
+    parser.add_argument("--cases", default="", help="comma-separated case names (default: all)")
     args = parser.parse_args(argv)
     started = time.perf_counter()
-    rows = {name: [] for name in CASES}
+    cases = {name: CASES[name] for name in args.cases.split(",")} if args.cases else CASES
+    rows = {name: [] for name in cases}
     for seed in range(args.seeds):
         dataset, truth = simulate.reference_scene(seed=seed, duration=args.duration)
-        for name, case in CASES.items():
-            rows[name].append(run(case_dataset(dataset, *case), truth))
+        for name, case in cases.items():
+            rows[name].append(run(case_dataset(dataset, *case, seed=seed), truth))
         print(f"seed {seed} done ({time.perf_counter() - started:.0f} s)", flush=True)
     print(f"\nreference scene, {args.seeds} seeds, {args.duration:g} s spins\n")
-    print("| case | flagged intrinsics | covariance usable | error mm / deg (median) | χ² of the error (median) | "
-          "reading where flagged: focal %, cx px, cy px (median) |")
-    print("| --- | --- | --- | --- | --- | --- |")
+    print("| case | flagged intrinsics | flagged kinematics | covariance usable | error mm / deg (median) | χ² of the "
+          "error (median) | reading where flagged: focal %, cx px, cy px (median) |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
     for name, results in rows.items():
         done = [r for r in results if "refused" not in r]
         flagged = [r for r in done if r["flagged"]]
         reading = (np.median([r["reading"] for r in flagged], axis=0) if flagged else None)
-        print(f"| {name} | {len(flagged)} of {len(done)} | {sum(r['usable'] for r in done)} of {len(done)} | "
+        print(f"| {name} | {len(flagged)} of {len(done)} | {sum(r['kinematics'] for r in done)} of {len(done)} | "
+              f"{sum(r['usable'] for r in done)} of {len(done)} | "
               f"{np.median([r['mm'] for r in done]):.2f} / {np.median([r['deg'] for r in done]):.3f} | "
               f"{np.median([r['chi2'] for r in done]):.3g} | "
               + ("" if reading is None else f"{reading[0]:+.2f}, {reading[1]:+.1f}, {reading[2]:+.1f}")
@@ -93,7 +110,8 @@ def main(argv=None) -> int:
         results = [run(*simulate.simulate(config, seed=seed)) for seed in range(args.panda)]
         done = [r for r in results if "refused" not in r]
         print(f"\nPanda placement, exact intrinsics, {args.panda} seeds: {sum(r['flagged'] for r in done)} of "
-              f"{len(done)} flagged intrinsics; {sum(r['usable'] for r in done)} usable")
+              f"{len(done)} flagged intrinsics, {sum(r['kinematics'] for r in done)} kinematics; "
+              f"{sum(r['usable'] for r in done)} usable")
     print(f"\n{time.perf_counter() - started:.0f} s")
     return 0
 

@@ -105,9 +105,10 @@ def _measurement_title(result, k: int, what: str, fit: TrackFit, digits: int) ->
     report = result.measurements[k] if k < len(result.measurements) else None
     title = f"measurement {k}: {what}"
     if report is not None:
+        untrusted = result.untrusted or {}
+        why = outlier_words(report, "intrinsics" in untrusted, "kinematics" in untrusted)
         title += (f", residual RMS {report.residual_rms_px:.{digits}f} px, weight {report.weight:.2f}"
-                  + (f", OUTLIER ({outlier_words(report, 'intrinsics' in (result.untrusted or {}))})"
-                     if report.outlier else ""))
+                  + (f", OUTLIER ({why})" if report.outlier else ""))
     if fit.problem:
         title += f"\n{fit.problem}"
     return title

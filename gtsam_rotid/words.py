@@ -69,7 +69,8 @@ def summary(result: CalibrationResult) -> str:
     lines.append("  " + kinematics_words(result.joint_sigma_deg))
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
-        flag = f"  OUTLIER ({outlier_words(m, 'intrinsics' in result.untrusted)})" if m.outlier else ""
+        flag = (f"  OUTLIER ({outlier_words(m, 'intrinsics' in result.untrusted, 'kinematics' in result.untrusted)})"
+                if m.outlier else "")
         n_rejected = len(m.rejected_tracks)
         lines.append(f"  measurement {m.index}: {m.n_tracks} tracks, {m.n_points} points, residual RMS "
                      f"{m.residual_rms_px:.3f} px, weight {m.weight:.2f}, {n_rejected} "
@@ -151,10 +152,11 @@ def evidence_words(m: MeasurementReport) -> str:
     return f"{m.n_tracks} track{'' if m.n_tracks == 1 else 's'}, {m.n_points} points{arc}"
 
 
-def outlier_words(m: MeasurementReport, camera_suspect: bool = False) -> str:
+def outlier_words(m: MeasurementReport, camera_suspect: bool = False, kinematics_suspect: bool = False) -> str:
     """Why a measurement is an outlier (its ``outlier_kind`` and ``outlier_values``) and what to do; "" when it is
     not one. ``camera_suspect``: the result suspects the intrinsics (``untrusted["intrinsics"]``), which are then to
-    be checked before a disagreeing measurement's joint angles."""
+    be checked before a disagreeing measurement's joint angles; ``kinematics_suspect``: it suspects joint offsets
+    (``untrusted["kinematics"]``), likewise."""
     v = m.outlier_values
     if not m.outlier:
         return ""
@@ -175,6 +177,9 @@ def outlier_words(m: MeasurementReport, camera_suspect: bool = False) -> str:
         if camera_suspect:
             return words + ("check the camera's intrinsics first (a wrong camera moves every axis), then its joint "
                             "angles")
+        if kinematics_suspect:
+            return words + ("check the joints' zero offsets first (an offset common to every pose moves every axis), "
+                            "then its joint angles")
         return words + "check its joint angles"
     if m.outlier_kind == OutlierKind.RESIDUAL:
         return f"residual RMS {m.residual_rms_px:.2f} px > {v['ratio']:g}x the median {v['median']:.2f} px"
@@ -217,6 +222,8 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
                        "intrinsics, joint angles or kinematics, a moved camera, or tracks that are not on the hand)")
         elif kind == "intrinsics":
             out.append(intrinsics_words(result))
+        elif kind == "kinematics":
+            out.append(joint_offset_words(result))
         elif kind == "unmeasured_scatter":
             c = result.axis_consistency
             out.append(f"the measurements' axes disagree with one pose beyond their pixel noise (χ² = {c.chi2:.3g} "
@@ -259,6 +266,29 @@ def intrinsics_words(result: CalibrationResult) -> str:
             "axis together and leave an estimate wrong by far more than its covariance says, so it is not trusted. "
             "Check the intrinsics first (is the camera file this camera's, at this resolution? recalibrate them)"
             + then)
+
+
+def joint_offset_words(result: CalibrationResult) -> str:
+    """Why offsets of the joints' zero positions are a likely cause of the axes' disagreement (the numbers of
+    ``result.axis_consistency.kinematics``), and what to do."""
+    c = result.axis_consistency
+    k = None if c is None else c.kinematics
+    left_out = [m.index for m in result.measurements if m.outlier_kind == OutlierKind.DISAGREES]
+    then = (f"; if they are right, look at measurement(s) {', '.join(str(i) for i in left_out)} (left out as "
+            "disagreeing): their tracks or joint angles" if left_out else "")
+    advice = ("Offsets common to every pose bend the estimate by far more than its covariance says, so it is not "
+              "trusted. Check the robot's zero positions (mastering, encoder offsets, the URDF's joint origins)"
+              + then)
+    if not k or k.get("chi2") is None:  # a result file that names the reason without its numbers
+        return ("the image axes disagree with any one pose through the kinematics as given and agree once the joints "
+                "before the spinning one may be offset: " + advice)
+    offsets = ", ".join(f"{name} {deg:+.2f}°" for name, deg in k["offsets_deg"].items())
+    return (f"the image axes of all {len(k['measurements'])} measurements (the left-out ones too) disagree with any "
+            f"one pose through the kinematics as given (χ² = {k['exact_chi2']:.3g} for {k['exact_dof']} dof, P = "
+            f"{k['exact_p']:.2g}) but agree once the joints before the spinning one may be offset (χ² = "
+            f"{k['chi2']:.3g} for {k['dof']} dof, P = {k['p_value']:.2g}; {k['determined']} combinations of the "
+            f"offsets determined), by about {offsets} (a first-order reading, added to the readings; the first "
+            "joint's turns the whole arm, as the camera pose does, and does not show). " + advice)
 
 
 def kinematics_words(joint_sigma_deg: float) -> str:

@@ -1,20 +1,28 @@
-"""Would wrong intrinsics explain the image axes better than the exact camera does? A test on the axes of every
-measurement, the left-out ones too (:func:`intrinsics_check`), whose numbers the result keeps
-(``AxisConsistency.intrinsics``) and whose verdict makes the covariance untrusted (``untrusted["intrinsics"]``).
+"""Would wrong intrinsics, or joint offsets, explain the image axes better than the exact model does? Tests on the
+axes of every measurement, the left-out ones too (:func:`intrinsics_check`, :func:`kinematics_check`), whose numbers
+the result keeps (``AxisConsistency.intrinsics``, ``.kinematics``) and whose verdicts make the covariance untrusted
+(``untrusted["intrinsics"]``, ``untrusted["kinematics"]``).
 
 A focal length a few percent off, or a principal point some pixels off, moves every projected FK axis by a pattern
 that the pose cannot absorb: one measurement then disagrees far beyond its noise and is left out as if its joint
 angles were wrong, while the others, fitted by a pose that took up the rest, agree (the reference scene with fx and fy
 5 % off: 33 mm off with a 1 sigma of 0.3 mm, covariance called usable). A wrong joint reading on one pose moves one
-axis; a wrong camera moves all of them together, in a way three intrinsics describe.
+axis; a wrong camera moves all of them together, in a way three intrinsics describe. Joint offsets (zero-position
+errors of the joints before the spinning one, common to every pose) move every FK axis too, each by its own pose's
+kinematics: the reference scene with 0.5 degree offsets ended 8-16 mm off with the error's chi-square 145-705 under a
+covariance called usable (the axes' scatter had only scaled it), one good measurement left out as an outlier.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
+from ..arm import Arm
 from ..camera import Camera
-from ..graph import chi2_quantile
+from ..factors import axis_point_residuals
+from ..graph import axis_test_points, chi2_quantile
 from ..uncertainty import chi2_sf
 from .setup import _Setup
 from .stage2 import _axis_distances, _axis_rows, _refitted_chi2
@@ -44,6 +52,14 @@ MIN_FOCAL_PERCENT, MIN_CENTRE_PX = 0.5, 2.0
 ITERATIONS = 8
 #: Finite-difference steps of the test points' distances by each (relative focal change, px, px).
 STEPS = (1e-5, 1e-2, 1e-2)
+#: Relative singular value below which a direction of the freed fit counts as undetermined (the first joint's
+#: offset turns the whole arm about the base's vertical, which the pose takes up).
+RANK_RCOND = 1e-8
+#: Joint offsets a robot's zero positions could be off by, and more than its encoders' and mastering's own
+#: uncertainty (degrees, the largest offset of the fit): outside, a fit of the tracker's shared errors.
+MAX_OFFSET_DEG, MIN_OFFSET_DEG = 3.0, 0.05
+#: Finite-difference step of the FK axes by a joint offset (rad).
+OFFSET_STEP = 1e-6
 
 
 def _camera(camera: Camera, theta) -> Camera:
@@ -74,22 +90,33 @@ def _fitted(camera: Camera, setup: _Setup, stage1, ks, pose, sigma2, free: bool,
     """Gauss-Newton on the axes' chi-square over the pose (and the intrinsics when ``free``) from ``pose`` and the
     camera changed by ``theta``: (chi-square at the last linearisation's minimum, intrinsics change, pose)."""
     theta = np.zeros(len(INTRINSICS)) if theta is None else np.array(theta, dtype=float)
-    chi2 = np.inf
+    chi2, theta, pose, _ = _gauss_newton(
+        lambda theta, pose: _rows(camera, setup, stage1, ks, pose, sigma2, theta, free), theta, pose, free)
+    return chi2, theta, pose
+
+
+def _gauss_newton(rows_of: Callable, theta: np.ndarray, pose, free: bool, rcond: float | None = None):
+    """Gauss-Newton on the axes' chi-square over the pose (and the model's parameters ``theta`` when ``free``):
+    ``rows_of(theta, pose)`` gives the rows of :func:`stage2._axis_rows` (Jacobians extended by theta's when free).
+    Returns (chi-square at the last linearisation's minimum, theta, pose, the rank of the last normal matrix at
+    ``rcond``)."""
+    chi2, rank = np.inf, 0
     for _ in range(ITERATIONS):
-        rows = _rows(camera, setup, stage1, ks, pose, sigma2, theta, free)
+        rows = rows_of(theta, pose)
         if not all(np.all(np.isfinite(e)) and np.all(np.isfinite(A)) for e, _, A in rows):
             break
         W = [np.linalg.inv(cov) for _, cov, _ in rows]
         H = sum(A.T @ w @ A for (_, _, A), w in zip(rows, W, strict=True))
         g = sum(A.T @ w @ e for (e, _, A), w in zip(rows, W, strict=True))
-        step = -np.linalg.lstsq(H, g, rcond=None)[0]
+        step, _, rank, _ = np.linalg.lstsq(H, g, rcond=rcond)
+        step = -step
         chi2 = _refitted_chi2(rows, 0.0)
         pose = pose.retract(step[:6])
         if free:
             theta = theta + step[6:]
         if np.linalg.norm(step) < 1e-9:
             break
-    return chi2, theta, pose
+    return chi2, theta, pose, int(rank)
 
 
 def intrinsics_check(camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[int, float]) -> dict | None:
@@ -142,4 +169,92 @@ def intrinsics_check(camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[i
                            and abs(theta[2]) <= MAX_CENTRE_FRACTION * camera.height
                            and (abs(100.0 * theta[0]) >= MIN_FOCAL_PERCENT or abs(theta[1]) >= MIN_CENTRE_PX
                                 or abs(theta[2]) >= MIN_CENTRE_PX)))
+    return out
+
+
+def _offset_rows(arm: Arm, camera: Camera, setup: _Setup, stage1, ks, joint_angles, joints: np.ndarray, pose, sigma2,
+                 delta, free: bool):
+    """The axes' rows (as :func:`stage2._axis_rows`, with the prior floor) of the FK axes with the offsets ``delta``
+    (rad) added to the readings of ``joints``, their Jacobians extended by the offsets' (central differences) when
+    ``free``."""
+
+    def axis(k, d):
+        q = np.array(joint_angles[k], dtype=float)
+        q[joints] += d
+        return arm.wrist_axis(q)
+
+    F = setup.floor_covariance
+    rows = []
+    for k in ks:
+        a = axis(k, delta)
+        e, cov = _axis_distances(camera, a, stage1[k], pose, sigma2[k], setup, k)
+        if F is not None:
+            cov = cov + F
+        J = axis_point_residuals(camera.K, pose, axis_test_points(a), stage1[k].image_axis)[1]
+        if free:
+            G = np.empty((len(e), len(joints)))
+            for i in range(len(joints)):
+                step = np.zeros(len(joints))
+                step[i] = OFFSET_STEP
+                plus = _axis_distances(camera, axis(k, delta + step), stage1[k], pose)[0]
+                minus = _axis_distances(camera, axis(k, delta - step), stage1[k], pose)[0]
+                G[:, i] = (plus - minus) / (2.0 * OFFSET_STEP)
+            J = np.hstack([J, G])
+        rows.append((e, cov, J))
+    return rows
+
+
+def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[int, float],
+                     joint_angles) -> dict | None:
+    """The axes of every measurement with a finite stage-1 fit (the left-out ones too), fitted by a pose with the
+    kinematics as given and, where that fails (P < EXACT_P), by a pose and an offset of each joint before the
+    spinning one, common to all poses (Gauss-Newton from ``pose``, the axes as :func:`intrinsics_check` holds them);
+    ``joint_angles[k]`` the readings of measurement k. The offsets' combinations the poses do not determine (the
+    first joint's turns the whole arm, as the pose does) are left at zero and not counted: the freed fit's dof are
+    ``2 n - 6 - r``, ``r`` the offsets' determined directions. None where no dof would be left.
+
+    Returns ``exact_chi2``/``exact_dof``/``exact_p``, ``chi2``/``dof``/``p_value`` (pose and offsets),
+    ``offsets_deg`` (joint name -> the fitted offset, degrees; the reading plus it is the joint's angle),
+    ``determined`` (r), ``one_out_chi2`` (the exact kinematics without the measurement whose absence fits best), the
+    measurements tested and ``likely``: the exact kinematics fail, the offsets pass (P >= FREED_P), improve the
+    chi-square beyond the 99.9 % point of their r dof, explain the axes better than one wrong measurement by Akaike's
+    criterion (AIC_PER_PARAMETER per parameter beyond that measurement's two), and are offsets a robot could have
+    (the largest between MIN_OFFSET_DEG and MAX_OFFSET_DEG). The check reads a first-order fit: it names a likely
+    cause, it does not calibrate the offsets.
+    """
+    ks = [k for k in sigma2 if np.all(np.isfinite(stage1[k].image_axis))]
+    joints = np.arange(arm.wrist_index)
+    if len(ks) < 4 or len(joints) == 0:
+        return None
+
+    def rows_of(free):
+        return lambda delta, pose: _offset_rows(arm, camera, setup, stage1, ks, joint_angles, joints, pose, sigma2,
+                                                delta, free)
+
+    zero = np.zeros(len(joints))
+    exact, _, _, _ = _gauss_newton(rows_of(False), zero, pose, False)
+    exact_dof = 2 * len(ks) - 6
+    if not np.isfinite(exact):
+        return None
+    exact_p = float(chi2_sf(exact, exact_dof))
+    out = {"exact_chi2": float(exact), "exact_dof": exact_dof, "exact_p": exact_p, "chi2": None, "dof": None,
+           "p_value": None, "offsets_deg": None, "determined": None, "one_out_chi2": None,
+           "measurements": [setup.index[k] if setup.index else k for k in ks], "likely": False}
+    if exact_p >= EXACT_P:
+        return out
+    freed, delta, _, rank = _gauss_newton(rows_of(True), zero, pose, True, RANK_RCOND)
+    determined = rank - 6
+    dof = exact_dof - determined
+    if not np.isfinite(freed) or determined < 1 or dof < 1:
+        return out
+    one_out = min(_gauss_newton(lambda d, p, j=j: _offset_rows(arm, camera, setup, stage1, [k for k in ks if k != j],
+                                                                joint_angles, joints, p, sigma2, d, False),
+                                zero, pose, False)[0] for j in ks)
+    p = float(chi2_sf(freed, dof))
+    largest = float(np.degrees(np.max(np.abs(delta))))
+    out.update(chi2=float(freed), dof=dof, p_value=p, determined=determined, one_out_chi2=float(one_out),
+               offsets_deg={arm.joint_names[j]: float(np.degrees(d)) for j, d in zip(joints, delta, strict=True)},
+               likely=bool(p >= FREED_P and exact - freed > chi2_quantile(determined, IMPROVEMENT_Z)
+                           and freed + AIC_PER_PARAMETER * (determined - 2) < one_out
+                           and MIN_OFFSET_DEG <= largest <= MAX_OFFSET_DEG))
     return out

@@ -131,6 +131,9 @@ class AxisConsistency:
     #: the same axes, every measurement's (the left-out ones too), tested with the camera's focal length and principal
     #: point free (:func:`gtsam_rotid.calibration.modelcheck.intrinsics_check`); None where not run
     intrinsics: dict | None = None
+    #: the same axes with an offset of each joint before the spinning one free
+    #: (:func:`gtsam_rotid.calibration.modelcheck.kinematics_check`); None where not run
+    kinematics: dict | None = None
 
     @property
     def consistent(self) -> bool:
@@ -141,13 +144,16 @@ class AxisConsistency:
                "floor_px": self.floor_px}
         if self.intrinsics is not None:
             out["intrinsics"] = dict(self.intrinsics)
+        if self.kinematics is not None:
+            out["kinematics"] = dict(self.kinematics)
         return out
 
     @classmethod
     def from_dict(cls, data: dict) -> AxisConsistency:
-        intrinsics = data.get("intrinsics")
+        intrinsics, kinematics = data.get("intrinsics"), data.get("kinematics")
         return cls(float(data["chi2"]), int(data["dof"]), float(data["p_value"]), float(data["scale"]),
-                   float(data.get("floor_px", 0.0)), intrinsics=None if intrinsics is None else dict(intrinsics))
+                   float(data.get("floor_px", 0.0)), intrinsics=None if intrinsics is None else dict(intrinsics),
+                   kinematics=None if kinematics is None else dict(kinematics))
 
 
 #: An alternative whose chi-square exceeds the estimate's by less than this (likelihood ratio 1000:1) makes the
@@ -292,6 +298,8 @@ UNTRUSTED_KINDS = {
     "unmeasured_scatter": "the measurements disagree beyond their noise and are too few to measure by how much",
     "intrinsics": "the camera's focal length or principal point explains the axes' disagreement better than the "
                   "joint angles do",
+    "kinematics": "offsets of the joints' zero positions explain the axes' disagreement better than one wrong "
+                  "measurement does",
 }
 
 

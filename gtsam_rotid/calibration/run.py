@@ -16,7 +16,7 @@ from .choice import choose_start
 from .initial import _initial, axis_miss_rms, poor_start
 from .joint import Fitted, _joint, _weighted
 from .lm import _builder
-from .modelcheck import intrinsics_check
+from .modelcheck import intrinsics_check, kinematics_check
 from .options import MIN_MEASUREMENTS, CalibrationOptions, Method
 from .result import CalibrationResult, MeasurementReport, OutlierKind
 from .setup import _Setup, arc_span_deg
@@ -119,6 +119,8 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
         out["thin_evidence"] = weak_used
     if c is not None and c.intrinsics is not None and c.intrinsics.get("likely"):
         out["intrinsics"] = [int(k) for k in c.intrinsics.get("measurements", [])]
+    if c is not None and c.kinematics is not None and c.kinematics.get("likely"):
+        out["kinematics"] = [int(k) for k in c.kinematics.get("measurements", [])]
     if c is not None and c.dof > 0 and c.chi2 / c.dof > MAX_CONSISTENCY_SCALE:
         out["inconsistent"] = [m.index for m in result.measurements if m.used]
     elif c is not None and not c.consistent and c.dof <= 2:
@@ -149,7 +151,7 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
     if len(runs) > 1:  # the image axes cannot choose between the starts: the joint fit of the circles does
         choice = choose_start(arm, camera, measurements, setup, runs, anchors, options)
         if method is Method.JOINT:
-            return replace(_checked_intrinsics(camera, setup, choice.stage1, choice.joint),
+            return replace(_checked_model(arm, camera, measurements, setup, choice.stage1, choice.joint),
                            alternatives=choice.alternatives, joint_sigma_deg=options.joint_sigma_deg,
                            axis_floor_px=setup.floor_px), setup
         runs, anchors = [(runs[choice.best][0], choice.stage1)], [anchors[choice.best]]
@@ -157,25 +159,32 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
     init_pose, stage1 = runs[0]
     fitted = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
     _check_scale(fitted.result, setup, fitted.stage1, options)
-    return replace(_checked_intrinsics(camera, setup, fitted.stage1, fitted.result), alternatives=alternatives,
+    return replace(_checked_model(arm, camera, measurements, setup, fitted.stage1, fitted.result),
+                   alternatives=alternatives,
                    joint_sigma_deg=0.0 if method is Method.PAPER else options.joint_sigma_deg,
                    axis_floor_px=0.0 if method is Method.PAPER else setup.floor_px), setup
 
 
-def _checked_intrinsics(camera, setup: _Setup, stage1, result: CalibrationResult) -> CalibrationResult:
-    """The result with its axes' test extended by :func:`modelcheck.intrinsics_check` (every measurement's axis,
-    each at the pixel noise its report gives); unchanged where the axes are not tested (the paper's method, fewer than
-    four measurements used) or the check cannot run."""
+def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: CalibrationResult) -> CalibrationResult:
+    """The result with its axes' test extended by :func:`modelcheck.intrinsics_check` and
+    :func:`modelcheck.kinematics_check` (every measurement's axis, each at the pixel noise its report gives);
+    unchanged where the axes are not tested (the paper's method, fewer than four measurements used) or a check cannot
+    run."""
     c = result.axis_consistency
     if c is None or not result.observability.is_observable:
         return result
     sigma2 = {r.index: float(r.residual_rms_px) ** 2 for r in result.measurements
               if np.isfinite(r.residual_rms_px) and r.residual_rms_px > 0.0}
     try:
-        check = intrinsics_check(camera, setup, stage1, result.arm_T_camera, sigma2)
+        intrinsics = intrinsics_check(camera, setup, stage1, result.arm_T_camera, sigma2)
     except (np.linalg.LinAlgError, ValueError):
-        return result
-    return result if check is None else replace(result, axis_consistency=replace(c, intrinsics=check))
+        intrinsics = None
+    try:
+        kinematics = kinematics_check(arm, camera, setup, stage1, result.arm_T_camera, sigma2,
+                                      [arm.joint_angle_vector(m.joint_angles) for m in measurements])
+    except (np.linalg.LinAlgError, ValueError):
+        kinematics = None
+    return replace(result, axis_consistency=replace(c, intrinsics=intrinsics, kinematics=kinematics))
 
 
 def _close_enough(camera, setup: _Setup, runs, anchors, options) -> tuple[list, list]:

@@ -91,3 +91,50 @@ def test_a_change_below_a_cameras_own_calibration_uncertainty_is_not_flagged(sce
     monkeypatch.setattr(modelcheck, "MIN_CENTRE_PX", 0.0)
     monkeypatch.setattr(modelcheck, "MIN_FOCAL_PERCENT", 0.0)
     assert calibrate(dataset).axis_consistency.intrinsics["likely"]
+
+
+def with_joint_offsets(dataset, offsets_deg):
+    """The dataset's readings of the joints before the spinning one off by ``offsets_deg`` on every pose (the true
+    angle is the reading plus the offset)."""
+    shift = np.zeros(len(dataset.arm.joint_names))
+    shift[:len(offsets_deg)] = np.radians(offsets_deg)
+    return Dataset(dataset.arm, dataset.camera,
+                   [Measurement(dataset.joint_angles(k) - shift, m.tracks) for k, m in enumerate(dataset)])
+
+
+def test_joint_offsets_common_to_every_pose_are_flagged_not_blamed_on_one_measurement(scene, tmp_path):
+    dataset, truth = scene
+    # every joint before the Jaco2's wrist 0.1 deg off its zero (0.2 deg and more are refused outright on these 60 s
+    # spins: the axes disagree too far for any pose)
+    offsets = [0.1, -0.1, 0.1, 0.1, -0.1]
+    result = calibrate(with_joint_offsets(dataset, offsets))
+    assert chi2_of_error(result, truth) > 22.46  # what is at stake: a wrong number the covariance does not cover
+    assert not result.covariance_usable and "kinematics" in result.untrusted
+    check = result.axis_consistency.kinematics
+    assert check["likely"] and check["exact_p"] < 1e-3 and check["p_value"] >= 0.01
+    # the offsets that explain the axes: the first joint's turns the whole arm as the pose does (not determined);
+    # the others are read back to first order
+    fitted = np.array(list(check["offsets_deg"].values()))
+    assert check["determined"] == 4
+    np.testing.assert_allclose(fitted[1:], offsets[1:], atol=0.05)
+    words = " ".join(untrusted_words(result))
+    assert "Check the robot's zero positions" in words and "j2s6s200_joint_2" in words
+    assert "check its joint angles\n" not in summary(result)
+    left_out = [m for m in result.measurements if m.outlier]
+    assert all("check the joints' zero offsets first" in outlier_words(m, False, True) for m in left_out)
+    result.save(tmp_path / "r.json")
+    assert CalibrationResult.load(tmp_path / "r.json").axis_consistency.kinematics == check
+
+
+def test_exact_kinematics_and_one_wrong_joint_reading_are_not_read_as_joint_offsets(scene):
+    dataset, truth = scene
+    result = calibrate(dataset)
+    assert "kinematics" not in result.untrusted and not result.axis_consistency.kinematics["likely"]
+    wrong = list(dataset)
+    q = np.array(wrong[2].joint_angles, dtype=float)
+    q[1] += np.radians(1.0)  # one pose's shoulder reading off: one measurement, not an offset of all
+    result = calibrate(Dataset(dataset.arm, dataset.camera, [*wrong[:2], Measurement(q, wrong[2].tracks),
+                                                             *wrong[3:]]))
+    check = result.axis_consistency.kinematics
+    assert check["exact_p"] < 1e-3 and not check["likely"] and "kinematics" not in result.untrusted
+    assert check["one_out_chi2"] < check["chi2"] + 2.0 * (check["determined"] - 2)  # one measurement explains it
