@@ -66,9 +66,10 @@ def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anch
     consistency = _axis_consistency(camera, setup, stage1, used, fit.pose, variances, options)
     solved = _Solved(fit.pose, None, pose_information(fit.graph, values, POSE_KEY), Method.WEIGHTED, True,
                      fit.iterations, fit.graph.error(values))
-    return Fitted(_finish(solved, reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(fit.graph, values),
-                          consistency=consistency, prior=_prior_floor_covariance(camera, setup, stage1, used,
-                                                                                 fit.pose, variances)), stage1)
+    result = _finish(solved, reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(fit.graph, values),
+                     consistency=consistency, prior=_prior_floor_covariance(camera, setup, stage1, used, fit.pose,
+                                                                            variances))
+    return Fitted(replace(result, alternatives=list(fit.alternatives)), stage1)
 
 
 def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor) -> Fitted:
@@ -236,9 +237,11 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         covariance = covariance if robust is None else robust
     solved = _Solved(pose, covariance, info, Method.JOINT, converged, iterations, error)
     projected = sum(keys[k].coaxial.inner_dof for k in used if keys[k].coaxial is not None)
-    return _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
-                   consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options),
-                   prior=_prior_floor_covariance(camera, setup, stage1, used, pose, variances))
+    # (measurements the robust fit could have left out instead, reconciling the rest almost as well: ambiguous)
+    return replace(_finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
+                           consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options),
+                           prior=_prior_floor_covariance(camera, setup, stage1, used, pose, variances)),
+                   alternatives=list(fit.alternatives))
 
 
 def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas, circles, lines, fk_start=()):

@@ -152,15 +152,15 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
         choice = choose_start(arm, camera, measurements, setup, runs, anchors, options)
         if method is Method.JOINT:
             return replace(_checked_model(arm, camera, measurements, setup, choice.stage1, choice.joint),
-                           alternatives=choice.alternatives, joint_sigma_deg=options.joint_sigma_deg,
-                           axis_floor_px=setup.floor_px), setup
+                           alternatives=[*choice.alternatives, *choice.joint.alternatives],
+                           joint_sigma_deg=options.joint_sigma_deg, axis_floor_px=setup.floor_px), setup
         runs, anchors = [(runs[choice.best][0], choice.stage1)], [anchors[choice.best]]
         alternatives = choice.alternatives
     init_pose, stage1 = runs[0]
     fitted = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
     _check_scale(fitted.result, setup, fitted.stage1, options)
     return replace(_checked_model(arm, camera, measurements, setup, fitted.stage1, fitted.result),
-                   alternatives=alternatives,
+                   alternatives=[*alternatives, *fitted.result.alternatives],
                    joint_sigma_deg=0.0 if method is Method.PAPER else options.joint_sigma_deg,
                    axis_floor_px=0.0 if method is Method.PAPER else setup.floor_px), setup
 

@@ -20,6 +20,7 @@ from ..factors import (
 from ..graph import (
     Model,
     axis_test_points,
+    chi2_quantile,
     track_huber,
 )
 from ..uncertainty import (
@@ -33,7 +34,7 @@ from .initial import _best_stage2, _random_restarts, _stage2_graph, _stage2_mini
 from .lm import _builder, _graph_dof, _turned
 from .opinion import _tied_fit
 from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method
-from .result import AxisConsistency, CalibrationResult
+from .result import AMBIGUITY_CHI2, Alternative, AxisConsistency, CalibrationResult
 from .setup import _Setup
 from .stage1 import (
     _jackknife,
@@ -41,6 +42,7 @@ from .stage1 import (
     _stage1,
 )
 from .tuning import (
+    DISTINCT_Z,
     MIN_STRONG,
     POSE_KEY,
     REFINE_DEG,
@@ -284,6 +286,8 @@ class _Stage2(NamedTuple):
     chi2: dict[int, float]
     evidence: Evidence
     stage1: list[_Stage1]
+    #: other measurements whose leaving out reconciled the rest almost as well (see :func:`_robust_weighted`)
+    alternatives: tuple = ()
 
 
 def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opinion=None,
@@ -297,12 +301,21 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opini
     replaces its own (in the returned ``stage1``; the one passed in is not changed) and the likelihood-ratio
     statistic decides instead of the linearised one. With ``drop_weak``, weak measurements (their image axes need
     not be Gaussian) are left out when enough strong ones remain.
+
+    A measurement is left out by leave-one-out: the one whose absence best reconciles the others. Where leaving out
+    another instead reconciles them almost as well (the two axes' chi-squares less than AMBIGUITY_CHI2 apart: both
+    hypotheses free one measurement's two distances, so the difference is 2 ln of their likelihood ratio) at a
+    distinct pose, the data cannot tell which measurement is wrong: that pose is returned as an alternative (the
+    result is then ambiguous). One shoulder reading 1 degree off on a pose of the reference scene (20 s spins) pulled
+    the pose until a good measurement disagreed most; leaving that one out, the wrong one fitted: 17 mm off with the
+    error's chi-square 3672, called usable.
     """
     n = len(stage1)
     stage1 = list(stage1)
     limit = options.outlier_measurement_chi2
     iterations = 0
     refitted: set[int] = set()
+    alternatives: list[Alternative] = []
     evidence = classify(setup, stage1)
     strong = [k for k in range(n) if k not in evidence.weak]
     if drop_weak and evidence.weak and len(strong) >= MIN_STRONG:
@@ -336,18 +349,29 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opini
                                evidence, bad)
         # One at a time, by leave-one-out: a wrong measurement drags the pose, so the largest chi-square may
         # belong to a good one; leave out the one whose absence best reconciles the others.
-        best = None
+        candidates = []
         for k in used:
             rest = [i for i in used if i != k]
-            rest_pose, it, _ = _weighted_stage2(camera, setup, stage1, rest, pose, options, anchor)
+            rest_pose, it, rest_graph = _weighted_stage2(camera, setup, stage1, rest, pose, options, anchor)
             iterations += it
             rest_chi2 = _chi2(camera, setup, stage1, rest_pose)
-            score = float(sum(rest_chi2[i] for i in rest))
-            if best is None or score < best[0]:
-                best = (score, k, rest_pose)
+            candidates.append((float(sum(rest_chi2[i] for i in rest)), k, rest_pose, rest_graph))
+        best = min(candidates, key=lambda c: c[0])
+        alternatives.extend(Alternative(other, score - best[0]) for score, _, other, _ in candidates
+                            if score - best[0] < AMBIGUITY_CHI2 and _distinct(other, best[2], best[3]))
         used.remove(best[1])
         start = best[2]
-    return _Stage2(pose, iterations, graph, used, {k: float(chi2[k]) for k in range(n)}, evidence, stage1)
+    return _Stage2(pose, iterations, graph, used, {k: float(chi2[k]) for k in range(n)}, evidence, stage1,
+                   tuple(alternatives))
+
+
+def _distinct(other: gtsam.Pose3, pose: gtsam.Pose3, graph: gtsam.NonlinearFactorGraph) -> bool:
+    """Whether ``other`` is a pose distinct from ``pose`` (the solution of the weighted stage-2 ``graph``): beyond the
+    99.9 % point of the latter's uncertainty (the chi-square of their difference under its information, 6 dof)."""
+    values = gtsam.Values()
+    values.insert(POSE_KEY, pose)
+    d = pose.localCoordinates(other)
+    return bool(d @ pose_information(graph, values, POSE_KEY) @ d > chi2_quantile(6, DISTINCT_Z))
 
 
 def _check_scale(result: CalibrationResult, setup: _Setup, stage1: list[_Stage1], options: CalibrationOptions) -> None:

@@ -80,6 +80,8 @@ RESTART_P = 1e-3
 RESTART_LEAVE_OUT = 3
 #: A restart's start within this (m) and SAME_ANGLE_DEG of the estimate is the same start.
 RESTART_SAME_M = 1e-3
+#: Two stage-2 poses are distinct solutions beyond this normal quantile (99.9 %) of the one's uncertainty.
+DISTINCT_Z = 3.09
 #: stage 1 is fitted again from the pose its lines give while that pose moves more than these (deg, m), in at
 #: most this many fits (:func:`_refined_stage1`), where some measurement has only short arcs
 REFINE_DEG = 0.5
