@@ -249,9 +249,7 @@ def intrinsics_words(result: CalibrationResult) -> str:
     ``result.axis_consistency.intrinsics``), and what to check."""
     c = result.axis_consistency
     i = None if c is None else c.intrinsics
-    left_out = [m.index for m in result.measurements if m.outlier_kind == OutlierKind.DISAGREES]
-    then = (f"; if they are right, look at measurement(s) {', '.join(str(k) for k in left_out)} (left out as "
-            "disagreeing): their tracks or joint angles" if left_out else "")
+    then = _then_left_out(result)
     if not i or i.get("chi2") is None:  # a result file that names the reason without its numbers
         return ("the image axes disagree with any one pose seen through this camera and agree once its focal length "
                 "and principal point may change: the camera's intrinsics are the likelier cause, and the estimate is "
@@ -268,14 +266,19 @@ def intrinsics_words(result: CalibrationResult) -> str:
             + then)
 
 
+def _then_left_out(result: CalibrationResult) -> str:
+    """The words after a model check's advice that name the measurements left out as disagreeing ("" for none)."""
+    left_out = [m.index for m in result.measurements if m.outlier_kind == OutlierKind.DISAGREES]
+    return (f"; if they are right, look at measurement(s) {', '.join(str(k) for k in left_out)} (left out as "
+            "disagreeing): their tracks or joint angles" if left_out else "")
+
+
 def joint_offset_words(result: CalibrationResult) -> str:
     """Why offsets of the joints' zero positions are a likely cause of the axes' disagreement (the numbers of
     ``result.axis_consistency.kinematics``), and what to do."""
     c = result.axis_consistency
     k = None if c is None else c.kinematics
-    left_out = [m.index for m in result.measurements if m.outlier_kind == OutlierKind.DISAGREES]
-    then = (f"; if they are right, look at measurement(s) {', '.join(str(i) for i in left_out)} (left out as "
-            "disagreeing): their tracks or joint angles" if left_out else "")
+    then = _then_left_out(result)
     advice = ("Offsets common to every pose bend the estimate by far more than its covariance says, so it is not "
               "trusted. Check the robot's zero positions (mastering, encoder offsets, the URDF's joint origins)"
               + then)
