@@ -233,11 +233,11 @@ class _RigidState:
 
     __slots__ = ("rot", "R", "ev", "converged", "evaluations", "normal", "X", "_J")
 
-    def __init__(self, rot, R, ev: _Inner, converged: bool, evaluations: int, normal: _Normal):
+    def __init__(self, rot, R, ev: _Inner, converged: bool, evaluations: int, normal: _Normal, X: np.ndarray):
         self.rot, self.R, self.ev = rot, R, ev
         self.converged, self.evaluations = converged, evaluations
         self.normal = normal  # the inner normal equations at ev, weighted by its IRLS weights
-        self.X = None  # (3m + F, 3) (J^T W J)^-1 J^T W H_R (at ev, by normal)
+        self.X = X  # (3m + F, 3) (J^T W J)^-1 J^T W H_R (at ev, by normal)
         self._J = None  # (3, 2, N) P H_R
 
     @property
@@ -294,7 +294,7 @@ class RigidLineFactor(CoaxialLineFactor):
             x = self._start.copy()
         else:
             x = anchor.ev.x.copy()
-            if norm <= PREDICT_MAX_RAD and anchor.X is not None:
+            if norm <= PREDICT_MAX_RAD:
                 change = -anchor.X @ w
                 if np.all(np.isfinite(change)) and self._circle_change(x, change) <= MAX_CIRCLE_STEP:
                     x += change
@@ -325,8 +325,7 @@ class RigidLineFactor(CoaxialLineFactor):
             if not trial_cost <= cost:
                 break
             x, ev, cost = x + t * step, trial, trial_cost
-        state = _RigidState(rot, R, ev, converged, evaluations, normal)
-        state.X = np.concatenate(projected)
+        state = _RigidState(rot, R, ev, converged, evaluations, normal, np.concatenate(projected))
         self.solves += 1
         self.evaluations += evaluations
         self.work += evaluations
@@ -352,12 +351,10 @@ class RigidLineFactor(CoaxialLineFactor):
         return (state.ev.e * self._per_row(scale)).T.reshape(-1)
 
     def _projected(self, state: _RigidState) -> np.ndarray:
-        """(3, 2, N) ``P H_R`` (unweighted rows; the projection weighted by the IRLS weights of the state's residuals);
-        sets ``state.X``."""
+        """(3, 2, N) ``P H_R`` (unweighted rows; the projection ``state.X``, made with the state's last inner step,
+        weighted by the IRLS weights of the state's residuals)."""
         if state._J is None:
             tracks, ev = self.tracks, state.ev
-            if state.X is None:
-                state.X = np.concatenate(state.normal.project(ev.H_R))
             m = tracks.n_tracks
             xt, xf = state.X[:3 * m], state.X[3 * m:]
             # J X per pixel: sum over (d, r, phi0) of a * X_track, plus a_phi * X_theta

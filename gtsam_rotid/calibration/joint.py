@@ -106,7 +106,7 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
         strong_fit = strong_fit._replace(iterations=result.iterations + strong_fit.iterations)
         strong = _joint_fit(arm, camera, measurements, setup, strong_fit, options)
         # (unless most of the weak ones refute the strong ones' pose: then it is no answer nor a place to restart)
-        supported = _weak_agree(arm, camera, measurements, setup, strong_fit, strong.arm_T_camera, options)
+        supported = _weak_agree(opinion, strong_fit, strong.arm_T_camera, options)
         if supported and (strong.axis_consistency is None or strong.axis_consistency.p_value >= RESTART_P):
             return Fitted(strong, strong_fit.stage1)
         if result.axis_consistency.p_value >= RESTART_P:  # the strong ones alone disagree no less
@@ -116,11 +116,11 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
     return _restarted(arm, camera, measurements, setup, fit, result, options, anchor)
 
 
-def _weak_agree(arm, camera, measurements, setup, strong_fit: _Stage2, pose: gtsam.Pose3, options) -> bool:
+def _weak_agree(opinion, strong_fit: _Stage2, pose: gtsam.Pose3, options) -> bool:
     """Whether the weak measurements a strong-only fit left out mostly agree with its pose ``pose``: at most half of
-    them beyond the outlier limit by their second opinion (:func:`_second_opinion`: the likelihood ratio of the
-    measurement's circles with the line tied to the FK axis seen from ``pose`` against free, which holds where
-    their short arcs make the linearised test meaningless).
+    them beyond the outlier limit by their second ``opinion`` (:func:`_opinion`, :func:`_second_opinion`: the
+    likelihood ratio of the measurement's circles with the line tied to the FK axis seen from ``pose`` against free,
+    which holds where their short arcs make the linearised test meaningless).
 
     Few strong measurements (four determine the pose with two to spare) can agree on a wrong pose: 24 poses of 2 s
     spins, where 20 were weak and three of the four strong ones had image axes 29-53 chi-square off the truth
@@ -132,9 +132,7 @@ def _weak_agree(arm, camera, measurements, setup, strong_fit: _Stage2, pose: gts
     if not dropped:
         return True
     limit = options.outlier_measurement_chi2
-    statistics = [_second_opinion(arm, camera, measurements, setup, strong_fit.stage1, k, pose, options)[1]
-                  for k in dropped]
-    refuted = [k for k, statistic in zip(dropped, statistics, strict=True) if not statistic <= limit]
+    refuted = [k for k in dropped if not opinion(k, pose, strong_fit.stage1)[1] <= limit]
     return 2 * len(refuted) <= len(dropped)
 
 

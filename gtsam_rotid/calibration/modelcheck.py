@@ -21,8 +21,7 @@ import numpy as np
 
 from ..arm import Arm
 from ..camera import Camera
-from ..factors import axis_point_residuals
-from ..graph import axis_test_points, chi2_quantile
+from ..graph import chi2_quantile
 from ..uncertainty import chi2_sf
 from .setup import _Setup
 from .stage2 import _axis_distances, _axis_rows, _refitted_chi2
@@ -174,7 +173,7 @@ def intrinsics_check(camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[i
 
 def _offset_rows(arm: Arm, camera: Camera, setup: _Setup, stage1, ks, joint_angles, joints: np.ndarray, pose, sigma2,
                  delta, free: bool):
-    """The axes' rows (as :func:`stage2._axis_rows`, with the prior floor) of the FK axes with the offsets ``delta``
+    """The axes' rows (:func:`stage2._axis_rows`, with the prior floor) of the FK axes with the offsets ``delta``
     (rad) added to the readings of ``joints``, their Jacobians extended by the offsets' (central differences) when
     ``free``."""
 
@@ -183,25 +182,20 @@ def _offset_rows(arm: Arm, camera: Camera, setup: _Setup, stage1, ks, joint_angl
         q[joints] += d
         return arm.wrist_axis(q)
 
-    F = setup.floor_covariance
-    rows = []
-    for k in ks:
-        a = axis(k, delta)
-        e, cov = _axis_distances(camera, a, stage1[k], pose, sigma2[k], setup, k)
-        if F is not None:
-            cov = cov + F
-        J = axis_point_residuals(camera.K, pose, axis_test_points(a), stage1[k].image_axis)[1]
-        if free:
-            G = np.empty((len(e), len(joints)))
-            for i in range(len(joints)):
-                step = np.zeros(len(joints))
-                step[i] = OFFSET_STEP
-                plus = _axis_distances(camera, axis(k, delta + step), stage1[k], pose)[0]
-                minus = _axis_distances(camera, axis(k, delta - step), stage1[k], pose)[0]
-                G[:, i] = (plus - minus) / (2.0 * OFFSET_STEP)
-            J = np.hstack([J, G])
-        rows.append((e, cov, J))
-    return rows
+    rows = _axis_rows(camera, setup, stage1, ks, pose, sigma2, floor=True, axes={k: axis(k, delta) for k in ks})
+    if not free:
+        return rows
+    out = []
+    for k, (e, cov, J) in zip(ks, rows, strict=True):
+        G = np.empty((len(e), len(joints)))
+        for i in range(len(joints)):
+            step = np.zeros(len(joints))
+            step[i] = OFFSET_STEP
+            plus = _axis_distances(camera, axis(k, delta + step), stage1[k], pose)[0]
+            minus = _axis_distances(camera, axis(k, delta - step), stage1[k], pose)[0]
+            G[:, i] = (plus - minus) / (2.0 * OFFSET_STEP)
+        out.append((e, cov, np.hstack([J, G])))
+    return out
 
 
 def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[int, float],
@@ -227,9 +221,9 @@ def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigm
     if len(ks) < 4 or len(joints) == 0:
         return None
 
-    def rows_of(free):
-        return lambda delta, pose: _offset_rows(arm, camera, setup, stage1, ks, joint_angles, joints, pose, sigma2,
-                                                delta, free)
+    def rows_of(free, tested=ks):
+        return lambda delta, pose: _offset_rows(arm, camera, setup, stage1, tested, joint_angles, joints, pose,
+                                                sigma2, delta, free)
 
     zero = np.zeros(len(joints))
     exact, _, _, _ = _gauss_newton(rows_of(False), zero, pose, False)
@@ -247,9 +241,7 @@ def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigm
     dof = exact_dof - determined
     if not np.isfinite(freed) or determined < 1 or dof < 1:
         return out
-    one_out = min(_gauss_newton(lambda d, p, j=j: _offset_rows(arm, camera, setup, stage1, [k for k in ks if k != j],
-                                                                joint_angles, joints, p, sigma2, d, False),
-                                zero, pose, False)[0] for j in ks)
+    one_out = min(_gauss_newton(rows_of(False, [k for k in ks if k != j]), zero, pose, False)[0] for j in ks)
     p = float(chi2_sf(freed, dof))
     largest = float(np.degrees(np.max(np.abs(delta))))
     out.update(chi2=float(freed), dof=dof, p_value=p, determined=determined, one_out_chi2=float(one_out),

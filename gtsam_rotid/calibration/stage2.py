@@ -149,17 +149,20 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
 
 
 def _axis_rows(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3,
-               sigma2: dict[int, float], floor: bool = False) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+               sigma2: dict[int, float], floor: bool = False,
+               axes: dict | None = None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per used measurement: its test points' distances to its image axis, their covariance (pixel noise at
     ``sigma2[k]`` and joint-angle noise, :func:`_axis_distances`; with ``floor`` the prior floor's
-    :attr:`_Setup.floor_covariance` too) and their (2, 6) Jacobian by the pose."""
+    :attr:`_Setup.floor_covariance` too) and their (2, 6) Jacobian by the pose. ``axes`` (k -> FK axis) replaces
+    ``setup.axes`` (other kinematics, :func:`.modelcheck.kinematics_check`)."""
     rows = []
     F = setup.floor_covariance if floor else None
     for k in used:
-        e, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup, k)
+        axis = setup.axes[k] if axes is None else axes[k]
+        e, cov = _axis_distances(camera, axis, stage1[k], pose, sigma2[k], setup, k)
         if F is not None:
             cov = cov + F
-        J = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), stage1[k].image_axis)[1]
+        J = axis_point_residuals(camera.K, pose, axis_test_points(axis), stage1[k].image_axis)[1]
         rows.append((e, cov, J))
     return rows
 
