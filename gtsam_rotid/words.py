@@ -314,6 +314,12 @@ def tracking_words(axis_floor_px: float) -> str:
             "--axis-floor-px)")
 
 
+def _listed(items, conjunction: str) -> str:
+    """"1", "1 or 2", "1, 2 or 3"."""
+    items = [str(i) for i in items]
+    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} {conjunction} {items[-1]}"
+
+
 def ambiguity_words(result: CalibrationResult) -> str:
     """Plain words for an ambiguous result: which other poses fit, and what to do; none ("") when the result is not
     ambiguous."""
@@ -329,21 +335,36 @@ def ambiguity_words(result: CalibrationResult) -> str:
             return "the same chi-square: it fits as well as this estimate"
         return f"chi-square {-delta:.3g} lower: it fits better than this estimate"
 
+    def swap(a) -> str:
+        return ("" if a.left_out is None else
+                f" (leaving out measurement {a.left_out} instead of measurement {a.instead_of})")
+
     where = "; ".join(
         f"camera at {np.round(1000 * np.asarray(a.arm_T_camera.translation(), dtype=float), 1).tolist()} mm, "
         f"{1000 * np.linalg.norm(np.asarray(a.arm_T_camera.translation(), dtype=float) - t):.0f} mm and "
         f"{np.degrees(np.linalg.norm(result.arm_T_camera.rotation().localCoordinates(a.arm_T_camera.rotation()))):.1f}"
-        f"° from this estimate, {fit(a.delta_chi2)}" for a in close)
+        f"° from this estimate{swap(a)}, {fit(a.delta_chi2)}" for a in close)
     how = ("almost as well" if close[0].delta_chi2 > 0.0 else
            "as well or better" if close[-1].delta_chi2 <= 0.0 else "almost as well or better")
     used = sum(m.used for m in result.measurements)
+    swaps: dict[int, list[int]] = {}  # the estimate's left-out measurement -> the others, best fit first
+    for a in close:
+        if a.left_out is not None and a.left_out not in swaps.setdefault(a.instead_of, []):
+            swaps[a.instead_of].append(a.left_out)
+    advice = []
+    if swaps:
+        suspects = "; ".join(f"measurement {k} or {_listed(others, 'or')}" for k, others in swaps.items())
+        advice.append(f"One measurement disagrees with the rest, and the data do not say which ({suspects}): check "
+                      "those measurements' joint angles and tracks, or record them again; another arm pose also "
+                      "tells them apart")
+    if any(a.left_out is None for a in close):
+        advice.append(("With three arm poses the wrist axes give exactly as many equations as the six unknowns, and "
+                       "those have several exact solutions" if used == MIN_MEASUREMENTS else
+                       "The chosen wrist axes do not single one out")
+                      + "; add arm poses whose wrist axes are tilted from the others and miss their common point")
     return (f"{len(close)} other pose{'s' if len(close) > 1 else ''} of the camera fit the pixels {how} "
             f"({where}; a difference below {AMBIGUITY_CHI2:.1f} is a likelihood ratio under 1000:1): the data cannot "
-            f"tell them apart, so neither this estimate nor its covariance can be trusted. "
-            + ("With three arm poses the wrist axes give exactly as many equations as the six unknowns, and those "
-               "have several exact solutions" if used == MIN_MEASUREMENTS else
-               "The chosen wrist axes do not single one out")
-            + "; add arm poses whose wrist axes are tilted from the others and miss their common point")
+            f"tell them apart, so neither this estimate nor its covariance can be trusted. " + ". ".join(advice))
 
 
 def check_words(check: CheckResult) -> list[str]:

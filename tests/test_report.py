@@ -296,7 +296,7 @@ def test_ambiguous_result_is_reported_as_such_and_survives_json(reference):
     assert not clear.ambiguous and clear.covariance_usable
     assert not make_report(clear, dataset).ambiguous
     ambiguous = copy.copy(result)
-    ambiguous.alternatives = [far, Alternative(other, 0.5 * AMBIGUITY_CHI2)]
+    ambiguous.alternatives = [far, Alternative(other, 0.5 * AMBIGUITY_CHI2, left_out=3, instead_of=1)]
     assert ambiguous.ambiguous and not ambiguous.covariance_usable
     assert "AMBIGUOUS" in summary(ambiguous)
     report = make_report(ambiguous, dataset)
@@ -310,6 +310,8 @@ def test_ambiguous_result_is_reported_as_such_and_survives_json(reference):
     assert back.ambiguous and len(back.alternatives) == 2
     np.testing.assert_allclose(back.alternatives[1].arm_T_camera.matrix(), other.matrix(), atol=1e-12)
     assert back.alternatives[1].delta_chi2 == pytest.approx(0.5 * AMBIGUITY_CHI2)
+    assert (back.alternatives[1].left_out, back.alternatives[1].instead_of) == (3, 1)
+    assert back.alternatives[0].left_out is None and back.alternatives[0].instead_of is None
 
 
 def test_joint_chi2_judges_the_solve_not_a_p_value(reference):

@@ -534,6 +534,23 @@ def test_ambiguity_explains_three_poses_by_the_measurements_used_not_the_outlier
     assert "do not single one out" not in words
 
 
+def test_ambiguity_from_leaving_out_another_measurement_names_the_pair_not_the_pose_geometry():
+    r = result(alternatives=[Alternative(moved(10.0, [0.02, 0.0, 0.0]), 1.5, left_out=2, instead_of=4),
+                             Alternative(moved(90.0, [0.5, 0.0, 0.0]), 500.0, left_out=1, instead_of=4)])
+    words = ambiguity_words(r)
+    assert "(leaving out measurement 2 instead of measurement 4)" in words
+    assert "measurement 4 or 2" in words and "measurement 4 or 1" not in words  # the far one is not a suspect
+    assert "joint angles and tracks" in words and "tilted" not in words
+    mixed = ambiguity_words(result(alternatives=[Alternative(moved(10.0, [0.02, 0, 0]), 1.5, left_out=2, instead_of=4),
+                                                 Alternative(moved(60.0, [0.1, 0, 0]), 0.2)]))
+    assert "measurement 4 or 2" in mixed and mixed.count("leaving out measurement") == 1
+    assert "do not single one out" in mixed  # the other minimum of the same measurements still gets its advice
+    swaps = [Alternative(moved(10.0 + i, [0.02, 0, 0]), fit, left_out=k, instead_of=3)
+             for i, (fit, k) in enumerate([(3.0, 2), (0.1, 0), (5.0, 1)])]
+    several = ambiguity_words(result(alternatives=swaps))
+    assert "(measurement 3 or 0, 2 or 1)" in several  # best fit first
+
+
 def test_a_result_that_is_not_ambiguous_has_no_ambiguity_words():
     assert not result().ambiguous and not ambiguity_words(result())
     far = result(alternatives=[Alternative(moved(90.0, [0.5, 0.0, 0.0]), 500.0)])

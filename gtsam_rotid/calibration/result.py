@@ -76,18 +76,30 @@ class Alternative:
     """Another ``arm_T_camera`` that the estimator found to explain the data (a distinct local minimum).
 
     ``delta_chi2`` is its chi-square minus the estimate's, both on the same tracks and pixel noise (the joint
-    graph, re-solved from each): ``2 ln`` of the likelihood ratio in favour of the estimate.
+    graph, re-solved from each): ``2 ln`` of the likelihood ratio in favour of the estimate. Where the robust fit
+    reached it by leaving out another measurement than the estimate does, ``left_out`` is that measurement's index
+    and ``instead_of`` the one the estimate's fit left out at that step (one of the two is wrong, the data do not say
+    which); None for another minimum of the same measurements.
     """
 
     arm_T_camera: gtsam.Pose3
     delta_chi2: float
+    left_out: int | None = None
+    instead_of: int | None = None
 
     def to_dict(self) -> dict:
-        return {"arm_T_camera": self.arm_T_camera.matrix().tolist(), "delta_chi2": self.delta_chi2}
+        out = {"arm_T_camera": self.arm_T_camera.matrix().tolist(), "delta_chi2": self.delta_chi2}
+        if self.left_out is not None:
+            out.update(left_out=self.left_out, instead_of=self.instead_of)
+        return out
 
     @classmethod
     def from_dict(cls, data: dict) -> Alternative:
-        return cls(gtsam.Pose3(_rigid(data["arm_T_camera"])), float(data["delta_chi2"]))
+        def index(key):
+            return None if data.get(key) is None else int(data[key])
+
+        return cls(gtsam.Pose3(_rigid(data["arm_T_camera"])), float(data["delta_chi2"]), index("left_out"),
+                   index("instead_of"))
 
 
 @dataclass

@@ -360,7 +360,9 @@ def _robust_weighted(camera, setup, stage1, start, options, anchor, second_opini
             rest_chi2 = _chi2(camera, setup, stage1, rest_pose)
             candidates.append((float(sum(rest_chi2[i] for i in rest)), k, rest_pose, rest_graph))
         best = min(candidates, key=lambda c: c[0])
-        alternatives.extend(Alternative(other, score - best[0]) for score, _, other, _ in candidates
+        instead_of = _named(setup, [best[1]])[0]
+        alternatives.extend(Alternative(other, score - best[0], _named(setup, [k])[0], instead_of)
+                            for score, k, other, _ in candidates
                             if score - best[0] < AMBIGUITY_CHI2 and _distinct(other, best[2], best[3]))
         used.remove(best[1])
         start = best[2]

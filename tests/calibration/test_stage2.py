@@ -11,7 +11,7 @@ from gtsam_rotid.calibration.result import OutlierKind
 from gtsam_rotid.estimate import CalibrationError, CalibrationResult, calibrate
 from gtsam_rotid.report import make_report
 from gtsam_rotid.uncertainty import loewner_max
-from gtsam_rotid.words import outlier_words, summary, untrusted_words
+from gtsam_rotid.words import ambiguity_words, outlier_words, summary, untrusted_words
 
 
 @pytest.mark.parametrize("method", ["joint", "weighted"])
@@ -46,8 +46,12 @@ def test_a_wrong_reading_that_hides_behind_a_good_measurement_is_ambiguous(seed)
     error = result.error_to(truth.arm_T_camera)
     if float(error @ np.linalg.solve(result.covariance, error)) > 22.46:  # outside its 99.9 % region: not usable
         assert result.ambiguous and not result.covariance_usable
-        assert min(a.delta_chi2 for a in result.alternatives) < 13.82
+        close = [a for a in result.alternatives if a.delta_chi2 < 13.82]
+        assert close
+        # the words name the pair of measurements one of which is wrong, and the wrong one (2) is among them
+        assert any(2 in (a.left_out, a.instead_of) for a in close)
         assert "AMBIGUOUS" in summary(result)
+        assert "leaving out measurement" in ambiguity_words(result)
 
 
 def with_measurement_offsets(dataset, sigma_px: float, seed: int) -> Dataset:
