@@ -34,6 +34,10 @@ def verdict(result: CalibrationResult) -> str:
         return ("NOT USABLE: these arm poses do not determine the calibration; add a pose whose wrist axis is tilted "
                 "from the others and misses their common point")
     if result.ambiguous:
+        suspects = _suspects(_close(result))
+        if suspects:
+            return (f"NOT USABLE: another camera pose fits the pixels nearly as well if another measurement is left "
+                    f"out: one of {suspects} is wrong; check their joint angles and tracks")
         return ("NOT USABLE: another camera pose fits the pixels nearly as well; add a pose whose wrist axis is "
                 "tilted from the others")
     return "NOT USABLE: " + untrusted_words(result)[0]
@@ -320,10 +324,26 @@ def _listed(items, conjunction: str) -> str:
     return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} {conjunction} {items[-1]}"
 
 
+def _close(result: CalibrationResult) -> list:
+    """The alternatives that make the result ambiguous, best fit first."""
+    return sorted((a for a in result.alternatives if a.delta_chi2 < AMBIGUITY_CHI2), key=lambda a: a.delta_chi2)
+
+
+def _suspects(close) -> str:
+    """The measurements one of which is wrong, by the alternatives reached by leaving out another one: "measurement
+    4, 2 or 1" (the estimate's left-out one first, then the others best fit first; several groups joined by "; ");
+    "" when no alternative left out another measurement."""
+    swaps: dict[int, list[int]] = {}
+    for a in close:
+        if a.left_out is not None and a.left_out not in swaps.setdefault(a.instead_of, []):
+            swaps[a.instead_of].append(a.left_out)
+    return "; ".join(f"measurement {_listed([k, *others], 'or')}" for k, others in swaps.items())
+
+
 def ambiguity_words(result: CalibrationResult) -> str:
     """Plain words for an ambiguous result: which other poses fit, and what to do; none ("") when the result is not
     ambiguous."""
-    close = sorted((a for a in result.alternatives if a.delta_chi2 < AMBIGUITY_CHI2), key=lambda a: a.delta_chi2)
+    close = _close(result)
     if not close:
         return ""
     t = np.asarray(result.arm_T_camera.translation(), dtype=float)
@@ -347,13 +367,9 @@ def ambiguity_words(result: CalibrationResult) -> str:
     how = ("almost as well" if close[0].delta_chi2 > 0.0 else
            "as well or better" if close[-1].delta_chi2 <= 0.0 else "almost as well or better")
     used = sum(m.used for m in result.measurements)
-    swaps: dict[int, list[int]] = {}  # the estimate's left-out measurement -> the others, best fit first
-    for a in close:
-        if a.left_out is not None and a.left_out not in swaps.setdefault(a.instead_of, []):
-            swaps[a.instead_of].append(a.left_out)
+    suspects = _suspects(close)
     advice = []
-    if swaps:
-        suspects = "; ".join(f"measurement {k} or {_listed(others, 'or')}" for k, others in swaps.items())
+    if suspects:
         advice.append(f"One measurement disagrees with the rest, and the data do not say which ({suspects}): check "
                       "those measurements' joint angles and tracks, or record them again; another arm pose also "
                       "tells them apart")

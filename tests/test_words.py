@@ -31,6 +31,7 @@ from gtsam_rotid.words import (
     summary,
     tracking_words,
     untrusted_words,
+    verdict,
 )
 
 #: the camera, turned well away from the arm frame so that a camera-frame vector printed as an arm-frame one shows
@@ -541,6 +542,8 @@ def test_ambiguity_from_leaving_out_another_measurement_names_the_pair_not_the_p
     assert "(leaving out measurement 2 instead of measurement 4)" in words
     assert "measurement 4 or 2" in words and "measurement 4 or 1" not in words  # the far one is not a suspect
     assert "joint angles and tracks" in words and "tilted" not in words
+    assert "one of measurement 4 or 2 is wrong" in verdict(r) and "tilted" not in verdict(r)
+    assert "tilted" in verdict(result(alternatives=[Alternative(moved(60.0, [0.1, 0, 0]), 0.2)]))
     mixed = ambiguity_words(result(alternatives=[Alternative(moved(10.0, [0.02, 0, 0]), 1.5, left_out=2, instead_of=4),
                                                  Alternative(moved(60.0, [0.1, 0, 0]), 0.2)]))
     assert "measurement 4 or 2" in mixed and mixed.count("leaving out measurement") == 1
@@ -548,7 +551,7 @@ def test_ambiguity_from_leaving_out_another_measurement_names_the_pair_not_the_p
     swaps = [Alternative(moved(10.0 + i, [0.02, 0, 0]), fit, left_out=k, instead_of=3)
              for i, (fit, k) in enumerate([(3.0, 2), (0.1, 0), (5.0, 1)])]
     several = ambiguity_words(result(alternatives=swaps))
-    assert "(measurement 3 or 0, 2 or 1)" in several  # best fit first
+    assert "(measurement 3, 0, 2 or 1)" in several  # the estimate's left-out one, then the others best fit first
 
 
 def test_a_result_that_is_not_ambiguous_has_no_ambiguity_words():
