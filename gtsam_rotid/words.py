@@ -228,6 +228,8 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
             out.append(intrinsics_words(result))
         elif kind == "kinematics":
             out.append(joint_offset_words(result))
+        elif kind == "camera_or_measurement":
+            out.append(camera_or_measurement_words(result, ks))
         elif kind == "unmeasured_scatter":
             c = result.axis_consistency
             out.append(f"the measurements' axes disagree with one pose beyond their pixel noise (χ² = {c.chi2:.3g} "
@@ -268,6 +270,28 @@ def intrinsics_words(result: CalibrationResult) -> str:
             "axis together and leave an estimate wrong by far more than its covariance says, so it is not trusted. "
             "Check the intrinsics first (is the camera file this camera's, at this resolution? recalibrate them)"
             + then)
+
+
+def camera_or_measurement_words(result: CalibrationResult, ks: list[int]) -> str:
+    """Why a result whose axes a camera error and one used measurement explain alike is not trusted
+    (``untrusted["camera_or_measurement"]``, the numbers of ``result.axis_consistency.intrinsics``)."""
+    c = result.axis_consistency
+    i = None if c is None else c.intrinsics
+    which = ", ".join(str(k) for k in ks) or "one"
+    advice = (f"Check measurement {which}'s joint readings and tracks, and the intrinsics (is the camera file this "
+              "camera's, at this resolution?)")
+    if not i or i.get("chi2") is None or i.get("one_out_chi2") is None:  # a file without the numbers
+        return (f"the image axes disagree with any one pose; changed intrinsics and a wrong measurement {which} "
+                "explain them alike, and the estimate, which still uses that measurement, rests on neither: it is not "
+                "trusted. " + advice)
+    return (f"the image axes of all {len(i['measurements'])} measurements disagree with any one pose seen through "
+            f"this camera (χ² = {i['exact_chi2']:.3g} for {i['exact_dof']} dof, P = {i['exact_p']:.2g}); they agree "
+            f"once its focal length and principal point may change (χ² = {i['chi2']:.3g} for {i['dof']} dof, about "
+            f"{i['focal_percent']:+.2g} % in focal length, {i['cx_px']:+.3g} px in cx, {i['cy_px']:+.3g} px in cy), "
+            f"and as well without measurement {which} (χ² = {i['one_out_chi2']:.3g} for {i['exact_dof'] - 2} dof). "
+            "The estimate still uses that measurement and only widened its covariance for the scatter: it rests on "
+            "neither explanation, and they put the camera apart by more than that covariance, so it is not trusted. "
+            + advice)
 
 
 def _then_left_out(result: CalibrationResult) -> str:

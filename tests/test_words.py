@@ -373,6 +373,27 @@ def test_thin_evidence_is_set_as_before_and_never_with_an_empty_list(c):
             assert untrusted["thin_evidence"] == weak_used, combo
 
 
+def test_a_camera_error_and_a_used_measurement_that_explain_the_axes_alike_make_the_result_untrusted():
+    """The intrinsics check undecided (a plausible camera change explains the axes, and one wrong measurement as
+    well): where the estimate left that measurement out it acted on the rival and nothing is flagged; where it
+    still uses it the result is not trusted, the measurement and the camera's reading named."""
+    check = {"exact_chi2": 27.9, "exact_dof": 6, "exact_p": 1e-4, "chi2": 0.02, "dof": 3, "p_value": 0.99,
+             "focal_percent": -2.3, "cx_px": 2.4, "cy_px": -4.3, "one_out_chi2": 1.7, "one_out_measurement": 1,
+             "one_out_moved_chi2": 48.6, "undecided": True, "measurements": [0, 1, 2, 3, 4, 5], "likely": False}
+    c = AxisConsistency(27.9, 6, 1e-4, 7.0, intrinsics=check)
+    r = result(axis_consistency=c)
+    r.untrusted = _untrusted(r, SETUP)
+    assert r.untrusted == {"camera_or_measurement": [1]} and not r.covariance_usable
+    words = untrusted_words(r)
+    assert len(words) == 1 and "without measurement 1" in words[0] and "-2.3 % in focal length" in words[0]
+    assert "Check measurement 1's joint readings and tracks, and the intrinsics" in words[0]
+    ms = measurements()
+    ms[1] = measurement(1, outlier=True, weight=0.0, outlier_kind="disagrees", outlier_values={"limit": 30.0})
+    assert _untrusted(result(measurements=ms, axis_consistency=c), SETUP) == {}
+    assert _untrusted(result(axis_consistency=AxisConsistency(27.9, 6, 1e-4, 7.0, intrinsics={
+        **check, "undecided": False})), SETUP) == {}
+
+
 def test_inconsistent_axes_give_their_reduced_chi2_and_the_model_errors_to_check():
     r = result(axis_consistency=AxisConsistency(1200.0, 6, 0.0, 300.0), untrusted={"inconsistent": [0, 1, 2]})
     words = untrusted_words(r)

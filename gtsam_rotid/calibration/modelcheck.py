@@ -118,7 +118,8 @@ def _gauss_newton(rows_of: Callable, theta: np.ndarray, pose, free: bool, rcond:
     return chi2, theta, pose, int(rank)
 
 
-def intrinsics_check(camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[int, float]) -> dict | None:
+def intrinsics_check(camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[int, float],
+                     covariance: np.ndarray | None = None) -> dict | None:
     """The axes of every measurement with a finite stage-1 fit (the left-out ones too), fitted by a pose through the
     camera as given and, where that fails (P < EXACT_P), by a pose and the camera's focal length and principal point
     (Gauss-Newton from ``pose``; each line at pixel noise ``sigma2[k]``, with the joint-angle noise and the prior floor
@@ -132,23 +133,28 @@ def intrinsics_check(camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[i
 
     Returns ``exact_chi2``/``exact_dof``/``exact_p`` (the pose alone), ``chi2``/``dof``/``p_value`` (pose and
     intrinsics), the intrinsics' change that fits (``focal_percent``, ``cx_px``, ``cy_px``), ``one_out_chi2`` (the
-    exact camera without the measurement whose absence fits best, 2 n - 8 dof; all these None where not fitted: the
-    exact camera passed, or the freed fit failed), the measurements tested and ``likely``: the exact camera fails,
-    the freed one passes (P >= FREED_P), the improvement exceeds the 99.9 % point of its 3 dof, the intrinsics
-    explain the axes better than one wrong measurement (AIC_PER_PARAMETER), and the change is one a calibrated
-    camera could be off by (MAX_FOCAL_PERCENT, MAX_CENTRE_FRACTION) but more than its calibration's own uncertainty
-    (MIN_FOCAL_PERCENT, MIN_CENTRE_PX).
+    exact camera without the measurement whose absence fits best, 2 n - 8 dof), ``one_out_measurement`` (that
+    measurement, the caller's index) and ``one_out_moved_chi2`` (how far leaving it out moves the axes' pose from
+    their exact fit's, a chi-square under ``covariance``, the estimate's; None without it; all these None where not
+    fitted: the exact camera passed, or the freed fit failed), the measurements tested and ``likely``: the exact
+    camera fails, the freed one passes (P >= FREED_P), the improvement exceeds the 99.9 % point of its 3 dof, the
+    intrinsics explain the axes better than one wrong measurement (AIC_PER_PARAMETER), and the change is one a
+    calibrated camera could be off by (MAX_FOCAL_PERCENT, MAX_CENTRE_FRACTION) but more than its calibration's own
+    uncertainty (MIN_FOCAL_PERCENT, MIN_CENTRE_PX). ``undecided``: every one of these holds but the comparison with
+    one wrong measurement, and the two explanations' poses differ beyond the 99.9 % point of 6 dof of
+    ``covariance``: the axes cannot tell the camera from that measurement, and the estimate depends on which.
     """
     ks = [k for k in sigma2 if np.all(np.isfinite(stage1[k].image_axis))]
     if len(ks) < 5:
         return None
-    exact, _, _ = _fitted(camera, setup, stage1, ks, pose, sigma2, free=False)
+    exact, _, exact_pose = _fitted(camera, setup, stage1, ks, pose, sigma2, free=False)
     exact_dof, dof = 2 * len(ks) - 6, 2 * len(ks) - 6 - len(INTRINSICS)
     if not np.isfinite(exact):
         return None
     exact_p = float(chi2_sf(exact, exact_dof))
     out = {"exact_chi2": float(exact), "exact_dof": exact_dof, "exact_p": exact_p, "chi2": None, "dof": dof,
            "p_value": None, "focal_percent": None, "cx_px": None, "cy_px": None, "one_out_chi2": None,
+           "one_out_measurement": None, "one_out_moved_chi2": None, "undecided": False,
            "measurements": [setup.index[k] if setup.index else k for k in ks], "likely": False}
     if exact_p >= EXACT_P:
         return out
@@ -156,18 +162,28 @@ def intrinsics_check(camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[i
     if not np.isfinite(freed):
         return out
     # the rival explanation: one measurement wrong (its joints or tracks), the others exact
-    one_out = min(_fitted(camera, setup, stage1, [k for k in ks if k != j], pose, sigma2, free=False)[0]
-                  for j in ks)
+    one_outs = [_fitted(camera, setup, stage1, [k for k in ks if k != j], pose, sigma2, free=False) for j in ks]
+    best = int(np.argmin([fit[0] for fit in one_outs]))
+    one_out = float(one_outs[best][0])
+    # how far that explanation moves the axes' pose (from their fit through the camera given), under the estimate's
+    # covariance
+    shift = exact_pose.localCoordinates(one_outs[best][2])
+    moved = (float(shift @ np.linalg.solve(covariance, shift))
+             if covariance is not None and np.all(np.isfinite(covariance)) else None)
     p = float(chi2_sf(freed, dof))
+    camera_like = bool(p >= FREED_P and exact - freed > chi2_quantile(len(INTRINSICS), IMPROVEMENT_Z)
+                       and abs(100.0 * theta[0]) <= MAX_FOCAL_PERCENT
+                       and abs(theta[1]) <= MAX_CENTRE_FRACTION * camera.width
+                       and abs(theta[2]) <= MAX_CENTRE_FRACTION * camera.height
+                       and (abs(100.0 * theta[0]) >= MIN_FOCAL_PERCENT or abs(theta[1]) >= MIN_CENTRE_PX
+                            or abs(theta[2]) >= MIN_CENTRE_PX))
+    likely = camera_like and freed + AIC_PER_PARAMETER < one_out
     out.update(chi2=float(freed), p_value=p, focal_percent=float(100.0 * theta[0]), cx_px=float(theta[1]),
-               cy_px=float(theta[2]), one_out_chi2=float(one_out),
-               likely=bool(p >= FREED_P and exact - freed > chi2_quantile(len(INTRINSICS), IMPROVEMENT_Z)
-                           and freed + AIC_PER_PARAMETER < one_out
-                           and abs(100.0 * theta[0]) <= MAX_FOCAL_PERCENT
-                           and abs(theta[1]) <= MAX_CENTRE_FRACTION * camera.width
-                           and abs(theta[2]) <= MAX_CENTRE_FRACTION * camera.height
-                           and (abs(100.0 * theta[0]) >= MIN_FOCAL_PERCENT or abs(theta[1]) >= MIN_CENTRE_PX
-                                or abs(theta[2]) >= MIN_CENTRE_PX)))
+               cy_px=float(theta[2]), one_out_chi2=one_out,
+               one_out_measurement=setup.index[ks[best]] if setup.index else ks[best], one_out_moved_chi2=moved,
+               undecided=bool(camera_like and not likely and moved is not None
+                              and moved > chi2_quantile(6, IMPROVEMENT_Z)),
+               likely=bool(likely))
     return out
 
 

@@ -119,6 +119,13 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
         out["thin_evidence"] = weak_used
     if c is not None and c.intrinsics is not None and c.intrinsics.get("likely"):
         out["intrinsics"] = [int(k) for k in c.intrinsics.get("measurements", [])]
+    elif c is not None and c.intrinsics is not None and c.intrinsics.get("undecided"):
+        # a plausible camera error explains the axes, and so does one wrong measurement: where the estimate left
+        # that measurement out it acted on the rival (the rest agree, its covariance holds); where it still uses it
+        # (the scatter only scaled its covariance) it rests on neither explanation, and they differ beyond it
+        j = c.intrinsics.get("one_out_measurement")
+        if j is not None and any(m.index == j and m.used for m in result.measurements):
+            out["camera_or_measurement"] = [int(j)]
     if c is not None and c.kinematics is not None and c.kinematics.get("likely"):
         out["kinematics"] = [int(k) for k in c.kinematics.get("measurements", [])]
     if c is not None and c.dof > 0 and c.chi2 / c.dof > MAX_CONSISTENCY_SCALE:
@@ -176,7 +183,7 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
     sigma2 = {r.index: float(r.residual_rms_px) ** 2 for r in result.measurements
               if np.isfinite(r.residual_rms_px) and r.residual_rms_px > 0.0}
     try:
-        intrinsics = intrinsics_check(camera, setup, stage1, result.arm_T_camera, sigma2)
+        intrinsics = intrinsics_check(camera, setup, stage1, result.arm_T_camera, sigma2, result.covariance)
     except (np.linalg.LinAlgError, ValueError):
         intrinsics = None
     try:

@@ -69,6 +69,24 @@ def test_exact_intrinsics_and_one_wrong_joint_reading_are_not_blamed_on_the_came
     assert chi2_of_error(result, truth) < 22.46
 
 
+def test_a_camera_error_that_one_used_measurement_explains_as_well_is_not_called_usable():
+    """The reference scene's seed 3 with 20 s spins and the focal length 3 % off: every axis fails through the camera
+    (chi-square 27.9 for 6 dof), the estimate uses all six and only scales its covariance (x7), 14 mm off with the
+    error's chi-square ~1500. The intrinsics' fit (0.0 for 3 dof, focal -2.3 %) does not beat leaving measurement 1
+    out (1.7 for 4) by Akaike's criterion, so the camera alone is not named; but the estimate still uses that
+    measurement, and the two explanations' poses differ far beyond its covariance: not trusted either way."""
+    dataset, truth = simulate.reference_scene(seed=3, duration=20)
+    result = calibrate(with_intrinsics(dataset, 1.03))
+    assert chi2_of_error(result, truth) > 100.0
+    check = result.axis_consistency.intrinsics
+    assert not check["likely"] and check["undecided"] and check["exact_p"] < 1e-3
+    assert result.untrusted.get("camera_or_measurement") == [check["one_out_measurement"]]
+    assert "intrinsics" not in result.untrusted and not result.covariance_usable
+    assert check["one_out_moved_chi2"] > 22.46  # the 99.9 % point of 6 dof
+    words = " ".join(untrusted_words(result))
+    assert f"Check measurement {check['one_out_measurement']}'s joint readings and tracks, and the intrinsics" in words
+
+
 def test_a_change_below_a_cameras_own_calibration_uncertainty_is_not_flagged(scene, monkeypatch):
     """The axes' fits as measured on the rendered dot scene of scenarios/from_pixels.py (intrinsics exact, the
     estimate 0.012 mm off): chi-square 35.2 for 6 dof through the camera as given, 2.6 for 3 with the intrinsics
