@@ -265,6 +265,7 @@ def calibrate_scene(out: dict, tracked: Dataset, arm_T_camera, options: Calibrat
     out.update(err_mm=float(np.max(np.abs(R @ e[3:]))) * 1000.0, err_deg=float(np.degrees(np.max(np.abs(e[:3])))),
                sigma_mm=float(np.max(result.sigma_mm_arm)), sigma_deg=float(np.max(result.sigma_deg)),
                usable=bool(result.covariance_usable), untrusted=list(result.untrusted),
+               ambiguous=bool(result.ambiguous),
                words=untrusted_words(result) if result.untrusted else [],
                pose_arc_median_deg=float(np.median(spans)) if spans else float("nan"),
                pose_arc_max_deg=float(np.max(spans)) if spans else float("nan"))
@@ -322,7 +323,8 @@ def print_table(rows: list[dict]) -> None:
         if "refused" in row:
             print(f"{head}{track} refused: {row['refused'][:160]} | | | | | |")
             continue
-        verdict = "usable" if row["usable"] else "NOT usable (" + (", ".join(row["untrusted"]) or "undetermined") + ")"
+        reasons = row["untrusted"] + (["ambiguous"] if row.get("ambiguous") else [])
+        verdict = "usable" if row["usable"] else "NOT usable (" + (", ".join(reasons) or "undetermined") + ")"
         print(f"{head}{track} {row['pose_arc_median_deg']:.0f} / {row['pose_arc_max_deg']:.0f} | "
               f"{_number(row, 'axis_rms_px', '.3f')} / {_number(row, 'axis_max_px', '.3f')} "
               f"({_number(row, 'floor_px', '.3f')}) | {row['err_mm']:.2f} ({row['sigma_mm']:.2f}) | "
