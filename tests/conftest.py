@@ -1,12 +1,20 @@
 """Scenes shared by several test modules, built once per session (results are not mutated by the tests)."""
 
-import pytest
-from scene_parameters import DEMO_DURATION, DEMO_N_MEASUREMENTS, REFERENCE_8S_NOISE_VAR
+import os
 
-from gtsam_rotid import simulate
-from gtsam_rotid.calibration import calibrate
-from gtsam_rotid.demo import run_demo
-from gtsam_rotid.render import RenderConfig
+# One BLAS/OpenMP thread per process (unless set): the suite's small matrices gain nothing from threads, and the
+# tests that run joblib or Dask workers on both cores otherwise oversubscribe them (a fresh-clone run took 19.8 min
+# with the libraries' default threads, 17.7 min with one thread and another job beside it). Set before numpy loads.
+for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")
+
+import pytest  # noqa: E402
+from scene_parameters import DEMO_DURATION, DEMO_N_MEASUREMENTS, REFERENCE_8S_NOISE_VAR  # noqa: E402
+
+from gtsam_rotid import simulate  # noqa: E402
+from gtsam_rotid.calibration import calibrate  # noqa: E402
+from gtsam_rotid.demo import run_demo  # noqa: E402
+from gtsam_rotid.render import RenderConfig  # noqa: E402
 
 
 @pytest.fixture(scope="session")
