@@ -23,6 +23,8 @@ Factories (thin ``gtsam.CustomFactor`` wrappers over the pure functions in :mod:
   :class:`CircleTrack` (closed-form residuals and Jacobians, warm-started closest phases).
 - :func:`make_axis_to_line_factor` — projected FK axis test points vs. a measured image line (key: pose).
 - :func:`make_axis_to_line_variable_factor` — the same vs. a line variable's image (keys: pose, line).
+- :func:`make_axis_offsets_to_line_factor`, :func:`make_axis_offsets_to_line_variable_factor` — the same two with
+  the FK axis a function of joint offsets (one more key: the offsets vector).
 - :func:`make_pose_circle_point_factor` — one track's pixels vs. its projected circle about the FK axis mapped
   by the pose (keys: pose, circle): the joint model with exact kinematics, no line variable.
 - :func:`make_rigid_circle_factor` (:mod:`.rigid`) — the rigid-spin model: one track's 2-D reprojection errors
@@ -42,7 +44,12 @@ and :mod:`.coaxial_solve` (the circles projected out); :mod:`.coaxial` (the vari
 factor modules :mod:`.circle`, :mod:`.axis`, :mod:`.pose_circle`, :mod:`.rigid` and :mod:`.rigid_line`.
 """
 
-from .axis import make_axis_to_line_factor, make_axis_to_line_variable_factor
+from .axis import (
+    make_axis_offsets_to_line_factor,
+    make_axis_offsets_to_line_variable_factor,
+    make_axis_to_line_factor,
+    make_axis_to_line_variable_factor,
+)
 from .circle import make_circle_point_factor
 from .circle_track import CircleTrack, circle_point_residuals, closest_phases
 from .coaxial import CoaxialLineFactor, make_coaxial_line_factor
@@ -92,6 +99,8 @@ __all__ = [
     "line_distances",
     "line_from_pose",
     "line_points",
+    "make_axis_offsets_to_line_factor",
+    "make_axis_offsets_to_line_variable_factor",
     "make_axis_to_line_factor",
     "make_axis_to_line_variable_factor",
     "make_circle_point_factor",

@@ -12,7 +12,8 @@ import numpy as np
 
 from .geometry import axis_point_residuals, image_line_from_rot3, line_distance_covariance
 
-__all__ = ["line_distance_covariance", "make_axis_to_line_factor", "make_axis_to_line_variable_factor"]
+__all__ = ["line_distance_covariance", "make_axis_offsets_to_line_factor", "make_axis_offsets_to_line_variable_factor",
+           "make_axis_to_line_factor", "make_axis_to_line_variable_factor"]
 
 
 def _checked_points(noise, test_points_arm) -> np.ndarray:
@@ -84,3 +85,70 @@ def make_axis_to_line_variable_factor(noise, pose_key: int, line_key: int, test_
         return e
 
     return gtsam.CustomFactor(noise, [pose_key, line_key], error_func)
+
+
+def _offsets_residuals(K, arm_T_camera, axis_of, delta, line):
+    """The distances at the offsets ``delta`` and their Jacobians (pose, line, offsets): ``axis_of(delta)`` gives
+    the (M, 3) test points and their (M, 3, n) derivatives; ``de_i/dP_i = -H_pose[i, 3:] R^T`` (the translation
+    block of the pose Jacobian is ``-de_i/dX_i``, X = R^T (P - t))."""
+    points, d_points = axis_of(delta)
+    e, H_pose, H_line = axis_point_residuals(K, arm_T_camera, points, line)
+    de_dP = -H_pose[:, 3:] @ arm_T_camera.rotation().matrix().T          # (M, 3)
+    return e, H_pose, H_line, np.einsum("mi,min->mn", de_dP, d_points)
+
+
+def make_axis_offsets_to_line_factor(noise, pose_key: int, offsets_key: int, axis_of, line, K) -> gtsam.CustomFactor:
+    """Distances of projected FK axis test points to a measured image line, the FK axis depending on joint offsets.
+
+    Args:
+        noise: gtsam noise model of dimension M.
+        pose_key: key of the ``gtsam.Pose3`` ``arm_T_camera``.
+        offsets_key: key of the joint offsets (a ``numpy`` vector of n radians, the reading plus the offset is the
+            joint's angle).
+        axis_of: ``delta -> (points (M, 3), d_points (M, 3, n))``: the test points (arm frame) at those offsets
+            and their derivatives (e.g. from :meth:`gtsam_rotid.arm.Arm.wrist_axis_offset_derivatives`).
+        line: (3,) measured homogeneous image line; normalised here.
+        K: (3, 3) intrinsic matrix.
+
+    Returns:
+        ``gtsam.CustomFactor`` with Jacobians (M, 6) wrt the Pose3 tangent and (M, n) wrt the offsets.
+    """
+    line = np.array(line, dtype=float).reshape(3)
+    line = line / np.hypot(line[0], line[1])
+    K = np.array(K, dtype=float).reshape(3, 3)
+    line.setflags(write=False)
+    K.setflags(write=False)
+
+    def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
+        keys = this.keys()
+        e, H_pose, _, H_offsets = _offsets_residuals(K, values.atPose3(keys[0]), axis_of, values.atVector(keys[1]),
+                                                     line)
+        if H is not None:
+            H[0], H[1] = H_pose, H_offsets
+        return e
+
+    return gtsam.CustomFactor(noise, [pose_key, offsets_key], error_func)
+
+
+def make_axis_offsets_to_line_variable_factor(noise, pose_key: int, line_key: int, offsets_key: int, axis_of,
+                                              K) -> gtsam.CustomFactor:
+    """Distances of projected FK axis test points to the image of a Rot3 line variable, the FK axis depending on
+    joint offsets (see :func:`make_axis_offsets_to_line_factor` for ``offsets_key`` and ``axis_of``).
+
+    Returns:
+        ``gtsam.CustomFactor`` with Jacobians (M, 6) wrt the Pose3 tangent, (M, 3) wrt the Rot3 tangent and (M, n)
+        wrt the offsets.
+    """
+    K = np.array(K, dtype=float).reshape(3, 3)
+    K.setflags(write=False)
+
+    def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
+        keys = this.keys()
+        line, J_line = image_line_from_rot3(K, values.atRot3(keys[1]))
+        e, H_pose, H_l, H_offsets = _offsets_residuals(K, values.atPose3(keys[0]), axis_of,
+                                                       values.atVector(keys[2]), line)
+        if H is not None:
+            H[0], H[1], H[2] = H_pose, H_l @ J_line, H_offsets
+        return e
+
+    return gtsam.CustomFactor(noise, [pose_key, line_key, offsets_key], error_func)

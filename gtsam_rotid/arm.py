@@ -306,6 +306,58 @@ class Arm:
         oMi = self._data.oMi[self._wrist_id]
         return Line3(np.array(oMi.translation), np.array(oMi.rotation) @ self._local_axis(self._wrist_id))
 
+    def offset_joints(self, names=True) -> list[int]:
+        """Indices (model order) of the joints whose offsets move the wrist axis: ``True`` every revolute joint
+        before the wrist, or the named ones (each must be one of those). Raises :class:`ArmError` naming the
+        joint that cannot be one."""
+        before = [self.joint_names[i] for i in range(self.wrist_index)]
+        if names is True:
+            return list(range(self.wrist_index))
+        if isinstance(names, str):
+            names = [names]
+        out = []
+        for name in names:
+            if name == self.wrist_joint:
+                raise ArmError(f"joint {name!r} is the spinning joint: its offset never shows in its own spin's "
+                               f"axis; offsets can be refined for {before}")
+            if name not in before:
+                raise ArmError(f"joint {name!r} is not a revolute joint before the spinning joint "
+                               f"{self.wrist_joint!r}; offsets can be refined for {before}")
+            if self.joint_names.index(name) in out:
+                raise ArmError(f"joint {name!r} is listed twice among the offsets")
+            out.append(self.joint_names.index(name))
+        if not out:
+            raise ArmError(f"no joint offset to refine; offsets can be refined for {before}")
+        return out
+
+    def wrist_axis_offset_derivatives(self, joint_angles, joints, offsets=None
+                                      ) -> tuple[Line3, np.ndarray, np.ndarray]:
+        """The wrist axis at ``joint_angles`` plus ``offsets`` (radians, one per index in ``joints``: the reading
+        plus the offset is the joint's angle), and the derivatives of its point and direction with respect to
+        those offsets, each (3, len(joints)), arm frame. A revolute joint j turns everything after it about its
+        axis (unit w_j through o_j): ``dp/d delta_j = w_j x (p - o_j)``, ``dd/d delta_j = w_j x d``; zero for a
+        joint that does not carry the wrist (another branch)."""
+        joints = [int(j) for j in joints]
+        angles = self.joint_angle_vector(joint_angles).copy()
+        if offsets is not None:
+            offsets = np.asarray(offsets, dtype=float).reshape(len(joints))
+            angles[joints] += offsets
+        self._forward(angles)
+        wrist = self._data.oMi[self._wrist_id]
+        point = np.array(wrist.translation)
+        direction = np.array(wrist.rotation) @ self._local_axis(self._wrist_id)
+        ancestors = set(self.model.supports[self._wrist_id])
+        d_point, d_direction = np.zeros((3, len(joints))), np.zeros((3, len(joints)))
+        for c, j in enumerate(joints):
+            jid = self._joint_ids[j]
+            if jid not in ancestors or jid == self._wrist_id:
+                continue
+            placement = self._data.oMi[jid]
+            w = np.array(placement.rotation) @ self._local_axis(jid)
+            d_point[:, c] = np.cross(w, point - np.array(placement.translation))
+            d_direction[:, c] = np.cross(w, direction)
+        return Line3(point, direction), d_point, d_direction
+
     def wrist_axis_local(self) -> np.ndarray:
         """Unit wrist axis in the wrist joint's own frame (constant)."""
         pin.forwardKinematics(self.model, self._data, pin.neutral(self.model))

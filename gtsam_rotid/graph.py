@@ -19,6 +19,7 @@ Example::
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -36,6 +37,7 @@ from .factors import (
     RigidLineFactor,
     RigidTracks,
     initial_spin,
+    make_axis_offsets_to_line_variable_factor,
     make_axis_to_line_variable_factor,
     make_circle_point_factor,
     make_coaxial_line_factor,
@@ -239,12 +241,20 @@ class RotIdGraph:
             its threshold can follow the track length (see :func:`track_huber`; a track has one residual per
             point, two with the rigid spin).
         spin_model: ``"free"`` (default) or ``"rigid"`` (see :class:`SpinModel`; ``"projected"`` model only).
+        joint_offsets: refine offsets (zero-position errors, common to every pose) of joints before the spinning
+            one: ``True`` for all of them or a list of joint names (``"line"`` and ``"projected"`` models). The
+            ties then depend on a vector variable at ``offsets_key`` (radians, in :attr:`offset_joints` order; the
+            reading plus the offset is the joint's angle): insert it with :meth:`add_offsets_prior` before the
+            measurements. The offsets of the first joints turn the whole arm as the pose does: the prior holds
+            the combinations the poses do not determine (their posterior stays at the prior).
+        offsets_key: key of that variable.
     """
 
     def __init__(self, arm: Arm, camera: Camera, *, pose_key: int = gtsam.symbol("T", 0), line_symbol: str = "l",
                  circle_symbol: str = "c", track_sigma_px: float = 1.0, tie_sigma_px: float = 1e-3,
                  min_track_points: int = MIN_TRACK_POINTS, min_track_extent_px: float = MIN_TRACK_EXTENT_PX,
-                 robust=None, model: str | Model = Model.LINE, spin_model: str | SpinModel = SpinModel.FREE):
+                 robust=None, model: str | Model = Model.LINE, spin_model: str | SpinModel = SpinModel.FREE,
+                 joint_offsets=None, offsets_key: int = gtsam.symbol("o", 0)):
         if line_symbol == circle_symbol:
             raise InputError("line_symbol and circle_symbol must differ")
         try:
@@ -269,6 +279,46 @@ class RotIdGraph:
         self.min_track_points = max(int(min_track_points), MIN_ELLIPSE_POINTS)
         self.min_track_extent_px = float(min_track_extent_px)
         self.robust = robust
+        self.offsets_key = offsets_key
+        self.offset_joints: list[int] = []
+        if joint_offsets is not None and joint_offsets is not False:
+            if self.model is Model.POSE:
+                raise InputError("joint_offsets need a line variable per measurement: use model 'line' or "
+                                 "'projected', not 'pose'")
+            self.offset_joints = arm.offset_joints(joint_offsets)  # ArmError (an InputError) names a bad joint
+
+    @property
+    def offset_names(self) -> list[str]:
+        """The joints whose offsets the graph refines, in the offsets variable's order."""
+        return [self.arm.joint_names[j] for j in self.offset_joints]
+
+    def add_offsets_prior(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                          sigma_deg: float | Sequence[float] = 1.0, mean_deg=None) -> None:
+        """Insert the offsets variable (at ``mean_deg``, default zero) with a Gaussian prior of ``sigma_deg`` per
+        joint (degrees: how far the robot's zero positions may be off)."""
+        n = len(self.offset_joints)
+        if n == 0:
+            raise InputError("this graph refines no joint offsets (RotIdGraph(joint_offsets=...))")
+        sigma = np.broadcast_to(np.asarray(sigma_deg, dtype=float), (n,))
+        if not np.all(np.isfinite(sigma) & (sigma > 0)):
+            raise InputError(f"joint offset sigmas must be positive degrees, got {np.asarray(sigma_deg).tolist()}")
+        mean = np.zeros(n) if mean_deg is None else np.asarray(mean_deg, dtype=float).reshape(n)
+        if values.exists(self.offsets_key):
+            raise InputError(f"key {gtsam.DefaultKeyFormatter(self.offsets_key)} already exists in values")
+        values.insert(self.offsets_key, np.radians(mean))
+        graph.add(gtsam.PriorFactorVector(self.offsets_key, np.radians(mean),
+                                          gtsam.noiseModel.Diagonal.Sigmas(np.radians(sigma))))
+
+    def axis_of(self, joint_angles):
+        """``delta -> (test points (2, 3), their derivatives (2, 3, n))`` of the FK axis at ``joint_angles`` with
+        the offsets ``delta`` (radians) of :attr:`offset_joints`."""
+        arm, joints, spacing = self.arm, self.offset_joints, np.array([0.0, TEST_POINT_SPACING])
+
+        def axis_of(delta):
+            axis, d_point, d_direction = arm.wrist_axis_offset_derivatives(joint_angles, joints, delta)
+            points = axis.points_at(spacing)
+            return points, d_point[None] + spacing[:, None, None] * d_direction[None]
+        return axis_of
 
     def line_key(self, k: int) -> int:
         return gtsam.symbol(self.line_symbol, k)
@@ -326,7 +376,13 @@ class RotIdGraph:
         if line_key is not None and values.exists(line_key):
             raise InputError(f"measurement {k}: key {gtsam.DefaultKeyFormatter(line_key)} already exists in values")
         prepared = self.prepare(measurement, k) if prepared is None else prepared
-        axis = self.arm.wrist_axis(measurement.joint_angles)
+        if tie and self.offset_joints and not values.exists(self.offsets_key):
+            raise InputError("insert the joint offsets first (RotIdGraph.add_offsets_prior)")
+        if tie and self.offset_joints:
+            axis = self.arm.wrist_axis_offset_derivatives(measurement.joint_angles, self.offset_joints,
+                                                          values.atVector(self.offsets_key))[0]
+        else:
+            axis = self.arm.wrist_axis(measurement.joint_angles)
         camera_T_arm = arm_T_camera.inverse()
         point_cam = camera_T_arm.transformFrom(axis.point)
         direction_cam = camera_T_arm.rotation().matrix() @ axis.direction
@@ -369,7 +425,11 @@ class RotIdGraph:
             new_values = self._refined_circles(new_factors, new_values, keys, line_key, line_cam, arm_T_camera)
         # nothing is added to the caller's graph or values before every check has passed
         _commit(graph, values, new_factors, new_values, keys, line_cam)
-        if tie and not bound:
+        if tie and not bound and self.offset_joints:
+            graph.add(make_axis_offsets_to_line_variable_factor(tie_noise, self.pose_key, line_key, self.offsets_key,
+                                                                self.axis_of(measurement.joint_angles), K))
+            keys.tie_factor = graph.size() - 1
+        elif tie and not bound:
             graph.add(make_axis_to_line_variable_factor(tie_noise, self.pose_key, line_key, axis_test_points(axis), K))
             keys.tie_factor = graph.size() - 1
         return keys

@@ -164,3 +164,40 @@ def test_joints_without_limits_in_the_urdf_are_never_refused():
     arm = Arm.from_urdf_string(unlimited)
     assert arm.limit_problem([0.5, -2.9, 40.0]) is None
     assert "outside the model's limits" in Arm.from_urdf_string(URDF_3_JOINTS).limit_problem([0.5, -2.9, 40.0])
+
+
+@pytest.mark.parametrize("robot", ["kinova", "ur5", "panda"])
+def test_wrist_axis_offset_derivatives_match_finite_differences(robot):
+    """The wrist axis' point and direction turned by each joint's offset: the analytic derivative against central
+    differences of the forward kinematics (and the axis at the offsets is the axis at the shifted readings)."""
+    arm = Arm.from_robot(robot)
+    rng = np.random.default_rng(7)
+    angles = arm.random_joint_angles(rng)
+    joints = arm.offset_joints(True)
+    delta = np.radians(rng.normal(scale=0.5, size=len(joints)))
+    axis, d_point, d_direction = arm.wrist_axis_offset_derivatives(angles, joints, delta)
+    shifted = angles.copy()
+    shifted[joints] += delta
+    np.testing.assert_allclose(axis.point, arm.wrist_axis(shifted).point, atol=1e-12)
+    h = 1e-6
+    for c, j in enumerate(joints):
+        step = np.zeros(arm.dof)
+        step[j] = h
+        plus, minus = arm.wrist_axis(shifted + step), arm.wrist_axis(shifted - step)
+        np.testing.assert_allclose(d_point[:, c], (plus.point - minus.point) / (2 * h), atol=1e-7)
+        np.testing.assert_allclose(d_direction[:, c], (plus.direction - minus.direction) / (2 * h), atol=1e-7)
+    assert np.linalg.norm(d_point) > 0.1  # the offsets do move the axis
+
+
+def test_offset_joints_name_what_cannot_be_refined():
+    arm = Arm.from_robot("kinova")
+    assert arm.offset_joints(True) == list(range(arm.wrist_index)) == [0, 1, 2, 3, 4]
+    assert arm.offset_joints(["j2s6s200_joint_3", "j2s6s200_joint_2"]) == [2, 1]
+    with pytest.raises(ArmError, match="'j2s6s200_joint_6' is the spinning joint"):
+        arm.offset_joints(["j2s6s200_joint_6"])
+    with pytest.raises(ArmError, match="'elbow' is not a revolute joint before the spinning joint"):
+        arm.offset_joints("elbow")
+    with pytest.raises(ArmError, match="listed twice"):
+        arm.offset_joints(["j2s6s200_joint_2", "j2s6s200_joint_2"])
+    with pytest.raises(ArmError, match="no joint offset"):
+        arm.offset_joints([])

@@ -3,7 +3,7 @@
 import gtsam
 import numpy as np
 import pytest
-from gtsam.symbol_shorthand import L, X
+from gtsam.symbol_shorthand import L, O, X
 
 from gtsam_rotid import InputError, simulate
 from gtsam_rotid.dataset import Measurement
@@ -186,3 +186,45 @@ def test_tie_covariance_widens_the_tie_and_a_bad_one_adds_nothing(scene):
     keys = builder.add_measurement(graph, values, 0, dataset[0], tie_covariance=C)
     R = graph.at(keys.tie_factor).noiseModel().R()  # square-root information: R^T R = (sigma^2 I + C)^-1
     np.testing.assert_allclose(np.linalg.inv(R.T @ R), 1e-6 * np.eye(2) + C, rtol=1e-9, atol=1e-15)
+
+
+def test_joint_offsets_in_a_users_graph():
+    """Joints before the wrist read 0.3-0.5 deg off their zero on every pose: the exact-kinematics graph is confidently
+    wrong; with the offsets as a variable (1 deg prior) the pose and the offsets the poses determine come back
+    within their covariance. The first joint's offset turns the whole arm as the pose does: it stays at its prior."""
+    from gtsam_rotid.calibration import initial_pose
+    from gtsam_rotid.dataset import Dataset
+
+    dataset, truth = simulate.reference_scene(seed=4, noise_var=1.5, duration=12.0)
+    offsets = np.radians([0.0, -0.3, 0.4, 0.3, -0.4])  # the true angle is the reading plus the offset
+    shift = np.zeros(len(dataset.arm.joint_names))
+    shift[:5] = offsets
+    readings = Dataset(dataset.arm, dataset.camera,
+                       [Measurement(dataset.joint_angles(k) - shift, m.tracks) for k, m in enumerate(dataset)])
+    start = initial_pose(readings.arm, readings.camera, list(readings))
+    solved = {}
+    for joints in (None, True):
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        values.insert(X(0), start)
+        builder = RotIdGraph(readings.arm, readings.camera, pose_key=X(0), model="projected", spin_model="rigid",
+                             joint_offsets=joints)
+        if joints:
+            with pytest.raises(InputError, match="insert the joint offsets first"):
+                builder.add_measurement(graph, values, 0, readings[0])
+            builder.add_offsets_prior(graph, values, sigma_deg=1.0)
+        for k, m in enumerate(readings):
+            builder.add_measurement(graph, values, k, m)
+        result = lm(graph, values, diagonal_damping=False)
+        marginals = gtsam.Marginals(graph, result)
+        error = truth.arm_T_camera.localCoordinates(result.atPose3(X(0)))
+        solved[joints] = error @ np.linalg.solve(marginals.marginalCovariance(X(0)), error)
+        if joints:
+            assert builder.offset_names == readings.arm.joint_names[:5]
+            estimate, covariance = result.atVector(builder.offsets_key), marginals.marginalCovariance(O(0))
+            sigma_deg = np.degrees(np.sqrt(np.diag(covariance)))
+            assert sigma_deg[0] > 0.99 and np.all(sigma_deg[1:] < 0.3)  # joint 1: the prior; the others: determined
+            miss = estimate - offsets
+            assert miss @ np.linalg.solve(covariance, miss) < 20.5  # the 99.9 % point for 5 dof
+    assert solved[None] > 100.0 and solved[True] < 22.5  # the 99.9 % point for 6 dof
+    with pytest.raises(InputError, match="use model 'line' or 'projected'"):
+        RotIdGraph(readings.arm, readings.camera, model="pose", joint_offsets=True)

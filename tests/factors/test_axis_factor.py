@@ -117,3 +117,51 @@ def test_lm_recovers_pose_from_measured_lines(scene):
     params.setAbsoluteErrorTol(1e-20)
     result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
     np.testing.assert_allclose(scene.arm_T_camera.localCoordinates(result.atPose3(T(0))), 0.0, atol=1e-7)
+
+
+def kinova_axis_of(rng):
+    """A Jaco2 pose's ``axis_of`` (test points and their offset derivatives, every joint before the wrist) and the
+    camera looking at its wrist from 0.8 m."""
+    from gtsam_rotid.arm import Arm
+    from gtsam_rotid.geometry import look_at
+
+    arm = Arm.from_robot("kinova")
+    angles = arm.random_joint_angles(rng)
+    joints = arm.offset_joints(True)
+    wrist = arm.wrist_axis(angles).point
+    camera = look_at(wrist + np.array([0.8, 0.1, 0.3]), wrist, np.array([0.0, 0.0, 1.0]))
+    spacing = np.array([0.0, 0.1])
+
+    def axis_of(delta):
+        axis, d_point, d_direction = arm.wrist_axis_offset_derivatives(angles, joints, delta)
+        return axis.points_at(spacing), d_point[None] + spacing[:, None, None] * d_direction[None]
+    return axis_of, camera, len(joints)
+
+
+@pytest.mark.parametrize("trial", range(3))
+def test_offsets_factors_jacobians_match_numerical(trial, scene):
+    """Both offset factors (measured line; line variable) against gtsam's numerical derivative, the offsets' block
+    too (the FK axis moved by the offsets through the arm's kinematics)."""
+    from gtsam.symbol_shorthand import O
+
+    from gtsam_rotid.factors import make_axis_offsets_to_line_factor, make_axis_offsets_to_line_variable_factor
+
+    rng = np.random.default_rng(300 + trial)
+    axis_of, arm_T_camera, n = kinova_axis_of(rng)
+    delta = np.radians(rng.normal(scale=0.5, size=n))
+    pose = arm_T_camera.retract(np.concatenate([rng.normal(scale=0.01, size=3), rng.normal(scale=0.01, size=3)]))
+    points, _ = axis_of(delta)
+    pixels = scene.K @ np.array([arm_T_camera.transformTo(p) for p in points]).T
+    line = np.cross(*(pixels.T / pixels[2][:, None]))  # the image line through the projected test points
+    noise = gtsam.noiseModel.Isotropic.Sigma(2, 1.5)
+    fixed = make_axis_offsets_to_line_factor(noise, T(0), O(0), axis_of, line + rng.normal(scale=1e-3, size=3),
+                                             scene.K)
+    assert_jacobians_match(fixed, [(T(0), pose), (O(0), delta)])
+    line_var = gtsam.Rot3.Expmap(rng.normal(scale=0.3, size=3))
+    variable = make_axis_offsets_to_line_variable_factor(noise, T(0), L(0), O(0), axis_of, scene.K)
+    assert_jacobians_match(variable, [(T(0), pose), (L(0), line_var), (O(0), delta)])
+    # at zero offsets they are the exact-kinematics factors
+    exact = make_axis_to_line_factor(noise, T(0), axis_of(np.zeros(n))[0], line, scene.K)
+    offsets = make_axis_offsets_to_line_factor(noise, T(0), O(0), axis_of, line, scene.K)
+    values = values_with([(T(0), pose), (O(0), np.zeros(n))])
+    np.testing.assert_allclose(offsets.unwhitenedError(values), exact.unwhitenedError(values), atol=1e-12)
