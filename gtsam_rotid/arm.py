@@ -307,12 +307,17 @@ class Arm:
         return Line3(np.array(oMi.translation), np.array(oMi.rotation) @ self._local_axis(self._wrist_id))
 
     def offset_joints(self, names=True) -> list[int]:
-        """Indices (model order) of the joints whose offsets move the wrist axis: ``True`` every revolute joint
-        before the wrist, or the named ones (each must be one of those). Raises :class:`ArmError` naming the
-        joint that cannot be one."""
+        """Indices (model order) of the joints whose offsets to refine: ``True`` every revolute joint between the
+        first and the spinning one (the first joint's offset turns the whole arm about an axis fixed in its root
+        frame, as ``arm_T_camera`` does: no camera data ever determine it), or the named ones (each a revolute joint
+        before the spinning one; the first may be named, its offset then stays at its prior). Raises
+        :class:`ArmError` naming the joint that cannot be one."""
         before = [self.joint_names[i] for i in range(self.wrist_index)]
         if names is True:
-            return list(range(self.wrist_index))
+            if self.wrist_index < 2:
+                raise ArmError(f"no joint offset the poses can determine: only {before} is before the spinning "
+                               f"joint {self.wrist_joint!r}, and its offset turns the arm as the camera pose does")
+            return list(range(1, self.wrist_index))
         if isinstance(names, str):
             names = [names]
         out = []

@@ -242,11 +242,12 @@ class RotIdGraph:
             point, two with the rigid spin).
         spin_model: ``"free"`` (default) or ``"rigid"`` (see :class:`SpinModel`; ``"projected"`` model only).
         joint_offsets: refine offsets (zero-position errors, common to every pose) of joints before the spinning
-            one: ``True`` for all of them or a list of joint names (``"line"`` and ``"projected"`` models). The
-            ties then depend on a vector variable at ``offsets_key`` (radians, in :attr:`offset_joints` order; the
-            reading plus the offset is the joint's angle): insert it with :meth:`add_offsets_prior` before the
-            measurements. The offsets of the first joints turn the whole arm as the pose does: the prior holds
-            the combinations the poses do not determine (their posterior stays at the prior).
+            one: ``True`` for every one between the first and the spinning one, or a list of joint names
+            (``"line"`` and ``"projected"`` models; :meth:`gtsam_rotid.arm.Arm.offset_joints`). The ties then
+            depend on a vector variable at ``offsets_key`` (radians, in :attr:`offset_joints` order; the reading
+            plus the offset is the joint's angle): insert it with :meth:`add_offsets_prior` before the
+            measurements. The first joint's offset turns the whole arm as the pose does: named, its prior holds it
+            (as it holds any combination the poses do not determine).
         offsets_key: key of that variable.
     """
 

@@ -191,7 +191,8 @@ def test_tie_covariance_widens_the_tie_and_a_bad_one_adds_nothing(scene):
 def test_joint_offsets_in_a_users_graph():
     """Joints before the wrist read 0.3-0.5 deg off their zero on every pose: the exact-kinematics graph is confidently
     wrong; with the offsets as a variable (1 deg prior) the pose and the offsets the poses determine come back
-    within their covariance. The first joint's offset turns the whole arm as the pose does: it stays at its prior."""
+    within their covariance. The first joint's offset turns the whole arm as the pose does: named, it stays at its
+    prior (``True`` leaves it out)."""
     from gtsam_rotid.calibration import initial_pose
     from gtsam_rotid.dataset import Dataset
 
@@ -203,7 +204,9 @@ def test_joint_offsets_in_a_users_graph():
                        [Measurement(dataset.joint_angles(k) - shift, m.tracks) for k, m in enumerate(dataset)])
     start = initial_pose(readings.arm, readings.camera, list(readings))
     solved = {}
-    for joints in (None, True):
+    every = readings.arm.joint_names[:5]
+    assert RotIdGraph(readings.arm, readings.camera, joint_offsets=True).offset_names == every[1:]
+    for joints in (None, every):
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         values.insert(X(0), start)
         builder = RotIdGraph(readings.arm, readings.camera, pose_key=X(0), model="projected", spin_model="rigid",
@@ -217,14 +220,14 @@ def test_joint_offsets_in_a_users_graph():
         result = lm(graph, values, diagonal_damping=False)
         marginals = gtsam.Marginals(graph, result)
         error = truth.arm_T_camera.localCoordinates(result.atPose3(X(0)))
-        solved[joints] = error @ np.linalg.solve(marginals.marginalCovariance(X(0)), error)
+        solved[joints is not None] = error @ np.linalg.solve(marginals.marginalCovariance(X(0)), error)
         if joints:
-            assert builder.offset_names == readings.arm.joint_names[:5]
+            assert builder.offset_names == every
             estimate, covariance = result.atVector(builder.offsets_key), marginals.marginalCovariance(O(0))
             sigma_deg = np.degrees(np.sqrt(np.diag(covariance)))
             assert sigma_deg[0] > 0.99 and np.all(sigma_deg[1:] < 0.3)  # joint 1: the prior; the others: determined
             miss = estimate - offsets
             assert miss @ np.linalg.solve(covariance, miss) < 20.5  # the 99.9 % point for 5 dof
-    assert solved[None] > 100.0 and solved[True] < 22.5  # the 99.9 % point for 6 dof
+    assert solved[False] > 100.0 and solved[True] < 22.5  # the 99.9 % point for 6 dof
     with pytest.raises(InputError, match="use model 'line' or 'projected'"):
         RotIdGraph(readings.arm, readings.camera, model="pose", joint_offsets=True)

@@ -127,7 +127,7 @@ def kinova_axis_of(rng):
 
     arm = Arm.from_robot("kinova")
     angles = arm.random_joint_angles(rng)
-    joints = arm.offset_joints(True)
+    joints = list(range(arm.wrist_index))
     wrist = arm.wrist_axis(angles).point
     camera = look_at(wrist + np.array([0.8, 0.1, 0.3]), wrist, np.array([0.0, 0.0, 1.0]))
     spacing = np.array([0.0, 0.1])
