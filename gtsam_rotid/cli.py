@@ -129,8 +129,10 @@ def cmd_calibrate(args) -> int:
     print(dataset.summary())
     from .calibration import CalibrationOptions
 
-    result = _calibrate_timed(dataset, args.method, CalibrationOptions(joint_sigma_deg=args.joint_sigma_deg,
-                                                                           axis_floor_px=args.axis_floor_px))
+    offsets = None if args.joint_offsets is None else (args.joint_offsets or True)  # no names: every joint
+    result = _calibrate_timed(dataset, args.method, CalibrationOptions(
+        joint_sigma_deg=args.joint_sigma_deg, axis_floor_px=args.axis_floor_px, joint_offsets=offsets,
+        joint_offset_sigma_deg=args.joint_offset_sigma_deg))
     print(summary(result))
     if truth is not None:
         _print_lines(error_vs_truth_lines(result, truth.arm_T_camera))
@@ -404,10 +406,15 @@ def cmd_check(args) -> int:
                              + ", ".join(f"{key}: {pose.robot.get(key)!r} vs {now.get(key)!r}" for key in differ)
                              + ")")
     options = CalibrationOptions(joint_sigma_deg=pose.joint_sigma_deg, axis_floor_px=pose.axis_floor_px)
+    if pose.joint_offsets:  # the calibration's kinematics: the readings plus the offsets it refined
+        print("joint offsets of the calibration applied to the readings: " + ", ".join(
+            f"{name} {np.degrees(v):+.3f} deg" for name, v in pose.joint_offsets.items()))
     tolerance = DEFAULT_TOLERANCE if args.tolerance is None else tuple(args.tolerance)
     print(f"checking {pose.kind} against {len(dataset)} spin(s) of {args.dataset}", flush=True)
     check = check_calibration(pose.arm_T_camera, dataset, covariance=pose.covariance, tolerance=tolerance,
-                              options=options)
+                              options=options, joint_offsets=pose.joint_offsets,
+                              offsets_covariance=pose.offsets_covariance,
+                              pose_offsets_covariance=pose.pose_offsets_covariance)
     print("\n".join(check_words(check)))
     return 3 if not check.still_valid else 0 if check.consistent and check.odd_spin is None else 4
 
@@ -610,6 +617,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--axis-floor-px", type=float, default=None, metavar="PX",
                    help="the image axes' floor: an error in px that all of a spin's tracks share (default: the "
                         "value the tracker wrote into the dataset, 0 for tracks of unknown origin)")
+    p.add_argument("--joint-offsets", nargs="*", default=None, metavar="JOINT",
+                   help="refine the zero offsets of these joints (before the spinning one) with the pose; no names: "
+                        "every joint between the first and the spinning one (the first joint's offset turns the "
+                        "arm as the camera pose does) (joint method)")
+    p.add_argument("--joint-offset-sigma-deg", type=float, default=1.0, metavar="DEG",
+                   help="prior 1 sigma of each joint offset in degrees (default 1)")
     p.add_argument("-o", "--output", metavar="RESULT_JSON", help="write the result as JSON to this file")
     p.add_argument("--overwrite", action="store_true", help="replace an existing result file")
     p.set_defaults(func=cmd_calibrate)

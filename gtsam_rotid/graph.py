@@ -294,9 +294,10 @@ class RotIdGraph:
         return [self.arm.joint_names[j] for j in self.offset_joints]
 
     def add_offsets_prior(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                          sigma_deg: float | Sequence[float] = 1.0, mean_deg=None) -> None:
-        """Insert the offsets variable (at ``mean_deg``, default zero) with a Gaussian prior of ``sigma_deg`` per
-        joint (degrees: how far the robot's zero positions may be off)."""
+                          sigma_deg: float | Sequence[float] = 1.0, mean_deg=None, initial_deg=None) -> None:
+        """Insert the offsets variable (at ``initial_deg``, default the prior's mean) with a Gaussian prior of mean
+        ``mean_deg`` (default zero) and ``sigma_deg`` per joint (degrees: how far the robot's zero positions may be
+        off)."""
         n = len(self.offset_joints)
         if n == 0:
             raise InputError("this graph refines no joint offsets (RotIdGraph(joint_offsets=...))")
@@ -306,7 +307,10 @@ class RotIdGraph:
         mean = np.zeros(n) if mean_deg is None else np.asarray(mean_deg, dtype=float).reshape(n)
         if values.exists(self.offsets_key):
             raise InputError(f"key {gtsam.DefaultKeyFormatter(self.offsets_key)} already exists in values")
-        values.insert(self.offsets_key, np.radians(mean))
+        initial = mean if initial_deg is None else np.asarray(initial_deg, dtype=float).reshape(n)
+        if not np.all(np.isfinite(mean)) or not np.all(np.isfinite(initial)):
+            raise InputError("joint offsets' prior mean and initial value must be finite degrees")
+        values.insert(self.offsets_key, np.radians(initial))
         graph.add(gtsam.PriorFactorVector(self.offsets_key, np.radians(mean),
                                           gtsam.noiseModel.Diagonal.Sigmas(np.radians(sigma))))
 

@@ -31,6 +31,11 @@ class PoseFile(NamedTuple):
     joint_sigma_deg: float = 0.0
     axis_floor_px: float | None = None
     robot: dict | None = None
+    #: a result of ours that refined joint offsets: joint name -> rad (the reading plus it is the joint's angle),
+    #: their covariance (n x n) and its cross-covariance with the pose (6 x n)
+    joint_offsets: dict | None = None
+    offsets_covariance: np.ndarray | None = None
+    pose_offsets_covariance: np.ndarray | None = None
 
 
 def load_pose(path: str | os.PathLike, arm: Arm | None = None) -> PoseFile:
@@ -52,7 +57,8 @@ def load_pose(path: str | os.PathLike, arm: Arm | None = None) -> PoseFile:
     if isinstance(document, dict) and document.get("format") == "gtsam_rotid.calibration":
         result = load_result(path)
         return PoseFile(result.arm_T_camera, result.covariance, "a gtsam_rotid result", result.joint_sigma_deg,
-                        result.axis_floor_px, result.robot or None)
+                        result.axis_floor_px, result.robot or None, result.joint_offsets,
+                        result.joint_offsets_covariance, result.pose_offsets_covariance)
     if isinstance(document, dict) and document.get("format") == FORMAT_MARKER:
         return _transform(document, path, arm)
     if isinstance(document, dict) and "transformation" in document:

@@ -46,6 +46,7 @@ from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  
 from .words import (
     ambiguity_words,
     axis_consistency_sentence,
+    joint_offsets_words,
     kinematics_words,
     observability_words,
     outlier_words,
@@ -132,6 +133,10 @@ class CalibrationReport:
     joint_sigma_deg: float = 0.0
     #: the image axes' prior floor (px) the covariance includes (``result.axis_floor_px``)
     axis_floor_px: float = 0.0
+    #: the joint offsets refined with the pose (joint name -> deg) and their 1σ (deg); None: kinematics as given
+    joint_offsets_deg: dict | None = None
+    joint_offsets_sigma_deg: dict = field(default_factory=dict)
+    joint_offset_prior_deg: float = 0.0
     #: why a determined calibration's covariance is still not trusted (``result.untrusted``'s kinds)
     untrusted: list = field(default_factory=list)
     #: one line: usable and how well, or why not and what to do (:func:`gtsam_rotid.words.verdict`)
@@ -191,7 +196,9 @@ class CalibrationReport:
         return [f"method {self.method}, {state} after {self.iterations} iterations, pixel noise {self.sigma_px:.3f} "
                 "px (estimated from the residuals)",
                 "arm_T_camera: the camera pose (OpenCV optical frame: x right, y down, z forward) in the arm-base "
-                "frame", kinematics_words(self.joint_sigma_deg), tracking_words(self.axis_floor_px)]
+                "frame", kinematics_words(self.joint_sigma_deg, self.joint_offsets_deg is not None),
+                *joint_offsets_words(self.joint_offsets_deg, self.joint_offsets_sigma_deg, self.joint_offset_prior_deg),
+                tracking_words(self.axis_floor_px)]
 
     def _uncertainty_lines(self) -> list[str]:
         q = self.quaternion_xyzw
@@ -317,6 +324,10 @@ class CalibrationReport:
             "chi2": {k: (f(v) if isinstance(v, float) else v) for k, v in self.chi2.to_dict().items()},
             "joint_sigma_deg": f(self.joint_sigma_deg),
             "axis_floor_px": f(self.axis_floor_px),
+            "joint_offsets_deg": None if self.joint_offsets_deg is None
+            else {k: f(v) for k, v in self.joint_offsets_deg.items()},
+            "joint_offsets_sigma_deg": {k: f(v) for k, v in self.joint_offsets_sigma_deg.items()},
+            "joint_offset_prior_deg": f(self.joint_offset_prior_deg),
             "untrusted": list(self.untrusted),
             "axis_consistency": None if self.axis_consistency is None
             else {k: (f(v) if isinstance(v, float) else v) for k, v in self.axis_consistency.to_dict().items()},
@@ -535,6 +546,10 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         axis_consistency=getattr(result, "axis_consistency", None),
         joint_sigma_deg=float(getattr(result, "joint_sigma_deg", 0.0)), untrusted=untrusted,
         axis_floor_px=float(getattr(result, "axis_floor_px", 0.0)), verdict=verdict(result), next_pose=planned,
+        joint_offsets_deg=None if getattr(result, "joint_offsets", None) is None
+        else {k: float(np.degrees(v)) for k, v in result.joint_offsets.items()},
+        joint_offsets_sigma_deg=dict(getattr(result, "joint_offsets_sigma_deg", {})),
+        joint_offset_prior_deg=float(getattr(result, "joint_offset_sigma_deg", 0.0)),
     )
 
 

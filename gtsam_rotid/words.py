@@ -70,7 +70,10 @@ def summary(result: CalibrationResult) -> str:
     lines.extend("  " + line for line in observability_words(result.observability))
     if result.axis_consistency is not None and not result.axis_consistency.consistent:
         lines.append("  " + axis_consistency_sentence(result.axis_consistency))
-    lines.append("  " + kinematics_words(result.joint_sigma_deg))
+    lines.append("  " + kinematics_words(result.joint_sigma_deg, result.joint_offsets is not None))
+    lines.extend("  " + line for line in joint_offsets_words(
+        None if result.joint_offsets is None else {k: float(np.degrees(v)) for k, v in result.joint_offsets.items()},
+        result.joint_offsets_sigma_deg, result.joint_offset_sigma_deg))
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
         flag = (f"  OUTLIER ({outlier_words(m, 'intrinsics' in result.untrusted, 'kinematics' in result.untrusted)})"
@@ -322,13 +325,38 @@ def joint_offset_words(result: CalibrationResult) -> str:
             "joint's turns the whole arm, as the camera pose does, and does not show). " + advice)
 
 
-def kinematics_words(joint_sigma_deg: float) -> str:
-    """What a covariance that includes joint-angle noise of ``joint_sigma_deg`` (0: none) assumes, in words."""
+def kinematics_words(joint_sigma_deg: float, offsets: bool = False) -> str:
+    """What a covariance that includes joint-angle noise of ``joint_sigma_deg`` (0: none) assumes, in words;
+    ``offsets``: joint offsets were refined too."""
+    but = " (but for the joint offsets below)" if offsets else ""
     if joint_sigma_deg > 0.0:
-        return (f"kinematics: joint readings uncertain by {joint_sigma_deg:g} deg (1 sigma, per joint and arm "
+        return (f"kinematics: joint readings{but} uncertain by {joint_sigma_deg:g} deg (1 sigma, per joint and arm "
                 "pose), propagated into the covariance")
-    return ("kinematics: joint readings taken as exact; their errors are not in this covariance (declare them "
-            "with CalibrationOptions.joint_sigma_deg / --joint-sigma-deg)")
+    return (f"kinematics: joint readings taken as exact{but}; their errors are not in this covariance (declare "
+            "them with CalibrationOptions.joint_sigma_deg / --joint-sigma-deg)")
+
+
+def joint_offsets_words(offsets_deg: dict[str, float] | None, sigma_deg: dict[str, float],
+                        prior_deg: float) -> list[str]:
+    """The refined joint offsets (deg, the reading plus the offset is the joint's angle) with their 1 sigma, and
+    which of them these poses leave at their prior; [] when none was refined."""
+    if offsets_deg is None:
+        return []
+    lines = [f"joint offsets refined with the pose (prior 1 sigma {prior_deg:g} deg; the reading plus the offset is "
+             "the joint's angle), in the covariance:"]
+    held = []
+    for name, value in offsets_deg.items():
+        s = sigma_deg.get(name, float("nan"))
+        if not np.isfinite(s) or s > 0.7 * prior_deg:
+            held.append(name)
+            lines.append(f"  {name}: {value:+.3f} deg, NOT determined by these poses (1 sigma {s:.3f} deg, its prior)")
+        else:
+            lines.append(f"  {name}: {value:+.3f} deg +- {s:.3f} deg (1 sigma)")
+    if held:
+        lines.append("  the offsets left at their prior move arm_T_camera as much as the prior allows (the first "
+                     "joint's offset turns the whole arm as the camera pose does: no poses determine it; for the "
+                     "others add arm poses that move those joints)")
+    return lines
 
 
 def tracking_words(axis_floor_px: float) -> str:

@@ -210,6 +210,20 @@ def test_calibrate_joint_sigma_widens_the_covariance(noise_free_dataset, tmp_pat
     assert bad.returncode != 0 and "joint_sigma_deg must be a finite value >= 0" in bad.stderr
 
 
+def test_calibrate_joint_offsets_prints_and_saves_them(noise_free_dataset, tmp_path):
+    """--joint-offsets with no names: every joint between the first and the spinning one, in the summary and the
+    JSON; exact readings give offsets of zero; a joint that cannot have one is named."""
+    out = tmp_path / "result.json"
+    done = run("calibrate", str(noise_free_dataset), "--joint-offsets", "--joint-offset-sigma-deg", "0.5",
+               "-o", str(out))
+    assert "joint offsets refined with the pose (prior 1 sigma 0.5 deg" in done.stdout
+    loaded, rotation, translation = error_to_truth(out, noise_free_dataset / "truth.json")
+    assert list(loaded.joint_offsets) == [f"j2s6s200_joint_{i}" for i in (2, 3, 4, 5)]
+    assert np.all(np.abs(list(loaded.joint_offsets.values())) < 1e-6) and translation < 1e-6
+    bad = run("calibrate", str(noise_free_dataset), "--joint-offsets", "j2s6s200_joint_6", check=False)
+    assert bad.returncode != 0 and "'j2s6s200_joint_6' is the spinning joint" in bad.stderr
+
+
 def test_calibrate_bad_method_is_a_usage_error(noise_free_dataset):
     result = run("calibrate", str(noise_free_dataset), "--method", "best", check=False)
     assert result.returncode == 2 and "invalid choice" in result.stderr

@@ -116,16 +116,38 @@ class CheckResult:
 
 def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, Camera, list[Measurement]], *,
                       covariance: np.ndarray | None = None, tolerance: tuple[float, float] = DEFAULT_TOLERANCE,
-                      options: CalibrationOptions | None = None) -> CheckResult:
+                      options: CalibrationOptions | None = None, joint_offsets: dict[str, float] | None = None,
+                      offsets_covariance: np.ndarray | None = None,
+                      pose_offsets_covariance: np.ndarray | None = None) -> CheckResult:
     """Test ``arm_T_camera`` (the camera's optical frame in the arm's root frame) against the spins of
     ``dataset`` (one or more): see the module docstring. ``covariance`` is the calibration's (6x6, Pose3 tangent,
     as ``CalibrationResult.covariance``), or None for a pose from another tool, which is then taken as good to
     ``tolerance`` = (mm, deg), 1 sigma per axis. ``options``: the calibration's own (its joint sigma and the
-    tracker's floor)."""
+    tracker's floor).
+
+    ``joint_offsets`` (joint name -> rad, ``CalibrationResult.joint_offsets``): the calibration refined them; the new
+    readings are taken plus them, and their uncertainty (``offsets_covariance``, n x n rad², and its cross-covariance
+    with the pose, ``pose_offsets_covariance``, 6 x n) moves every new spin's FK axis: it is in each spin's χ², in
+    the move's covariance (the part of the offsets' error the move takes up) and in the spins' agreement at the
+    moved pose (the rest, spin by spin: its correlation between spins is left out)."""
     if isinstance(dataset, Dataset):
         arm, camera, measurements, metadata = dataset.arm, dataset.camera, list(dataset), dataset.metadata
     else:
         (arm, camera, measurements), metadata = dataset, {}
+    offsets = None
+    if joint_offsets:
+        joints = arm.offset_joints(list(joint_offsets))
+        n = len(joints)
+        values = np.array([float(v) for v in joint_offsets.values()])
+        C = np.zeros((n, n)) if offsets_covariance is None else np.asarray(offsets_covariance, dtype=float)
+        X = np.zeros((6, n)) if pose_offsets_covariance is None else np.asarray(pose_offsets_covariance, dtype=float)
+        if C.shape != (n, n) or X.shape != (6, n) or not (np.all(np.isfinite(C)) and np.all(np.isfinite(X))):
+            raise InputError(f"the joint offsets' covariance must be finite {n}x{n} (and its cross-covariance with "
+                             f"the pose 6x{n}), got {C.shape} and {X.shape}")
+        from .offsets import shifted  # the calibration's kinematics: the readings plus its offsets
+        measurements = shifted(arm, [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements],
+                               joints, values)
+        offsets = (joints, C, X)
     if not isinstance(arm_T_camera, gtsam.Pose3):
         raise InputError(f"arm_T_camera must be a gtsam.Pose3, got {type(arm_T_camera).__name__}")
     had_covariance = covariance is not None
@@ -165,8 +187,17 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
         return out
 
     at_pose = rows(arm_T_camera)
-    chi2_each = [float(e @ np.linalg.pinv(cov + J @ covariance @ J.T, hermitian=True) @ e) for e, J, cov in at_pose]
-    test = _test(arm_T_camera, rows, at_pose, prior, covariance)
+    G = None if offsets is None else [_offsets_jacobian(arm, camera, measurements[k], offsets[0], arm_T_camera,
+                                                        s.image_axis) for k, s in enumerate(stage1)]
+    if offsets is None:
+        chi2_each = [float(e @ np.linalg.pinv(cov + J @ covariance @ J.T, hermitian=True) @ e)
+                     for e, J, cov in at_pose]
+    else:
+        _, C, X = offsets
+        joint = np.block([[covariance, X], [X.T, C]])
+        chi2_each = [float(e @ np.linalg.pinv(cov + np.hstack([J, g]) @ joint @ np.hstack([J, g]).T, hermitian=True)
+                           @ e) for (e, J, cov), g in zip(at_pose, G, strict=True)]
+    test = _test(arm_T_camera, rows, at_pose, prior, covariance, G, None if offsets is None else offsets[1:])
     odd = None
     if test.residual_p < CHECK_P and len(stage1) >= 2:  # the spins disagree among themselves: one of them alone?
         # leave each out in turn (a wrong spin drags the fit, so the largest residual need not be its own)
@@ -174,7 +205,8 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
         for left in range(len(stage1)):
             keep = [k for k in range(len(stage1)) if k != left]
             rest = _test(arm_T_camera, lambda pose, keep=keep: [rows(pose)[k] for k in keep],
-                         [at_pose[k] for k in keep], prior, covariance)
+                         [at_pose[k] for k in keep], prior, covariance, None if G is None else [G[k] for k in keep],
+                         None if offsets is None else offsets[1:])
             if rest.residual_p >= CHECK_P and (best is None or rest.residual < best[1].residual):
                 best = (left, rest)
         if best is not None:
@@ -200,10 +232,44 @@ class _Test(NamedTuple):
     residuals: list[float]
 
 
-def _test(pose: gtsam.Pose3, rows, at_pose, prior: np.ndarray, covariance: np.ndarray) -> _Test:
+def _block_diagonal(blocks) -> np.ndarray:
+    size = sum(len(b) for b in blocks)
+    out, i = np.zeros((size, size)), 0
+    for b in blocks:
+        out[i:i + len(b), i:i + len(b)] = b
+        i += len(b)
+    return out
+
+
+def _offsets_jacobian(arm: Arm, camera: Camera, measurement: Measurement, joints, pose: gtsam.Pose3,
+                      line: np.ndarray) -> np.ndarray:
+    """(2, n): a spin's axis distances by the joint offsets (at the readings given), through the FK test points'
+    derivatives (:meth:`gtsam_rotid.arm.Arm.wrist_axis_offset_derivatives`)."""
+    axis, d_point, d_direction = arm.wrist_axis_offset_derivatives(measurement.joint_angles, joints)
+    points = axis_test_points(axis)
+    spacing = (points - axis.point) @ axis.direction
+    d_points = d_point[None] + spacing[:, None, None] * d_direction[None]
+    _, J, _ = axis_point_residuals(camera.K, pose, points, line)
+    de_dP = -J[:, 3:] @ pose.rotation().matrix().T
+    return np.einsum("mi,min->mn", de_dP, d_points)
+
+
+def _test(pose: gtsam.Pose3, rows, at_pose, prior: np.ndarray, covariance: np.ndarray, G=None,
+          offsets=None) -> _Test:
     """The move that best explains the spins of ``rows`` and its test against ``covariance`` (the calibration's),
-    along the directions they determine; then their own agreement at the moved pose."""
+    along the directions they determine; then their own agreement at the moved pose. With the offsets' Jacobians
+    ``G`` (per spin) and their (covariance, cross-covariance with the pose) ``offsets``, the calibration's error
+    is that of the pose and the offsets: the move takes up ``B`` times the offsets' error (``B``: the move's
+    least-squares response to the axes' shifts ``G``), the spins keep ``G - J B`` of it."""
     move, move_covariance, information = _move(pose, rows, at_pose, prior)
+    shared = None
+    if G is not None:
+        C, X = offsets
+        Js, Gs = np.vstack([J for _, J, _ in at_pose]), np.vstack(G)
+        W = _block_diagonal([np.linalg.pinv(cov, hermitian=True) for _, _, cov in at_pose])
+        B = np.linalg.solve(information + np.linalg.inv(prior), Js.T @ W @ Gs)
+        covariance = covariance + X @ B.T + B @ X.T + B @ C @ B.T
+        shared = Gs @ C @ Gs.T  # the offsets' error, shared by the spins (stacked distances, px^2)
     move_covariance = move_covariance + covariance  # the calibration's own uncertainty too
     # the data's share of the information per direction (the prior is isotropic, so the two commute)
     w, V = np.linalg.eigh(information)
@@ -214,9 +280,16 @@ def _test(pose: gtsam.Pose3, rows, at_pose, prior: np.ndarray, covariance: np.nd
     dof = len(determined)
     m = D.T @ move
     chi2 = float(m @ np.linalg.pinv(D.T @ move_covariance @ D, hermitian=True) @ m) if dof else 0.0
-    residuals = [float(e @ np.linalg.pinv(cov, hermitian=True) @ e) for e, _, cov in rows(pose.retract(move))]
+    moved = rows(pose.retract(move))
+    residuals = [float(e @ np.linalg.pinv(cov, hermitian=True) @ e) for e, _, cov in moved]
     residual_dof = 2 * len(at_pose) - dof
     residual = float(sum(residuals))
+    if shared is not None:  # the spins' agreement with the offsets' shared error: the generalised least-squares
+        # residual of the stacked distances at the moved pose (what one more move would still leave)
+        r, Jm = np.concatenate([e for e, _, _ in moved]), np.vstack([J for _, J, _ in moved])
+        S_inv = np.linalg.inv(shared + _block_diagonal([cov for _, _, cov in moved]))
+        a = Jm.T @ S_inv @ r
+        residual = float(r @ S_inv @ r - a @ np.linalg.solve(Jm.T @ S_inv @ Jm + np.linalg.inv(prior), a))
     return _Test(move, move_covariance, determined, chi2, dof, float(chi2_sf(chi2, dof)) if dof else 1.0, residual,
                  residual_dof, float(chi2_sf(residual, residual_dof)) if residual_dof > 0 else 1.0, residuals)
 

@@ -24,6 +24,7 @@ from ..uncertainty import (
 )
 from .evidence import measurement_reports
 from .lm import _builder, _graph_dof, _lm, _turned
+from .offsets import determined_offsets
 from .opinion import _second_opinion
 from .options import CalibrationError, Method
 from .result import CalibrationResult
@@ -185,15 +186,17 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     """The joint graph of the measurements ``fit.used`` from ``fit.pose``, with ``fit.stage1``'s lines and circles
     and their pixel noise to start (see :func:`_joint`)."""
     pose, iterations, used, chi2, stage1 = fit.pose, fit.iterations, fit.used, fit.chi2, fit.stage1
+    offsets = setup.offsets
     builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model,
-                       spin_model=options.spin_model)
+                       spin_model=options.spin_model, joint_offsets=None if offsets is None else offsets.names(arm))
+    rest = None if offsets is None else np.zeros(len(offsets.joints))  # the offsets beyond offsets.start (rad)
     sigmas = {k: float(np.sqrt(stage1[k].sigma2)) for k in used}
     circles = {k: None if builder.model is Model.POSE else dict(stage1[k].circles) for k in used}
     lines = {k: stage1[k].rotation for k in used}
     converged = True
     for _round in range(3):
         graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas, circles,
-                                           lines)
+                                           lines, rest=rest)
         # A rigid spin whose inner solve does not converge about its start line is started again about the FK axis
         # seen from the pose where that fits it better. Stage 1's free phases can fit thin ellipses (minor semi-axes
         # of 2-4 px at 1.2 px noise) about a line whose tilt is far off (14 degrees on a Panda pose), where no rigid
@@ -204,19 +207,21 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                  and not np.all(keys[k].coaxial.converged(values))]
         if unfit:
             _, fk_values, fk_keys = _joint_graph(builder, camera, measurements, setup, stage1, unfit, pose, sigmas,
-                                                 circles, lines, fk_start=unfit)
+                                                 circles, lines, fk_start=unfit, rest=rest)
             better = [k for k in unfit if fk_keys[k].coaxial.error(fk_values) < keys[k].coaxial.error(values)]
             for k in better:
                 lines[k] = circles[k] = None
             if better:
                 graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas,
-                                                   circles, lines)
+                                                   circles, lines, rest=rest)
         start_pose = pose
         result, it, error, converged = _lm(
             graph, values, options.max_iterations, anchor=True, watch_tolerance=WATCH_POSE,
             watch=lambda v, start_pose=start_pose: start_pose.localCoordinates(v.atPose3(POSE_KEY)))
         iterations += it
         pose = result.atPose3(POSE_KEY)
+        if offsets is not None:
+            rest = np.asarray(result.atVector(builder.offsets_key), dtype=float)
         new_sigmas = {k: float(np.sqrt(_joint_variance(graph, keys[k], result, options))) for k in used}
         failed = [setup.index[k] if setup.index else k for k in used if not np.isfinite(new_sigmas[k])]
         if failed:
@@ -245,9 +250,27 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         covariance = covariance if robust is None else robust
     solved = _Solved(pose, covariance, info, Method.JOINT, converged, iterations, error)
     projected = sum(keys[k].coaxial.inner_dof for k in used if keys[k].coaxial is not None)
+    offsets_covariance, cross, determined = None, None, 0
+    if offsets is not None:
+        try:
+            both = gtsam.Marginals(graph, result).jointMarginalCovariance(
+                gtsam.KeyVector([POSE_KEY, builder.offsets_key])).fullMatrix()
+            offsets_covariance, cross = both[6:, 6:], both[:6, 6:]
+        except RuntimeError:
+            offsets_covariance = None
+        determined = determined_offsets(offsets_covariance, offsets.sigma)
     out = _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
-                  consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options),
+                  consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options,
+                                                fitted=determined),
                   prior=_prior_floor_covariance(camera, setup, stage1, used, pose, variances))
+    if offsets is not None:
+        c = out.axis_consistency
+        if offsets_covariance is not None and c is not None and not c.consistent:
+            offsets_covariance = offsets_covariance * max(c.scale, 1.0)  # the axes' scatter scales them too
+            cross = cross * max(c.scale, 1.0)
+        out = replace(out, joint_offsets=dict(zip(offsets.names(arm), (offsets.start + rest).tolist(), strict=True)),
+                      joint_offsets_covariance=offsets_covariance, pose_offsets_covariance=cross,
+                      joint_offset_sigma_deg=float(np.degrees(offsets.sigma[0])))
     return replace(out, alternatives=_outside(fit.alternatives, out))
 
 
@@ -264,12 +287,18 @@ def _outside(alternatives, result: CalibrationResult) -> list:
             if (d := result.arm_T_camera.localCoordinates(a.arm_T_camera)) @ information @ d > limit]
 
 
-def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas, circles, lines, fk_start=()):
+def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas, circles, lines, fk_start=(),
+                 rest=None):
     """The joint graph of measurements ``ks`` at ``pose`` (each at its pixel sigma): those in ``fk_start`` started
     about the FK axis seen from it (their circles from their tracks' rays), the others from ``lines`` and ``circles``
-    (stage 1's or the last round's). Returns (graph, values, keys by measurement)."""
+    (stage 1's or the last round's). With ``setup.offsets``, the offsets beyond those the readings were shifted by
+    are a variable starting at ``rest`` (rad) under the prior of the total offsets. Returns (graph, values, keys by
+    measurement)."""
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(POSE_KEY, pose)
+    if setup.offsets is not None:
+        builder.add_offsets_prior(graph, values, np.degrees(setup.offsets.sigma), mean_deg=-np.degrees(
+            setup.offsets.start), initial_deg=np.degrees(rest))
     keys = {k: builder.add_measurement(graph, values, k, measurements[k], track_sigmas=dict.fromkeys(
                 setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
                 prepared=setup.prepared[k], initial_circles=None if k in fk_start else circles[k],

@@ -102,6 +102,14 @@ class CalibrationOptions:
     #: (``metadata["tracker"]["axis_floor_px"]``, :func:`gtsam_rotid.tracking.tracker_metadata`), else 0 (tracks of
     #: unknown origin and simulated ones, whose noise is independent by construction).
     axis_floor_px: float | None = None
+    #: joint: refine offsets (zero-position errors common to every pose; the reading plus the offset is the joint's
+    #: angle) of joints before the spinning one with the pose: ``True`` every joint between the first and the
+    #: spinning one (the first joint's offset turns the arm as the pose does), or a list of joint names. None
+    #: (default): the kinematics as given (:func:`gtsam_rotid.calibration.modelcheck.kinematics_check` flags offsets).
+    #: See :mod:`gtsam_rotid.calibration.offsets`.
+    joint_offsets: bool | tuple | list | None = None
+    #: the offsets' Gaussian prior, 1 sigma (deg): how far the robot's zero positions may be off
+    joint_offset_sigma_deg: float = 1.0
 
     def __post_init__(self):
         # a misspelt choice ("rigd") must not silently run the default
@@ -129,6 +137,21 @@ class CalibrationOptions:
                 or self.axis_floor_px < 0):
             raise InputError(f"CalibrationOptions.axis_floor_px must be None or a finite number >= 0, "
                              f"got {self.axis_floor_px!r}")
+        if self.joint_offsets is False:
+            self.joint_offsets = None
+        if self.joint_offsets is not None and self.joint_offsets is not True:
+            if isinstance(self.joint_offsets, str):
+                self.joint_offsets = (self.joint_offsets,)
+            if not isinstance(self.joint_offsets, tuple | list) or not all(
+                    isinstance(name, str) for name in self.joint_offsets):
+                raise InputError(f"CalibrationOptions.joint_offsets must be None, True or a list of joint names, got "
+                                 f"{self.joint_offsets!r}")
+            self.joint_offsets = tuple(self.joint_offsets)
+        if isinstance(self.joint_offset_sigma_deg, bool) or not isinstance(
+                self.joint_offset_sigma_deg, int | float | np.number) or not np.isfinite(
+                self.joint_offset_sigma_deg) or self.joint_offset_sigma_deg <= 0:
+            raise InputError(f"CalibrationOptions.joint_offset_sigma_deg must be a positive number of degrees, got "
+                             f"{self.joint_offset_sigma_deg!r}")
         if not (np.isfinite(self.joint_sigma_deg) and self.joint_sigma_deg >= 0.0):
             raise InputError(f"CalibrationOptions.joint_sigma_deg must be a finite value >= 0 (deg), got "
                              f"{self.joint_sigma_deg}")

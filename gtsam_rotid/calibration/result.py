@@ -206,6 +206,15 @@ class CalibrationResult:
     robot: dict = field(default_factory=dict)
     #: the dataset calibrated (``path``, ``sha256`` of its files), when it was read from disk ({} otherwise)
     dataset: dict = field(default_factory=dict)
+    #: the joint offsets refined with the pose (``CalibrationOptions.joint_offsets``): joint name -> offset (rad; the
+    #: reading plus it is the joint's angle); None: the kinematics were taken as given
+    joint_offsets: dict[str, float] | None = None
+    #: their covariance (rad², in ``joint_offsets``' order; scaled with the pose's when the axes' scatter scaled it)
+    joint_offsets_covariance: np.ndarray | None = None
+    #: their prior 1 sigma (deg, mean 0)
+    joint_offset_sigma_deg: float = 0.0
+    #: their cross-covariance with the pose (6 x n: Pose3 tangent by offsets), for re-checking the calibration
+    pose_offsets_covariance: np.ndarray | None = None
 
     @property
     def ambiguous(self) -> bool:
@@ -215,6 +224,14 @@ class CalibrationResult:
     @property
     def covariance_usable(self) -> bool:
         return self.observability.is_observable and not self.ambiguous and not self.untrusted
+
+    @property
+    def joint_offsets_sigma_deg(self) -> dict[str, float]:
+        """1σ of each refined joint offset (deg); {} when none was refined."""
+        if self.joint_offsets is None or self.joint_offsets_covariance is None:
+            return {}
+        return dict(zip(self.joint_offsets, np.degrees(np.sqrt(np.diag(self.joint_offsets_covariance))).tolist(),
+                        strict=True))
 
     @property
     def sigma_deg(self) -> np.ndarray:
@@ -266,6 +283,12 @@ class CalibrationResult:
             "untrusted": self.untrusted,
             "robot": self.robot,
             "dataset": self.dataset,
+            "joint_offsets": self.joint_offsets,
+            "joint_offsets_covariance": None if self.joint_offsets_covariance is None
+            else np.asarray(self.joint_offsets_covariance).tolist(),
+            "joint_offset_sigma_deg": self.joint_offset_sigma_deg,
+            "pose_offsets_covariance": None if self.pose_offsets_covariance is None
+            else np.asarray(self.pose_offsets_covariance).tolist(),
         }
 
     @classmethod
@@ -291,6 +314,13 @@ class CalibrationResult:
             untrusted={str(k): [int(i) for i in v] for k, v in data.get("untrusted", {}).items()},
             robot=dict(data.get("robot") or {}),
             dataset=dict(data.get("dataset") or {}),
+            joint_offsets=None if data.get("joint_offsets") is None
+            else {str(k): float(v) for k, v in data["joint_offsets"].items()},
+            joint_offsets_covariance=None if data.get("joint_offsets_covariance") is None
+            else np.array(data["joint_offsets_covariance"], dtype=float),
+            joint_offset_sigma_deg=float(data.get("joint_offset_sigma_deg", 0.0)),
+            pose_offsets_covariance=None if data.get("pose_offsets_covariance") is None
+            else np.array(data["pose_offsets_covariance"], dtype=float),
         )
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:

@@ -17,6 +17,7 @@ from .initial import _initial, axis_miss_rms, poor_start
 from .joint import Fitted, _joint, _weighted
 from .lm import _builder
 from .modelcheck import intrinsics_check, kinematics_check
+from .offsets import OffsetsPrior, offsets_from_axes, shifted
 from .options import MIN_MEASUREMENTS, CalibrationOptions, Method
 from .result import CalibrationResult, MeasurementReport, OutlierKind
 from .setup import _Setup, arc_span_deg
@@ -141,7 +142,11 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
 
 
 def _calibrate(arm, camera, measurements, method, options, index) -> tuple[CalibrationResult, _Setup]:
+    offsets = None
+    if options.joint_offsets is not None:  # the readings shifted by the offsets the image axes give, then refined
+        measurements, offsets = _offsets_start(arm, camera, measurements, method, options, index)
     starts, setup, anchors = _initial(arm, camera, measurements, options, index, INITIAL_TOLERANCE)
+    setup = replace(setup, offsets=offsets)
     # Short arcs (a tracker's drift shared by a measurement's tracks, which neither the per-track scores nor the
     # jackknife see) lower the level at which the axes' scatter scales the covariance: the test has 2 n - 6
     # dof, little power with six poses (18 rendered corner-tracked scenes: at 0.01 three of nine usable results
@@ -170,6 +175,20 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
                    alternatives=[*alternatives, *fitted.result.alternatives],
                    joint_sigma_deg=0.0 if method is Method.PAPER else options.joint_sigma_deg,
                    axis_floor_px=0.0 if method is Method.PAPER else setup.floor_px), setup
+
+
+def _offsets_start(arm, camera, measurements, method, options, index) -> tuple[list, OffsetsPrior]:
+    """The measurements with their readings shifted by the joint offsets that stage 1's image axes give
+    (:func:`offsets_from_axes`, from the first start), and the :class:`OffsetsPrior` the joint fit refines."""
+    if method is not Method.JOINT:
+        raise InputError(f"joint offsets are refined by the joint method only, not {method.value!r}")
+    names = options.joint_offsets
+    joints = arm.offset_joints(True if names is True else list(names))
+    sigma = np.full(len(joints), np.radians(options.joint_offset_sigma_deg))
+    starts, setup, anchors = _initial(arm, camera, measurements, options, index, INITIAL_TOLERANCE)
+    pose, stage1 = _refined_stage1(arm, camera, measurements, starts[0], setup, options, anchors[0])
+    delta, _ = offsets_from_axes(arm, camera, setup, stage1, pose, measurements, joints, sigma)
+    return shifted(arm, measurements, joints, delta), OffsetsPrior(tuple(joints), delta, sigma)
 
 
 def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: CalibrationResult) -> CalibrationResult:

@@ -43,6 +43,9 @@ class _Setup:
     turning: list[float] = field(default_factory=list)
     #: the image axes' prior floor (px, ``CalibrationOptions.axis_floor_px`` resolved by ``calibrate``)
     floor_px: float = 0.0
+    #: the joint offsets the calibration refines (:class:`gtsam_rotid.calibration.offsets.OffsetsPrior`; the
+    #: measurements' readings, hence ``axes``, are already shifted by its ``start``); None: the kinematics as given
+    offsets: object | None = None
 
     def noise(self, k: int) -> np.ndarray | None:
         return self.axis_noise[k] if self.axis_noise else None

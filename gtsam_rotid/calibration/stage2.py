@@ -123,7 +123,7 @@ def _chi2(camera, setup: _Setup, stage1, pose, sigma2: dict[int, float] | None =
 
 
 def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3, sigma2: dict[int, float],
-                      options) -> AxisConsistency | None:
+                      options, fitted: int = 0) -> AxisConsistency | None:
     """The test of :class:`AxisConsistency` about ``pose``, each measurement's line at its pixel noise variance
     ``sigma2[k]`` (the one the fit weighted it by); None without redundancy (fewer than 4 measurements).
 
@@ -131,8 +131,9 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
     ``pose``), which is what has ``2 n - 6`` dof. At ``pose`` itself (the joint fit's, which weights the
     measurements by their tracks, not by these line covariances) it is larger by the two estimates' difference,
     about 6 more dof under the model: tested against ``2 n - 6`` that rejected consistent axes (four measurements
-    of a rendered UR5 scene: 8.7 at the joint pose, 1.4 at the axes' own)."""
-    dof = 2 * len(used) - 6
+    of a rendered UR5 scene: 8.7 at the joint pose, 1.4 at the axes' own). ``fitted``: parameters beyond the pose
+    that were fitted to the same axes (the joint offsets the data determine), each one dof less."""
+    dof = 2 * len(used) - 6 - fitted
     if dof <= 0:
         return None
     rows = _axis_rows(camera, setup, stage1, used, pose, sigma2, floor=True)

@@ -1,0 +1,113 @@
+"""calibration.offsets: joint offsets (zero-position errors common to every pose) refined with the pose, against
+offsets the estimator never sees; the exact-model calibration of the same data is flagged or refused."""
+
+import gtsam
+import numpy as np
+import pytest
+
+from gtsam_rotid import Dataset, InputError, Measurement, simulate
+from gtsam_rotid.calibration import CalibrationOptions
+from gtsam_rotid.calibration.result import CalibrationResult
+from gtsam_rotid.errors import RotIdError
+from gtsam_rotid.estimate import calibrate
+from gtsam_rotid.report import make_report
+from gtsam_rotid.words import summary
+
+OFFSETS_DEG = np.array([0.0, -0.3, 0.4, 0.3, -0.4])  # Jaco2 joints 1-5; the first one's is the pose's
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return simulate.reference_scene(seed=4, noise_var=1.5, duration=12.0)
+
+
+def with_offsets(dataset, offsets_deg):
+    """Readings off by ``offsets_deg`` on every pose (the true angle is the reading plus the offset)."""
+    shift = np.zeros(len(dataset.arm.joint_names))
+    shift[:len(offsets_deg)] = np.radians(offsets_deg)
+    return Dataset(dataset.arm, dataset.camera,
+                   [Measurement(dataset.joint_angles(k) - shift, m.tracks) for k, m in enumerate(dataset)])
+
+
+def chi2_of_error(result, truth):
+    e = result.error_to(truth.arm_T_camera)
+    return float(e @ np.linalg.solve(result.covariance, e))
+
+
+def test_offsets_refined_with_the_pose_hold_their_covariance(scene, tmp_path):
+    dataset, truth = scene
+    readings = with_offsets(dataset, OFFSETS_DEG)
+    try:  # what is at stake: the kinematics as given are refused or flagged, never a confident number
+        exact = calibrate(readings)
+        assert not exact.covariance_usable and chi2_of_error(exact, truth) > 22.46
+    except RotIdError as refusal:
+        assert "disagree" in str(refusal) or "poor minimum" in str(refusal)
+    result = calibrate(readings, options=CalibrationOptions(joint_offsets=True))
+    assert result.covariance_usable, result.untrusted
+    assert chi2_of_error(result, truth) < 22.46  # the 99.9 % point for 6 dof
+    names = dataset.arm.joint_names[1:5]
+    assert list(result.joint_offsets) == names
+    miss = np.array(list(result.joint_offsets.values())) - np.radians(OFFSETS_DEG[1:])
+    assert miss @ np.linalg.solve(result.joint_offsets_covariance, miss) < 18.47  # 99.9 % point, 4 dof
+    assert all(0.02 < s < 0.5 for s in result.joint_offsets_sigma_deg.values())  # determined, not the prior
+    assert "kinematics" not in result.untrusted
+    words = summary(result)
+    assert "joint offsets refined with the pose" in words and "NOT determined" not in words
+    assert f"{names[1]}: {np.degrees(result.joint_offsets[names[1]]):+.3f} deg +-" in words
+    result.save(tmp_path / "r.json")
+    loaded = CalibrationResult.load(tmp_path / "r.json")
+    assert loaded.joint_offsets == result.joint_offsets
+    np.testing.assert_array_equal(loaded.joint_offsets_covariance, result.joint_offsets_covariance)
+    report = make_report(loaded)
+    assert report.to_dict()["joint_offsets_deg"][names[0]] == pytest.approx(
+        np.degrees(result.joint_offsets[names[0]]))
+
+
+def test_exact_readings_give_offsets_within_their_covariance_of_zero_and_the_first_joint_its_prior(scene):
+    dataset, truth = scene
+    names = dataset.arm.joint_names[:5]
+    result = calibrate(dataset, options=CalibrationOptions(joint_offsets=names, joint_offset_sigma_deg=2.0))
+    assert chi2_of_error(result, truth) < 22.46
+    offsets = np.array(list(result.joint_offsets.values()))
+    assert offsets[1:] @ np.linalg.solve(result.joint_offsets_covariance[1:, 1:], offsets[1:]) < 18.47
+    sigma = result.joint_offsets_sigma_deg
+    assert sigma[names[0]] == pytest.approx(2.0, rel=1e-3)  # the first joint's offset: its prior, never the data's
+    assert f"{names[0]}: " in summary(result) and "NOT determined by these poses" in summary(result)
+
+
+def test_offsets_options_name_what_is_wrong(scene):
+    dataset, _ = scene
+    with pytest.raises(InputError, match="'elbow' is not a revolute joint before the spinning joint"):
+        calibrate(dataset, options=CalibrationOptions(joint_offsets=["elbow"]))
+    with pytest.raises(InputError, match="joint method only"):
+        calibrate(dataset, method="weighted", options=CalibrationOptions(joint_offsets=True))
+    with pytest.raises(InputError, match="joint_offset_sigma_deg must be a positive number"):
+        CalibrationOptions(joint_offsets=True, joint_offset_sigma_deg=0.0)
+    with pytest.raises(InputError, match="joint_offsets must be None, True or a list of joint names"):
+        CalibrationOptions(joint_offsets=3)
+
+
+def test_a_later_session_is_checked_with_the_offsets_the_calibration_refined(scene, tmp_path, capsys):
+    """``gtsam-rotid check`` applies the calibration's offsets to the new readings (the same robot, the same zero
+    errors): the new spins, other arm poses, agree; the kinematics as given make them disagree."""
+    from gtsam_rotid.calibration.check import check_calibration
+    from gtsam_rotid.cli import main
+
+    dataset, truth = scene
+    later, truth_later = simulate.reference_scene(seed=5, noise_var=1.5, duration=12.0)
+    assert truth_later.arm_T_camera.equals(truth.arm_T_camera, 1e-12)
+    result = calibrate(with_offsets(dataset, OFFSETS_DEG), options=CalibrationOptions(joint_offsets=True))
+    result.save(tmp_path / "result.json")
+    later_readings = with_offsets(later, OFFSETS_DEG)
+    later_readings.save(tmp_path / "later")
+    assert not check_calibration(result.arm_T_camera, later_readings, covariance=result.covariance).still_valid
+    kept = dict(joint_offsets=result.joint_offsets, offsets_covariance=result.joint_offsets_covariance,
+                pose_offsets_covariance=result.pose_offsets_covariance)
+    # a camera that did move is still found (10 mm along its x axis: about 5 sigma of this calibration)
+    moved = result.arm_T_camera.compose(gtsam.Pose3(gtsam.Rot3(), np.array([0.01, 0.0, 0.0])))
+    check = check_calibration(moved, later_readings, covariance=result.covariance, **kept)
+    assert not check.still_valid and 5.0 < check.move_mm < 15.0
+    assert main(["check", str(tmp_path / "result.json"), str(tmp_path / "later")]) == 0
+    printed = capsys.readouterr().out
+    assert "joint offsets of the calibration applied to the readings: j2s6s200_joint_2" in printed
+    assert "STILL VALID" in printed
