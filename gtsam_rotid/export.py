@@ -39,6 +39,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
+from .calibration.offsets import HELD_BY_PRIOR
 from .errors import InputError
 from .geometry import gtsam_covariance, quaternion_xyzw, ros_covariance, tangent_to_ros  # noqa: F401 (re-export)
 
@@ -73,6 +74,8 @@ class Format(StrEnum):
     EASY_HANDEYE = "easy_handeye"
     #: a ROS 2 Python launch file with a static_transform_publisher node
     LAUNCH = "launch"
+    #: the joint offsets a calibration refined (``calibrate --joint-offsets``), YAML
+    JOINT_OFFSETS = "joint_offsets"
 
 
 class CameraFrame(StrEnum):
@@ -426,9 +429,42 @@ def export_result(result, to: str | Format, *, parent_frame: str | None = None, 
     if problems and not force:
         raise ExportRefused("the result is not fit to export: " + "; ".join(problems)
                             + ". Export it anyway with --force (in Python: force=True): the file then says so")
+    if _format(to) is Format.JOINT_OFFSETS:
+        return joint_offsets_yaml(result, tuple(problems))
     transform = Transform.from_result(result, parent_frame=parent_frame, child_frame=child_frame,
                                       camera_frame=camera_frame, warnings=tuple(problems), driver=driver)
     return transform.to_text(to, joint_name)
+
+
+def joint_offsets_yaml(result, warnings: tuple[str, ...] = ()) -> str:
+    """The joint offsets ``result`` refined, as YAML: per joint the offset (rad and deg; the reading plus it is the
+    joint's angle, so a robot's zero position moves by minus it), its 1 sigma and whether these poses determined
+    it (else its prior holds it), their covariance (rad²) in ``joints`` order, the prior. Raises InputError when the
+    result refined none."""
+    offsets = getattr(result, "joint_offsets", None)
+    if not offsets:
+        raise InputError("this result refined no joint offsets (calibrate with --joint-offsets, in Python "
+                         "CalibrationOptions(joint_offsets=True))")
+    sigma = result.joint_offsets_sigma_deg
+    prior = float(result.joint_offset_sigma_deg)
+    lines = ["# gtsam_rotid joint offsets: the reading plus the offset is the joint's angle",
+             f"format: {_yaml_scalar('gtsam_rotid.joint_offsets')}", "version: 1",
+             f"robot: {_yaml_scalar((getattr(result, 'robot', {}) or {}).get('name', ''))}",
+             f"prior_sigma_deg: {_yaml_scalar(prior)}", "offsets:"]
+    for name, value in offsets.items():
+        s = float(sigma.get(name, float("nan")))
+        determined = bool(np.isfinite(s) and s <= HELD_BY_PRIOR * prior)
+        lines.append(f"  {_yaml_scalar(name)}: {{rad: {_yaml_scalar(float(value))}, deg: "
+                     f"{_yaml_scalar(math.degrees(float(value)))}, sigma_deg: {_yaml_scalar(s)}, "
+                     f"determined: {_yaml_scalar(determined)}}}")
+    lines.append("joints: [" + ", ".join(_yaml_scalar(n) for n in offsets) + "]")
+    covariance = np.asarray(result.joint_offsets_covariance, dtype=float)
+    lines.append("covariance_rad2:")
+    lines.extend("  - [" + ", ".join(_yaml_scalar(float(v)) for v in row) + "]" for row in covariance)
+    if warnings:
+        lines.append("warnings:")
+        lines.extend(f"  - {_yaml_scalar(w)}" for w in warnings)
+    return "\n".join(lines) + "\n"
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -10,6 +10,7 @@ import numpy as np
 
 from .calibration.check import CheckResult
 from .calibration.evidence import short_arc_words
+from .calibration.offsets import HELD_BY_PRIOR
 from .calibration.options import MIN_MEASUREMENTS
 from .calibration.result import AMBIGUITY_CHI2, AxisConsistency, CalibrationResult, MeasurementReport, OutlierKind
 from .calibration.tuning import (
@@ -347,7 +348,7 @@ def joint_offsets_words(offsets_deg: dict[str, float] | None, sigma_deg: dict[st
     held = []
     for name, value in offsets_deg.items():
         s = sigma_deg.get(name, float("nan"))
-        if not np.isfinite(s) or s > 0.7 * prior_deg:
+        if not np.isfinite(s) or s > HELD_BY_PRIOR * prior_deg:
             held.append(name)
             lines.append(f"  {name}: {value:+.3f} deg, NOT determined by these poses (1 sigma {s:.3f} deg, its prior)")
         else:

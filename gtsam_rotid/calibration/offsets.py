@@ -28,6 +28,9 @@ from .modelcheck import _offset_rows
 #: Gauss-Newton iterations of the axes' fit, and its Huber threshold on a measurement's axis chi-square (2 dof).
 ITERATIONS = 30
 HUBER_Z = 3.09
+#: An offset whose posterior 1 sigma exceeds this fraction of its prior's is reported as not determined (its prior
+#: holds it).
+HELD_BY_PRIOR = 0.7
 #: An offsets direction whose posterior variance is below this fraction of its prior variance is determined.
 DETERMINED_FRACTION = 0.25
 

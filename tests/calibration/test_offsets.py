@@ -4,12 +4,14 @@ offsets the estimator never sees; the exact-model calibration of the same data i
 import gtsam
 import numpy as np
 import pytest
+import yaml
 
 from gtsam_rotid import Dataset, InputError, Measurement, simulate
 from gtsam_rotid.calibration import CalibrationOptions
 from gtsam_rotid.calibration.result import CalibrationResult
 from gtsam_rotid.errors import RotIdError
 from gtsam_rotid.estimate import calibrate
+from gtsam_rotid.export import export_result
 from gtsam_rotid.report import make_report
 from gtsam_rotid.words import summary
 
@@ -58,6 +60,11 @@ def test_offsets_refined_with_the_pose_hold_their_covariance(scene, tmp_path):
     loaded = CalibrationResult.load(tmp_path / "r.json")
     assert loaded.joint_offsets == result.joint_offsets
     np.testing.assert_array_equal(loaded.joint_offsets_covariance, result.joint_offsets_covariance)
+    exported = yaml.safe_load(export_result(loaded, "joint_offsets"))
+    assert exported["format"] == "gtsam_rotid.joint_offsets" and exported["joints"] == names
+    assert exported["offsets"][names[2]]["rad"] == result.joint_offsets[names[2]]
+    assert all(entry["determined"] for entry in exported["offsets"].values())
+    np.testing.assert_array_equal(exported["covariance_rad2"], result.joint_offsets_covariance)
     report = make_report(loaded)
     assert report.to_dict()["joint_offsets_deg"][names[0]] == pytest.approx(
         np.degrees(result.joint_offsets[names[0]]))
@@ -77,6 +84,8 @@ def test_exact_readings_give_offsets_within_their_covariance_of_zero_and_the_fir
 
 def test_offsets_options_name_what_is_wrong(scene):
     dataset, _ = scene
+    with pytest.raises(InputError, match="refined no joint offsets"):
+        export_result(calibrate(dataset), "joint_offsets")
     with pytest.raises(InputError, match="'elbow' is not a revolute joint before the spinning joint"):
         calibrate(dataset, options=CalibrationOptions(joint_offsets=["elbow"]))
     with pytest.raises(InputError, match="joint method only"):
