@@ -53,6 +53,7 @@ def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float) -
     (``benchmarks/accuracy.py``'s ``crlb_rigid`` with the offsets variable)."""
     from gtsam_rotid.dataset import Measurement, Track
     from gtsam_rotid.graph import RotIdGraph
+    from gtsam_rotid.uncertainty import joint_marginal_covariance
 
     pose = truth.arm_T_camera
     names = [dataset.arm.joint_names[j] for j in joints]
@@ -72,8 +73,8 @@ def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float) -
         circles = {j: np.array([(t.offset + along) / scale, t.radius / scale]) for j, t in enumerate(m_truth.tracks)}
         builder.add_measurement(graph, values, k, Measurement(measurement.joint_angles, exact),
                                 initial_circles=circles, refine_circles=False)
-    marginals = gtsam.Marginals(graph, values)
-    return marginals.marginalCovariance(builder.pose_key), marginals.marginalCovariance(builder.offsets_key)
+    both = joint_marginal_covariance(graph, values, [builder.pose_key, builder.offsets_key], 6 + len(joints))
+    return both[:6, :6], both[6:, 6:]
 
 
 def trial(robot: str, seed: int, duration: float, offset_deg: float, prior_deg: float) -> dict:

@@ -30,12 +30,15 @@ UNDETERMINED_VARIANCE = 1e12
 
 
 def _hessian_key_first(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                       key: int) -> tuple[np.ndarray, dict[int, int]]:
-    """The Gauss-Newton Hessian of the linearised graph with ``key``'s block first, and each variable's offset."""
+                       key: int | list[int]) -> tuple[np.ndarray, dict[int, int]]:
+    """The Gauss-Newton Hessian of the linearised graph with ``key``'s block first (or those of a list of keys, in
+    its order), and each variable's offset."""
+    first = list(key) if isinstance(key, list | tuple) else [key]
     ordering = gtsam.Ordering()
-    ordering.push_back(key)
+    for k in first:
+        ordering.push_back(k)
     for other in values.keys():
-        if other != key:
+        if other not in first:
             ordering.push_back(other)
     H, _ = graph.linearize(values).hessian(ordering)
     zeros = values.zeroVectors()
@@ -46,6 +49,21 @@ def _hessian_key_first(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     return 0.5 * (H + H.T), offsets
 
 
+def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int],
+                              dim: int) -> np.ndarray | None:
+    """Covariance (dim x dim) of several variables together (``keys``, their dimensions summing to ``dim``), every
+    other variable marginalised as :func:`marginal_information` does; None when their information is singular."""
+    H, _ = _hessian_key_first(graph, values, list(keys))
+    S = _schur(H, dim)
+    try:
+        C = np.linalg.inv(S)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(C)) or np.min(np.linalg.eigvalsh(0.5 * (C + C.T))) <= 0.0:
+        return None
+    return 0.5 * (C + C.T)
+
+
 def marginal_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, key: int, dim: int) -> np.ndarray:
     """Information (dim x dim) of one variable with every other variable marginalised (Schur complement).
 
@@ -54,6 +72,12 @@ def marginal_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     small eigenvalues of the result instead of an exception.
     """
     H, _ = _hessian_key_first(graph, values, key)
+    return _schur(H, dim)
+
+
+def _schur(H: np.ndarray, dim: int) -> np.ndarray:
+    """The first ``dim`` variables' information with the rest marginalised (their numerically null directions
+    dropped)."""
     if H.shape[0] == dim:
         return H
     H_pp, H_po, H_oo = H[:dim, :dim], H[:dim, dim:], H[dim:, dim:]

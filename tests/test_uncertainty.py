@@ -105,3 +105,31 @@ def test_observability_in_words_and_a_file_written_before_the_indices():
     assert observability_words(determined) == [
         f"all six degrees of freedom of arm_T_camera are determined (condition number "
         f"{determined.condition_number:.3g})"]
+
+
+def test_joint_marginal_covariance_equals_gtsams_marginals():
+    """A pose, a vector and a nuisance point tied by between/prior factors: the joint covariance of the first two
+    equals gtsam.Marginals' joint marginal; an indeterminate block gives None, not an exception."""
+    from gtsam.symbol_shorthand import L, O, X
+
+    from gtsam_rotid.uncertainty import joint_marginal_covariance
+
+    rng = np.random.default_rng(3)
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    pose = gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3))
+    values.insert(X(0), pose)
+    values.insert(O(0), np.array([0.1, -0.2]))
+    values.insert(L(0), gtsam.Point3(1.0, 2.0, 3.0))
+    graph.add(gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Diagonal.Sigmas(np.full(6, 0.3))))
+    graph.add(gtsam.PriorFactorVector(O(0), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, 0.5)))
+    graph.add(gtsam.PriorFactorPoint3(L(0), gtsam.Point3(1.0, 2.0, 3.0), gtsam.noiseModel.Isotropic.Sigma(3, 2.0)))
+    graph.add(gtsam.BetweenFactorPoint3(L(0), L(0), gtsam.Point3(0, 0, 0), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)))
+    graph.add(gtsam.PoseTranslationPrior3D(X(0), pose, gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
+    keys = [X(0), O(0)]
+    expected = gtsam.Marginals(graph, values).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
+    np.testing.assert_allclose(joint_marginal_covariance(graph, values, keys, 8), expected, rtol=1e-9, atol=1e-12)
+    free = gtsam.NonlinearFactorGraph()
+    free.add(gtsam.PriorFactorVector(O(0), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, 0.5)))
+    free.add(gtsam.PoseTranslationPrior3D(X(0), pose, gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
+    free.add(gtsam.PriorFactorPoint3(L(0), gtsam.Point3(1.0, 2.0, 3.0), gtsam.noiseModel.Isotropic.Sigma(3, 2.0)))
+    assert joint_marginal_covariance(free, values, keys, 8) is None  # the pose's rotation has no information

@@ -19,6 +19,7 @@ from ..graph import (
     track_huber,
 )
 from ..uncertainty import (
+    joint_marginal_covariance,
     pose_information,
     sandwich_marginal,
 )
@@ -252,12 +253,9 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     projected = sum(keys[k].coaxial.inner_dof for k in used if keys[k].coaxial is not None)
     offsets_covariance, cross, determined = None, None, 0
     if offsets is not None:
-        try:
-            both = gtsam.Marginals(graph, result).jointMarginalCovariance(
-                gtsam.KeyVector([POSE_KEY, builder.offsets_key])).fullMatrix()
+        both = joint_marginal_covariance(graph, result, [POSE_KEY, builder.offsets_key], 6 + len(offsets.joints))
+        if both is not None:  # (None: indeterminate; the offsets then count as undetermined)
             offsets_covariance, cross = both[6:, 6:], both[:6, 6:]
-        except RuntimeError:
-            offsets_covariance = None
         determined = determined_offsets(offsets_covariance, offsets.sigma)
     out = _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
                   consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options,
