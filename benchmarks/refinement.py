@@ -135,6 +135,9 @@ def report(robot: str, results: list[dict]) -> None:
     print(f"\n{robot}: {n} trials; offsets on {results[0]['refined'].get('n_offsets', '?')} joints")
     print(f"  kinematics as given: flagged {flagged - exact_refused} + refused {exact_refused} of {n} "
           f"(target: all)")
+    for r in results:
+        if "refused" not in r["exact"] and r["exact"]["usable"]:
+            print(f"    seed {r['seed']}: called usable, chi2 of its error {r['exact']['chi2']:.1f}")
     print(f"  offsets refined: {len(usable)} usable, {len(refined) - len(usable)} flagged "
           f"({', '.join(sorted({k for r in refined if not r['usable'] for k in r['untrusted']})) or '-'}), "
           f"{n - len(refined)} refused")

@@ -47,6 +47,7 @@ from .words import (
     ambiguity_words,
     axis_consistency_sentence,
     joint_offsets_words,
+    kinematics_suspected,
     kinematics_words,
     observability_words,
     outlier_words,
@@ -185,8 +186,8 @@ class CalibrationReport:
     def _measurement_rows(self) -> list[tuple[str, ...]]:
         rows = []
         for m in self.measurements:
-            status = ("OUTLIER: " + outlier_words(m, "intrinsics" in self.untrusted, "kinematics" in self.untrusted)
-                      if m.outlier else "ok")
+            why = outlier_words(m, "intrinsics" in self.untrusted, kinematics_suspected(self.untrusted))
+            status = "OUTLIER: " + why if m.outlier else "ok"
             rows.append((str(m.index), str(m.n_tracks), str(m.n_points), f"{m.residual_rms_px:.3f}",
                          f"{m.weight:.2f}", str(len(m.rejected_tracks)), status))
         return rows
@@ -345,7 +346,8 @@ class CalibrationReport:
             "measurements": [
                 {"index": m.index, "n_tracks": m.n_tracks, "n_points": m.n_points,
                  "residual_rms_px": f(m.residual_rms_px), "weight": f(m.weight), "outlier": bool(m.outlier),
-                 "outlier_reason": outlier_words(m, "intrinsics" in self.untrusted, "kinematics" in self.untrusted),
+                 "outlier_reason": outlier_words(m, "intrinsics" in self.untrusted,
+                                                 kinematics_suspected(self.untrusted)),
                  "arc_span_deg": None if getattr(m, "arc_span_deg", None) is None else f(m.arc_span_deg),
                  "weak": bool(getattr(m, "weak", False)),
                  "rejected_tracks": {str(j): why for j, why in sorted(m.rejected_tracks.items())}}

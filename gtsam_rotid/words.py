@@ -77,8 +77,8 @@ def summary(result: CalibrationResult) -> str:
         result.joint_offsets_sigma_deg, result.joint_offset_sigma_deg))
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
-        flag = (f"  OUTLIER ({outlier_words(m, 'intrinsics' in result.untrusted, 'kinematics' in result.untrusted)})"
-                if m.outlier else "")
+        why = outlier_words(m, "intrinsics" in result.untrusted, kinematics_suspected(result.untrusted))
+        flag = f"  OUTLIER ({why})" if m.outlier else ""
         n_rejected = len(m.rejected_tracks)
         lines.append(f"  measurement {m.index}: {m.n_tracks} tracks, {m.n_points} points, residual RMS "
                      f"{m.residual_rms_px:.3f} px, weight {m.weight:.2f}, {n_rejected} "
@@ -160,6 +160,11 @@ def evidence_words(m: MeasurementReport) -> str:
     return f"{m.n_tracks} track{'' if m.n_tracks == 1 else 's'}, {m.n_points} points{arc}"
 
 
+def kinematics_suspected(untrusted) -> bool:
+    """The result suspects joint offsets (``untrusted["kinematics"]``, or ``["kinematics_or_measurement"]``)."""
+    return "kinematics" in untrusted or "kinematics_or_measurement" in untrusted
+
+
 def outlier_words(m: MeasurementReport, camera_suspect: bool = False, kinematics_suspect: bool = False) -> str:
     """Why a measurement is an outlier (its ``outlier_kind`` and ``outlier_values``) and what to do; "" when it is
     not one. ``camera_suspect``: the result suspects the intrinsics (``untrusted["intrinsics"]``), which are then to
@@ -234,6 +239,8 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
             out.append(joint_offset_words(result))
         elif kind == "camera_or_measurement":
             out.append(camera_or_measurement_words(result, ks))
+        elif kind == "kinematics_or_measurement":
+            out.append(kinematics_or_measurement_words(result, ks))
         elif kind == "unmeasured_scatter":
             c = result.axis_consistency
             out.append(f"the measurements' axes disagree with one pose beyond their pixel noise (χ² = {c.chi2:.3g} "
@@ -274,6 +281,27 @@ def intrinsics_words(result: CalibrationResult) -> str:
             "axis together and leave an estimate wrong by far more than its covariance says, so it is not trusted. "
             "Check the intrinsics first (is the camera file this camera's, at this resolution? recalibrate them)"
             + then)
+
+
+def kinematics_or_measurement_words(result: CalibrationResult, ks: list[int]) -> str:
+    """Why a result whose axes joint offsets and one wrong measurement explain alike is not trusted
+    (``untrusted["kinematics_or_measurement"]``, the numbers of ``result.axis_consistency.kinematics``)."""
+    c = result.axis_consistency
+    k = None if c is None else c.kinematics
+    which = ", ".join(str(i) for i in ks) or "one"
+    advice = (f"Calibrate again with the offsets refined (calibrate --joint-offsets; CalibrationOptions("
+              f"joint_offsets=True)), or check measurement {which}'s joint readings and tracks and add arm poses")
+    if not k or k.get("chi2") is None or k.get("one_out_chi2") is None:  # a file without the numbers
+        return (f"the image axes disagree with any one pose; offsets of the joints' zero positions and a wrong "
+                f"measurement {which} explain them alike, and they put the camera apart beyond the covariance: the "
+                "estimate is not trusted. " + advice)
+    offsets = ", ".join(f"{name} {value:+.2f}°" for name, value in (k.get("offsets_deg") or {}).items())
+    return (f"the image axes of all {len(k['measurements'])} measurements disagree with any one pose through these "
+            f"kinematics (χ² = {k['exact_chi2']:.3g} for {k['exact_dof']} dof, P = {k['exact_p']:.2g}); they agree "
+            f"once the joints' zero positions may be off (χ² = {k['chi2']:.3g} for {k['dof']} dof, offsets of about "
+            f"{offsets}, a first-order reading), and as well without measurement {which} (χ² = "
+            f"{k['one_out_chi2']:.3g} for {k['exact_dof'] - 2} dof). The estimate rests on one of the two, and they "
+            "put the camera apart by more than its covariance, so it is not trusted. " + advice)
 
 
 def camera_or_measurement_words(result: CalibrationResult, ks: list[int]) -> str:

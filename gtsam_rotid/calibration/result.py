@@ -344,6 +344,8 @@ UNTRUSTED_KINDS = {
                   "measurement does",
     "camera_or_measurement": "changed intrinsics explain the axes' disagreement, and so does one measurement the "
                              "estimate still uses being wrong: the estimate rests on neither",
+    "kinematics_or_measurement": "offsets of the joints' zero positions explain the axes' disagreement, and so does "
+                                 "one wrong measurement: the two put the camera apart beyond its covariance",
 }
 
 

@@ -129,6 +129,10 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
             out["camera_or_measurement"] = [int(j)]
     if c is not None and c.kinematics is not None and c.kinematics.get("likely"):
         out["kinematics"] = [int(k) for k in c.kinematics.get("measurements", [])]
+    elif c is not None and c.kinematics is not None and c.kinematics.get("undecided"):
+        # joint offsets explain every axis, and so does one wrong measurement: the estimate rests on one of them
+        # (left out or only down-weighted), and they put the camera apart beyond its covariance
+        out["kinematics_or_measurement"] = [int(c.kinematics["one_out_measurement"])]
     if c is not None and c.dof > 0 and c.chi2 / c.dof > MAX_CONSISTENCY_SCALE:
         out["inconsistent"] = [m.index for m in result.measurements if m.used]
     elif c is not None and not c.consistent and c.dof <= 2:
@@ -207,7 +211,8 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
         intrinsics = None
     try:
         kinematics = kinematics_check(arm, camera, setup, stage1, result.arm_T_camera, sigma2,
-                                      [arm.joint_angle_vector(m.joint_angles) for m in measurements])
+                                      [arm.joint_angle_vector(m.joint_angles) for m in measurements],
+                                      result.covariance)
     except (np.linalg.LinAlgError, ValueError):
         kinematics = None
     return replace(result, axis_consistency=replace(c, intrinsics=intrinsics, kinematics=kinematics))
