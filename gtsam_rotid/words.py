@@ -305,11 +305,13 @@ def kinematics_or_measurement_words(result: CalibrationResult, ks: list[int]) ->
 
 
 def camera_or_measurement_words(result: CalibrationResult, ks: list[int]) -> str:
-    """Why a result whose axes a camera error and one used measurement explain alike is not trusted
-    (``untrusted["camera_or_measurement"]``, the numbers of ``result.axis_consistency.intrinsics``)."""
+    """Why a result whose axes a camera error and one measurement explain alike is not trusted
+    (``untrusted["camera_or_measurement"]``, the numbers of ``result.axis_consistency.intrinsics``): the estimate
+    still uses that measurement, or left it out while the camera's explanation puts the camera elsewhere."""
     c = result.axis_consistency
     i = None if c is None else c.intrinsics
     which = ", ".join(str(k) for k in ks) or "one"
+    left_out = bool(ks) and all(not m.used for m in result.measurements if m.index in ks)
     advice = (f"Check measurement {which}'s joint readings and tracks, and the intrinsics (is the camera file this "
               "camera's, at this resolution?)")
     if not i or i.get("chi2") is None or i.get("one_out_chi2") is None:  # a file without the numbers
@@ -321,8 +323,12 @@ def camera_or_measurement_words(result: CalibrationResult, ks: list[int]) -> str
             f"once its focal length and principal point may change (χ² = {i['chi2']:.3g} for {i['dof']} dof, about "
             f"{i['focal_percent']:+.2g} % in focal length, {i['cx_px']:+.3g} px in cx, {i['cy_px']:+.3g} px in cy), "
             f"and as well without measurement {which} (χ² = {i['one_out_chi2']:.3g} for {i['exact_dof'] - 2} dof). "
-            "The estimate still uses that measurement and only widened its covariance for the scatter: it rests on "
-            "neither explanation, and they put the camera apart by more than that covariance, so it is not trusted. "
+            + (("The estimate left that measurement out: it rests on that measurement being wrong, and the camera's "
+                "explanation puts the camera elsewhere by more than its covariance, so it is not trusted. ")
+               if left_out else
+               ("The estimate still uses that measurement and only widened its covariance for the scatter: it rests "
+                "on neither explanation, and they put the camera apart by more than that covariance, so it is not "
+                "trusted. "))
             + advice)
 
 

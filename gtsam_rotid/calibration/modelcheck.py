@@ -57,6 +57,8 @@ RANK_RCOND = 1e-8
 #: Joint offsets a robot's zero positions could be off by, and more than its encoders' and mastering's own
 #: uncertainty (degrees, the largest offset of the fit): outside, a fit of the tracker's shared errors.
 MAX_OFFSET_DEG, MIN_OFFSET_DEG = 3.0, 0.05
+#: ... and where the free fit's offsets exceed MAX_OFFSET_DEG, they are fitted again under a prior of this sigma (deg)
+PLAUSIBLE_OFFSET_DEG = 1.0
 #: Finite-difference step of the FK axes by a joint offset (rad).
 OFFSET_STEP = 1e-6
 
@@ -94,11 +96,12 @@ def _fitted(camera: Camera, setup: _Setup, stage1, ks, pose, sigma2, free: bool,
     return chi2, theta, pose
 
 
-def _gauss_newton(rows_of: Callable, theta: np.ndarray, pose, free: bool, rcond: float | None = None):
+def _gauss_newton(rows_of: Callable, theta: np.ndarray, pose, free: bool, rcond: float | None = None,
+                  prior_sigma: float | None = None):
     """Gauss-Newton on the axes' chi-square over the pose (and the model's parameters ``theta`` when ``free``):
     ``rows_of(theta, pose)`` gives the rows of :func:`stage2._axis_rows` (Jacobians extended by theta's when free).
     Returns (chi-square at the last linearisation's minimum, theta, pose, the rank of the last normal matrix at
-    ``rcond``)."""
+    ``rcond``). ``prior_sigma``: theta under a zero-mean Gaussian prior of that sigma (not in the chi-square)."""
     chi2, rank = np.inf, 0
     for _ in range(ITERATIONS):
         rows = rows_of(theta, pose)
@@ -107,6 +110,9 @@ def _gauss_newton(rows_of: Callable, theta: np.ndarray, pose, free: bool, rcond:
         W = [np.linalg.inv(cov) for _, cov, _ in rows]
         H = sum(A.T @ w @ A for (_, _, A), w in zip(rows, W, strict=True))
         g = sum(A.T @ w @ e for (e, _, A), w in zip(rows, W, strict=True))
+        if free and prior_sigma is not None:
+            H[6:, 6:] += np.eye(len(theta)) / prior_sigma**2
+            g[6:] += theta / prior_sigma**2
         step, _, rank, _ = np.linalg.lstsq(H, g, rcond=rcond)
         step = -step
         chi2 = _refitted_chi2(rows, 0.0)
@@ -143,6 +149,8 @@ def intrinsics_check(camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[i
     uncertainty (MIN_FOCAL_PERCENT, MIN_CENTRE_PX). ``undecided``: every one of these holds but the comparison with
     one wrong measurement, and the two explanations' poses differ beyond the 99.9 % point of 6 dof of
     ``covariance``: the axes cannot tell the camera from that measurement, and the estimate depends on which.
+    ``rival``: the same, the poses compared being the one-out fit's and the freed camera's (``freed_moved_chi2``):
+    what matters where the estimate left that measurement out and so rests on the one-out explanation.
     """
     ks = [k for k in sigma2 if np.all(np.isfinite(stage1[k].image_axis))]
     if len(ks) < 5:
@@ -154,11 +162,11 @@ def intrinsics_check(camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[i
     exact_p = float(chi2_sf(exact, exact_dof))
     out = {"exact_chi2": float(exact), "exact_dof": exact_dof, "exact_p": exact_p, "chi2": None, "dof": dof,
            "p_value": None, "focal_percent": None, "cx_px": None, "cy_px": None, "one_out_chi2": None,
-           "one_out_measurement": None, "one_out_moved_chi2": None, "undecided": False,
-           "measurements": [setup.index[k] if setup.index else k for k in ks], "likely": False}
+           "one_out_measurement": None, "one_out_moved_chi2": None, "freed_moved_chi2": None, "undecided": False,
+           "rival": False, "measurements": [setup.index[k] if setup.index else k for k in ks], "likely": False}
     if exact_p >= EXACT_P:
         return out
-    freed, theta, _ = _fitted(camera, setup, stage1, ks, pose, sigma2, free=True)
+    freed, theta, freed_pose = _fitted(camera, setup, stage1, ks, pose, sigma2, free=True)
     if not np.isfinite(freed):
         return out
     # the rival explanation: one measurement wrong (its joints or tracks), the others exact
@@ -170,6 +178,10 @@ def intrinsics_check(camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[i
     shift = exact_pose.localCoordinates(one_outs[best][2])
     moved = (float(shift @ np.linalg.solve(covariance, shift))
              if covariance is not None and np.all(np.isfinite(covariance)) else None)
+    # and how far the camera's explanation puts the pose from that one's
+    apart = one_outs[best][2].localCoordinates(freed_pose)
+    freed_moved = (float(apart @ np.linalg.solve(covariance, apart))
+                   if covariance is not None and np.all(np.isfinite(covariance)) else None)
     p = float(chi2_sf(freed, dof))
     camera_like = bool(p >= FREED_P and exact - freed > chi2_quantile(len(INTRINSICS), IMPROVEMENT_Z)
                        and abs(100.0 * theta[0]) <= MAX_FOCAL_PERCENT
@@ -181,8 +193,11 @@ def intrinsics_check(camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[i
     out.update(chi2=float(freed), p_value=p, focal_percent=float(100.0 * theta[0]), cx_px=float(theta[1]),
                cy_px=float(theta[2]), one_out_chi2=one_out,
                one_out_measurement=setup.index[ks[best]] if setup.index else ks[best], one_out_moved_chi2=moved,
+               freed_moved_chi2=freed_moved,
                undecided=bool(camera_like and not likely and moved is not None
                               and moved > chi2_quantile(6, IMPROVEMENT_Z)),
+               rival=bool(camera_like and not likely and freed_moved is not None
+                          and freed_moved > chi2_quantile(6, IMPROVEMENT_Z)),
                likely=bool(likely))
     return out
 
@@ -274,6 +289,18 @@ def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigm
              if covariance is not None and np.all(np.isfinite(covariance)) else None)
     p = float(chi2_sf(freed, dof))
     largest = float(np.degrees(np.max(np.abs(delta))))
+    if largest > MAX_OFFSET_DEG:
+        # combinations the poses barely determine can run far in the free fit: fitted under a prior of plausible
+        # offsets instead, do they explain the axes as well? (Panda, 0.5 degree offsets on joints 2-6, six poses:
+        # the free fit read 3.7 degrees and the check passed over an estimate 11 mm off at chi-square 350)
+        held, held_delta, held_pose, _ = _gauss_newton(rows_of(True), zero, pose, True, RANK_RCOND,
+                                                       prior_sigma=np.radians(PLAUSIBLE_OFFSET_DEG))
+        if np.isfinite(held) and chi2_sf(held, dof) >= FREED_P:
+            freed, delta, freed_pose, p = float(held), held_delta, held_pose, float(chi2_sf(held, dof))
+            largest = float(np.degrees(np.max(np.abs(delta))))
+            shift = one_outs[best][2].localCoordinates(freed_pose)
+            moved = (float(shift @ np.linalg.solve(covariance, shift))
+                     if covariance is not None and np.all(np.isfinite(covariance)) else None)
     offsets_like = bool(p >= FREED_P and exact - freed > chi2_quantile(determined, IMPROVEMENT_Z)
                         and MIN_OFFSET_DEG <= largest <= MAX_OFFSET_DEG)
     likely = offsets_like and freed + AIC_PER_PARAMETER * (determined - 2) < one_out

@@ -342,8 +342,8 @@ UNTRUSTED_KINDS = {
                   "joint angles do",
     "kinematics": "offsets of the joints' zero positions explain the axes' disagreement better than one wrong "
                   "measurement does",
-    "camera_or_measurement": "changed intrinsics explain the axes' disagreement, and so does one measurement the "
-                             "estimate still uses being wrong: the estimate rests on neither",
+    "camera_or_measurement": "changed intrinsics explain the axes' disagreement, and so does one wrong measurement "
+                             "(still used, or left out where the camera's explanation puts the camera elsewhere)",
     "kinematics_or_measurement": "offsets of the joints' zero positions explain the axes' disagreement, and so does "
                                  "one wrong measurement: the two put the camera apart beyond its covariance",
 }
