@@ -28,6 +28,8 @@ from .modelcheck import _offset_rows
 #: Gauss-Newton iterations of the axes' fit, and its Huber threshold on a measurement's axis chi-square (2 dof).
 ITERATIONS = 30
 HUBER_Z = 3.09
+#: Offsets the image axes give beyond this many prior sigmas are refused (a wrong model, not zero offsets).
+MAX_OFFSET_SIGMAS = 5.0
 #: An offset whose posterior 1 sigma exceeds this fraction of its prior's is reported as not determined (its prior
 #: holds it).
 HELD_BY_PRIOR = 0.7

@@ -17,8 +17,8 @@ from .initial import _initial, axis_miss_rms, poor_start
 from .joint import Fitted, _joint, _weighted
 from .lm import _builder
 from .modelcheck import intrinsics_check, kinematics_check
-from .offsets import OffsetsPrior, offsets_from_axes, shifted
-from .options import MIN_MEASUREMENTS, CalibrationOptions, Method
+from .offsets import MAX_OFFSET_SIGMAS, OffsetsPrior, offsets_from_axes, shifted
+from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method
 from .result import CalibrationResult, MeasurementReport, OutlierKind
 from .setup import _Setup, arc_span_deg
 from .stage2 import _check_scale, _paper, _refined_stage1
@@ -199,6 +199,13 @@ def _offsets_start(arm, camera, measurements, method, options, index) -> tuple[l
     starts, setup, anchors = _initial(arm, camera, measurements, options, index, INITIAL_TOLERANCE)
     pose, stage1 = _refined_stage1(arm, camera, measurements, starts[0], setup, options, anchors[0])
     delta, _ = offsets_from_axes(arm, camera, setup, stage1, pose, measurements, joints, sigma)
+    if not np.all(np.isfinite(delta)) or np.any(np.abs(delta) > MAX_OFFSET_SIGMAS * sigma):
+        named = ", ".join(f"{arm.joint_names[j]} {np.degrees(d):+.3g}°" for j, d in zip(joints, delta, strict=True))
+        raise CalibrationError(f"the joint offsets that the image axes give ({named}) lie beyond "
+                               f"{MAX_OFFSET_SIGMAS:g} times their prior ({options.joint_offset_sigma_deg:g}°): "
+                               "check the joint angles, the intrinsics and the wrist joint, or widen "
+                               "CalibrationOptions.joint_offset_sigma_deg (--joint-offset-sigma-deg) if the robot's "
+                               "zero positions may be that far off")
     return shifted(arm, measurements, joints, delta), OffsetsPrior(tuple(joints), delta, sigma)
 
 

@@ -137,3 +137,11 @@ def test_offsets_that_one_wrong_measurement_explains_as_well_are_not_a_confident
     assert "and as well without measurement 4" in words and "calibrate --joint-offsets" in words
     refined = calibrate(readings, options=CalibrationOptions(joint_offsets=True))
     assert refined.covariance_usable and chi2_of_error(refined, truth) < 22.46
+
+
+def test_offsets_beyond_their_prior_are_refused_with_the_readings_named(scene):
+    """A wrong model read as offsets: every reading of joints 2-5 off by 4 degrees against a 0.5 degree prior."""
+    dataset, _ = scene
+    with pytest.raises(RotIdError, match=r"lie beyond 5 times their prior \(0.5°\)"):
+        calibrate(with_offsets(dataset, [0.0, 4.0, -4.0, 4.0, 4.0]),
+                  options=CalibrationOptions(joint_offsets=True, joint_offset_sigma_deg=0.5))
