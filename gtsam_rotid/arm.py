@@ -335,6 +335,17 @@ class Arm:
             raise ArmError(f"no joint offset to refine; offsets can be refined for {before}")
         return out
 
+    def corrected_joint_origin(self, name: str, offset: float) -> gtsam.Pose3:
+        """The joint's origin (its frame at zero angle in its parent link's frame, a URDF ``<origin>``) turned by
+        ``offset`` (rad) about its axis: with it, the reading is the joint's angle (the reading plus the offset was)."""
+        if name not in self.joint_names:
+            raise ArmError(f"{name!r} is not a revolute joint of the model; revolute joints: {self.joint_names}")
+        jid = self._joint_ids[self.joint_names.index(name)]
+        pin.forwardKinematics(self.model, self._data, pin.neutral(self.model))
+        axis = self._local_axis(jid)
+        turn = gtsam.Pose3(gtsam.Rot3.AxisAngle(gtsam.Point3(*axis), float(offset)), np.zeros(3))
+        return _pose3(self.model.jointPlacements[jid]).compose(turn)
+
     def wrist_axis_offset_derivatives(self, joint_angles, joints, offsets=None
                                       ) -> tuple[Line3, np.ndarray, np.ndarray]:
         """The wrist axis at ``joint_angles`` plus ``offsets`` (radians, one per index in ``joints``: the reading

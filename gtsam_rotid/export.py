@@ -439,8 +439,8 @@ def export_result(result, to: str | Format, *, parent_frame: str | None = None, 
 def joint_offsets_yaml(result, warnings: tuple[str, ...] = ()) -> str:
     """The joint offsets ``result`` refined, as YAML: per joint the offset (rad and deg; the reading plus it is the
     joint's angle, so a robot's zero position moves by minus it), its 1 sigma and whether these poses determined
-    it (else its prior holds it), their covariance (rad²) in ``joints`` order, the prior. Raises InputError when the
-    result refined none."""
+    it (else its prior holds it), the corrected URDF ``<origin>`` of each joint (``urdf_origins``), their covariance
+    (rad²) in ``joints`` order, the prior. Raises InputError when the result refined none."""
     offsets = getattr(result, "joint_offsets", None)
     if not offsets:
         raise InputError("this result refined no joint offsets (calibrate with --joint-offsets, in Python "
@@ -457,6 +457,14 @@ def joint_offsets_yaml(result, warnings: tuple[str, ...] = ()) -> str:
         lines.append(f"  {_yaml_scalar(name)}: {{rad: {_yaml_scalar(float(value))}, deg: "
                      f"{_yaml_scalar(math.degrees(float(value)))}, sigma_deg: {_yaml_scalar(s)}, "
                      f"determined: {_yaml_scalar(determined)}}}")
+    origins = getattr(result, "joint_offsets_origins", None) or {}
+    if origins:  # a URDF with these origins makes the readings the joints' angles
+        lines.append("# corrected URDF joint origins (the joint's <origin> turned by its offset about its axis; put "
+                     "them in the robot's URDF and the offsets are zero)")
+        lines.append("urdf_origins:")
+        for name, origin in origins.items():
+            lines.append(f"  {_yaml_scalar(name)}: {{xyz: [" + ", ".join(_yaml_scalar(float(v)) for v in origin["xyz"])
+                         + "], rpy: [" + ", ".join(_yaml_scalar(float(v)) for v in origin["rpy"]) + "]}")
     lines.append("joints: [" + ", ".join(_yaml_scalar(n) for n in offsets) + "]")
     covariance = np.asarray(result.joint_offsets_covariance, dtype=float)
     lines.append("covariance_rad2:")

@@ -202,3 +202,26 @@ def test_offset_joints_name_what_cannot_be_refined():
         arm.offset_joints(["j2s6s200_joint_2", "j2s6s200_joint_2"])
     with pytest.raises(ArmError, match="no joint offset"):
         arm.offset_joints([])
+
+
+def test_a_joint_origin_corrected_by_its_offset_puts_the_wrist_where_the_reading_plus_the_offset_does():
+    """The corrected URDF origins (origin turned by the offset about the joint's axis), written into a copy of the
+    model: at the readings they give the wrist axis of the readings plus the offsets."""
+    arm = Arm.from_robot("kinova")
+    rng = np.random.default_rng(11)
+    angles = arm.random_joint_angles(rng)
+    joints = arm.offset_joints(True)
+    offsets = np.radians(rng.normal(scale=1.0, size=len(joints)))
+    model = arm.model.copy()
+    for j, d in zip(joints, offsets, strict=True):
+        origin = arm.corrected_joint_origin(arm.joint_names[j], d)
+        model.jointPlacements[model.getJointId(arm.joint_names[j])] = pin.SE3(origin.rotation().matrix(),
+                                                                               origin.translation())
+    corrected = Arm(model, wrist_joint=arm.wrist_joint)
+    shifted = angles.copy()
+    shifted[joints] += offsets
+    np.testing.assert_allclose(corrected.wrist_axis(angles).point, arm.wrist_axis(shifted).point, atol=1e-12)
+    np.testing.assert_allclose(corrected.wrist_axis(angles).direction, arm.wrist_axis(shifted).direction, atol=1e-12)
+    assert np.linalg.norm(arm.wrist_axis(angles).point - arm.wrist_axis(shifted).point) > 1e-3
+    with pytest.raises(ArmError, match="'nope' is not a revolute joint"):
+        arm.corrected_joint_origin("nope", 0.1)

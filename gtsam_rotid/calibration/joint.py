@@ -266,7 +266,13 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         if offsets_covariance is not None and c is not None and not c.consistent:
             offsets_covariance = offsets_covariance * max(c.scale, 1.0)  # the axes' scatter scales them too
             cross = cross * max(c.scale, 1.0)
-        out = replace(out, joint_offsets=dict(zip(offsets.names(arm), (offsets.start + rest).tolist(), strict=True)),
+        values = dict(zip(offsets.names(arm), (offsets.start + rest).tolist(), strict=True))
+        origins = {}
+        for name, value in values.items():  # the URDF <origin> that makes the reading the joint's angle
+            origin = arm.corrected_joint_origin(name, value)
+            origins[name] = {"xyz": np.asarray(origin.translation(), dtype=float).tolist(),
+                             "rpy": np.asarray(origin.rotation().rpy(), dtype=float).tolist()}
+        out = replace(out, joint_offsets=values, joint_offsets_origins=origins,
                       joint_offsets_covariance=offsets_covariance, pose_offsets_covariance=cross,
                       joint_offset_sigma_deg=float(np.degrees(offsets.sigma[0])))
     return replace(out, alternatives=_outside(fit.alternatives, out))

@@ -215,6 +215,9 @@ class CalibrationResult:
     joint_offset_sigma_deg: float = 0.0
     #: their cross-covariance with the pose (6 x n: Pose3 tangent by offsets), for re-checking the calibration
     pose_offsets_covariance: np.ndarray | None = None
+    #: per refined joint, its URDF ``<origin>`` turned by the offset about its axis (``xyz`` m, ``rpy`` rad, in the
+    #: parent link's frame): with it the reading is the joint's angle
+    joint_offsets_origins: dict | None = None
 
     @property
     def ambiguous(self) -> bool:
@@ -289,6 +292,7 @@ class CalibrationResult:
             "joint_offset_sigma_deg": self.joint_offset_sigma_deg,
             "pose_offsets_covariance": None if self.pose_offsets_covariance is None
             else np.asarray(self.pose_offsets_covariance).tolist(),
+            "joint_offsets_origins": self.joint_offsets_origins,
         }
 
     @classmethod
@@ -321,6 +325,9 @@ class CalibrationResult:
             joint_offset_sigma_deg=float(data.get("joint_offset_sigma_deg", 0.0)),
             pose_offsets_covariance=None if data.get("pose_offsets_covariance") is None
             else np.array(data["pose_offsets_covariance"], dtype=float),
+            joint_offsets_origins=None if data.get("joint_offsets_origins") is None
+            else {str(k): {"xyz": [float(x) for x in v["xyz"]], "rpy": [float(x) for x in v["rpy"]]}
+                  for k, v in data["joint_offsets_origins"].items()},
         )
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:

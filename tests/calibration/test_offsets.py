@@ -65,6 +65,9 @@ def test_offsets_refined_with_the_pose_hold_their_covariance(scene, tmp_path):
     assert exported["offsets"][names[2]]["rad"] == result.joint_offsets[names[2]]
     assert all(entry["determined"] for entry in exported["offsets"].values())
     np.testing.assert_array_equal(exported["covariance_rad2"], result.joint_offsets_covariance)
+    origin = dataset.arm.corrected_joint_origin(names[1], result.joint_offsets[names[1]])
+    np.testing.assert_allclose(exported["urdf_origins"][names[1]]["xyz"], origin.translation(), atol=1e-12)
+    np.testing.assert_allclose(exported["urdf_origins"][names[1]]["rpy"], origin.rotation().rpy(), atol=1e-12)
     report = make_report(loaded)
     assert report.to_dict()["joint_offsets_deg"][names[0]] == pytest.approx(
         np.degrees(result.joint_offsets[names[0]]))
