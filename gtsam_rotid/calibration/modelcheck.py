@@ -96,6 +96,25 @@ def _fitted(camera: Camera, setup: _Setup, stage1, ks, pose, sigma2, free: bool,
     return chi2, theta, pose
 
 
+def _apart(a, b, covariance, rows=None, prior_sigma=None) -> float | None:
+    """How far pose ``b`` is from pose ``a``: a chi-square under ``covariance`` (the estimate's) plus, with ``rows``
+    (the freed fit's, Jacobians extended by its parameters), that fit's own pose covariance with its parameters under
+    a Gaussian prior of ``prior_sigma`` each (a vector, their units): an explanation whose pose its parameters leave
+    uncertain puts the camera nowhere in particular. None without a finite covariance."""
+    if covariance is None or not np.all(np.isfinite(covariance)):
+        return None
+    total = np.asarray(covariance, dtype=float)
+    if rows is not None:
+        H = sum(A.T @ np.linalg.inv(cov) @ A for _, cov, A in rows)
+        H[6:, 6:] += np.diag(1.0 / np.asarray(prior_sigma, dtype=float) ** 2)
+        try:
+            total = total + np.linalg.inv(H)[:6, :6]
+        except np.linalg.LinAlgError:
+            return None
+    d = a.localCoordinates(b)
+    return float(d @ np.linalg.solve(total, d))
+
+
 def _gauss_newton(rows_of: Callable, theta: np.ndarray, pose, free: bool, rcond: float | None = None,
                   prior_sigma: float | None = None):
     """Gauss-Newton on the axes' chi-square over the pose (and the model's parameters ``theta`` when ``free``):
@@ -179,9 +198,10 @@ def intrinsics_check(camera: Camera, setup: _Setup, stage1, pose, sigma2: dict[i
     moved = (float(shift @ np.linalg.solve(covariance, shift))
              if covariance is not None and np.all(np.isfinite(covariance)) else None)
     # and how far the camera's explanation puts the pose from that one's
-    apart = one_outs[best][2].localCoordinates(freed_pose)
-    freed_moved = (float(apart @ np.linalg.solve(covariance, apart))
-                   if covariance is not None and np.all(np.isfinite(covariance)) else None)
+    freed_moved = _apart(one_outs[best][2], freed_pose, covariance,
+                         _rows(camera, setup, stage1, ks, freed_pose, sigma2, theta, True),
+                         [MAX_FOCAL_PERCENT / 100.0, MAX_CENTRE_FRACTION * camera.width,
+                          MAX_CENTRE_FRACTION * camera.height])
     p = float(chi2_sf(freed, dof))
     camera_like = bool(p >= FREED_P and exact - freed > chi2_quantile(len(INTRINSICS), IMPROVEMENT_Z)
                        and abs(100.0 * theta[0]) <= MAX_FOCAL_PERCENT
@@ -284,9 +304,8 @@ def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigm
     one_outs = [_gauss_newton(rows_of(False, [k for k in ks if k != j]), zero, pose, False) for j in ks]
     best = int(np.argmin([fit[0] for fit in one_outs]))
     one_out = float(one_outs[best][0])
-    shift = one_outs[best][2].localCoordinates(freed_pose)
-    moved = (float(shift @ np.linalg.solve(covariance, shift))
-             if covariance is not None and np.all(np.isfinite(covariance)) else None)
+    plausible = np.full(len(joints), np.radians(PLAUSIBLE_OFFSET_DEG))
+    moved = _apart(one_outs[best][2], freed_pose, covariance, rows_of(True)(delta, freed_pose), plausible)
     p = float(chi2_sf(freed, dof))
     largest = float(np.degrees(np.max(np.abs(delta))))
     if largest > MAX_OFFSET_DEG:
@@ -298,9 +317,7 @@ def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigm
         if np.isfinite(held) and chi2_sf(held, dof) >= FREED_P:
             freed, delta, freed_pose, p = float(held), held_delta, held_pose, float(chi2_sf(held, dof))
             largest = float(np.degrees(np.max(np.abs(delta))))
-            shift = one_outs[best][2].localCoordinates(freed_pose)
-            moved = (float(shift @ np.linalg.solve(covariance, shift))
-                     if covariance is not None and np.all(np.isfinite(covariance)) else None)
+            moved = _apart(one_outs[best][2], freed_pose, covariance, rows_of(True)(delta, freed_pose), plausible)
     offsets_like = bool(p >= FREED_P and exact - freed > chi2_quantile(determined, IMPROVEMENT_Z)
                         and MIN_OFFSET_DEG <= largest <= MAX_OFFSET_DEG)
     likely = offsets_like and freed + AIC_PER_PARAMETER * (determined - 2) < one_out
