@@ -352,7 +352,7 @@ class _Constraints:
         direction = math.cos(angle) * ray * rng.choice([-1.0, 1.0]) + math.sin(angle) * side
         try:
             return self.scene.arm.solve_wrist_axis(point, direction, self.scene.arm.random_joint_angles(rng),
-                                                   iterations=60, tolerance=1e-4)
+                                                   iterations=60, tolerance=1e-4, give_up_after=15)
         except ArmError:
             return None
 
