@@ -418,20 +418,29 @@ class Arm:
 
     # ------------------------------------------------------------------ inverse kinematics
     def solve_wrist_axis(self, point, direction, initial_joint_angles, *, iterations: int = 200,
-                         tolerance: float = 1e-10) -> np.ndarray:
+                         tolerance: float = 1e-10, give_up_after: int | None = None,
+                         give_up_distance: float = 0.03) -> np.ndarray:
         """Joint angles that put the wrist joint origin at ``point`` with its axis along ``direction``.
 
         Damped least squares from ``initial_joint_angles``, inside the joint limits. Raises
-        :class:`ArmError` when no such configuration is found from that start.
+        :class:`ArmError` when no such configuration is found from that start. ``give_up_after``: stop after that
+        many iterations when the wrist is still more than ``give_up_distance`` (m) from ``point`` (a start that
+        rarely converges: for samplers that would rather try another start).
         """
         target_p = np.asarray(point, dtype=float)
         target_a = unit(direction, "target axis direction")
         angles = self._limit(self.joint_angle_vector(initial_joint_angles))
         a_local = self.wrist_axis_local()
         columns = [self.model.joints[j].idx_v for j in self._joint_ids]
+        # Pinocchio's q without configuration()'s checks (the angles stay inside _limit's range)
+        idx_q = np.array([self.model.joints[j].idx_q for j in self._joint_ids])
+        continuous = np.array(self._continuous, dtype=bool)
+        q = pin.neutral(self.model)
 
         def residual_and_jacobian(angles):
-            q = self.configuration(angles)
+            q[idx_q[~continuous]] = angles[~continuous]
+            q[idx_q[continuous]] = np.cos(angles[continuous])
+            q[idx_q[continuous] + 1] = np.sin(angles[continuous])
             pin.computeJointJacobians(self.model, self._data, q)
             oMi = self._data.oMi[self._wrist_id]
             a = np.array(oMi.rotation) @ a_local
@@ -442,11 +451,15 @@ class Arm:
 
         error, J = residual_and_jacobian(angles)
         damping = 1e-3
-        for _ in range(iterations):
+        identity = np.eye(self.dof)
+        for iteration in range(iterations):
             cost = error @ error
             if cost < tolerance**2:
                 return angles
-            step = np.linalg.solve(J.T @ J + damping * np.eye(self.dof), -J.T @ error)
+            if give_up_after is not None and iteration >= give_up_after and \
+                    error[:3] @ error[:3] > give_up_distance**2:
+                break
+            step = np.linalg.solve(J.T @ J + damping * identity, -J.T @ error)
             trial = self._limit(angles + step)
             trial_error, trial_J = residual_and_jacobian(trial)
             if trial_error @ trial_error < cost:

@@ -19,6 +19,7 @@ one point determine nothing along the ray to it, so the criterion never chooses 
 from __future__ import annotations
 
 import math
+import multiprocessing
 import re
 import time
 from collections import Counter
@@ -33,7 +34,6 @@ from .camera import Camera
 from .collisions import ArmCollisions
 from .dataset import Dataset
 from .errors import ArmError, InputError
-from .geometry import circle_points
 from .graph import MIN_TRACK_EXTENT_PX, RotIdGraph
 from .initialise import MIN_ELLIPSE_POINTS
 from .simulate import SceneConfig, SpinScene
@@ -44,6 +44,8 @@ from .uncertainty import Observability, analyse_observability, pose_information
 MAX_GUESS_DISTANCE_M = 20.0
 #: Draws without one pose that satisfies the constraints after which the search gives up.
 HOPELESS_DRAWS = 4000
+#: Axes drawn for one aimed pose before it gives up (each a cheap check that the end effector would be in view)
+AIM_TRIES = 200
 #: the spin model the search ranks candidate poses by (the predictions use PlanOptions.spin_model)
 SEARCH_SPIN_MODEL = "free"
 
@@ -86,14 +88,21 @@ class PlanOptions:
     guess_sigma_mm: float = 30.0
     guess_sigma_deg: float = 3.0
     guess_samples: int = 6
+    #: the search ranks candidates (choice and local steps) at the first this many of them (the guess first); the
+    #: chosen poses' prediction uses all ``guess_samples``
+    rank_samples: int = 3
     #: the end effector must stay inside the image by this many sigmas of its image motion under the guess' 1σ
     constraint_sigmas: float = 2.0
     #: candidate poses sampled (and the most random draws spent finding them); a worst-axis unit pair
-    candidates: int = 150
+    candidates: int = 450
     max_draws: int = 100_000
     #: the search for candidates stops after this long (s) once it has a third of them; local steps after the choice
     search_seconds: float = 12.0
     refine_steps: int = 60
+    #: processes that search for and evaluate candidates (1: this process only). Each takes its share of the
+    #: candidates with its own random stream: a seed gives the same plan for the same ``jobs`` (unless a search stops
+    #: at ``search_seconds``). Other processes are forked (Linux); where they cannot be, the shares run here in turn
+    jobs: int = 2
     worst_axis_mm: float = 1.0
     worst_axis_deg: float = 0.05
     #: the prediction's frame rate (information scales with the points; fewer points, each less noisy)
@@ -147,6 +156,10 @@ class PlanOptions:
             raise PlanningError(f"spin_model must be 'rigid' or 'free', got {self.spin_model!r}")
         if self.n_features < 2 or self.guess_samples < 1 or self.candidates < 1:
             raise PlanningError("n_features must be >= 2, guess_samples and candidates >= 1")
+        for name in ("rank_samples", "jobs"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise PlanningError(f"{name} must be an integer >= 1, got {value!r}")
 
 
 @dataclass
@@ -325,36 +338,78 @@ class _Constraints:
         if o.constraint_sigmas <= 0 or not self._moved:
             return None
         axis, e1, e2 = self.scene.basis(joint_angles)
-        phases = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
-        rims = np.vstack([circle_points(axis.point + d * axis.direction, axis.direction, o.radius_range[1], phases,
-                                        e1, e2) for d in o.offset_range])
-        pixels = self.scene.project(rims)
-        motion = np.sqrt(sum((scene.project(rims) - pixels) ** 2 for scene in self._moved))  # (N, 2) 1σ, px
-        camera = self.scene.camera
-        low = pixels - o.constraint_sigmas * motion - o.image_margin
-        high = pixels + o.constraint_sigmas * motion + o.image_margin
-        if np.all((low >= -0.5) & (high <= np.array([camera.width, camera.height]) - 0.5)):
+        if self._rims_inside(axis.point[None], axis.direction[None], e1[None], e2[None], o.constraint_sigmas)[0]:
             return None
         return f"end effector leaves the image with the guess {o.constraint_sigmas:g} sigma off"
 
-    def aimed(self, rng: np.random.Generator) -> np.ndarray | None:
+    def _rims_inside(self, points, directions, e1, e2, sigmas: float) -> np.ndarray:
+        """For each axis (rows of (B, 3) arrays: a point, the direction, two unit vectors perpendicular to it):
+        whether the end effector's rims about it stay ``image_margin`` plus ``sigmas`` times their 1σ image motion
+        (under the guess' uncertainty) inside the image, and above ``min_height``. (B,) bool."""
+        o = self.options
+        phases = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+        ring = o.radius_range[1] * (np.cos(phases)[None, :, None] * e1[:, None] + np.sin(phases)[None, :, None]
+                                    * e2[:, None])  # (B, 24, 3)
+        rims = np.concatenate([points[:, None] + d * directions[:, None] + ring for d in o.offset_range], axis=1)
+        flat = rims.reshape(-1, 3)
+        pixels = self.scene.project(flat)
+        motion = np.sqrt(sum((scene.project(flat) - pixels) ** 2 for scene in self._moved)) if sigmas > 0 else 0.0
+        camera = self.scene.camera
+        low = pixels - sigmas * motion - o.image_margin
+        high = pixels + sigmas * motion + o.image_margin
+        inside = np.all((low >= -0.5) & (high <= np.array([camera.width, camera.height]) - 0.5), axis=1)
+        return inside.reshape(len(points), -1).all(axis=1) & (rims[..., 2].min(axis=1) >= o.min_height)
+
+    def aimed(self, rng: np.random.Generator, in_view: bool = False) -> np.ndarray | None:
         """Joint angles (inverse kinematics from a random start) that put the wrist on a random ray through the inner
         part of the image, at a random workable distance, its axis at a random workable angle to the ray; None when
-        the arm cannot reach it."""
-        o, camera = self.options, self.scene.camera
-        pixel = np.array([camera.width, camera.height]) * rng.uniform(0.25, 0.75, size=2)
-        ray = np.linalg.solve(camera.K, np.append(pixel, 1.0))
-        ray = self.scene.arm_T_camera.rotation().matrix() @ (ray / np.linalg.norm(ray))
-        point = self.camera_centre + rng.uniform(*o.depth_range) * ray
-        angle = math.radians(rng.uniform(*o.axis_view_angle_deg))
-        side = np.cross(ray, rng.normal(size=3))
-        side /= np.linalg.norm(side)
-        direction = math.cos(angle) * ray * rng.choice([-1.0, 1.0]) + math.sin(angle) * side
+        the arm cannot reach it. ``in_view``: the axis is drawn again (up to ``AIM_TRIES`` times, a cheap check
+        each) until the end effector about it stays inside the image by the constraints' margin, and the inverse
+        kinematics gives up early on a start that stays far from it (for the plan's many candidates; the random
+        valid poses keep the plain draw)."""
+        if in_view:
+            axis = self._axis_in_view(rng)
+            if axis is None:
+                return None
+            point, direction = axis
+        else:
+            o, camera = self.options, self.scene.camera
+            pixel = np.array([camera.width, camera.height]) * rng.uniform(0.25, 0.75, size=2)
+            ray = np.linalg.solve(camera.K, np.append(pixel, 1.0))
+            ray = self.scene.arm_T_camera.rotation().matrix() @ (ray / np.linalg.norm(ray))
+            point = self.camera_centre + rng.uniform(*o.depth_range) * ray
+            angle = math.radians(rng.uniform(*o.axis_view_angle_deg))
+            side = np.cross(ray, rng.normal(size=3))
+            side /= np.linalg.norm(side)
+            direction = math.cos(angle) * ray * rng.choice([-1.0, 1.0]) + math.sin(angle) * side
         try:
             return self.scene.arm.solve_wrist_axis(point, direction, self.scene.arm.random_joint_angles(rng),
-                                                   iterations=60, tolerance=1e-4)
+                                                   iterations=60, tolerance=1e-4,
+                                                   give_up_after=15 if in_view else None)
         except ArmError:
             return None
+
+    def _axis_in_view(self, rng: np.random.Generator, batch: int = 50):
+        """(point, direction) of an axis drawn as :meth:`aimed` draws one whose end effector stays in the image;
+        None after ``AIM_TRIES`` draws."""
+        o, camera = self.options, self.scene.camera
+        R = self.scene.arm_T_camera.rotation().matrix()
+        for _ in range(max(1, AIM_TRIES // batch)):
+            pixels = np.array([camera.width, camera.height]) * rng.uniform(0.25, 0.75, size=(batch, 2))
+            rays = np.linalg.solve(camera.K, np.column_stack([pixels, np.ones(batch)]).T).T
+            rays = (rays / np.linalg.norm(rays, axis=1, keepdims=True)) @ R.T
+            points = self.camera_centre + rng.uniform(*o.depth_range, size=batch)[:, None] * rays
+            angles = np.radians(rng.uniform(*o.axis_view_angle_deg, size=batch))[:, None]
+            sides = np.cross(rays, rng.normal(size=(batch, 3)))
+            sides /= np.linalg.norm(sides, axis=1, keepdims=True)
+            directions = np.cos(angles) * rays * rng.choice([-1.0, 1.0], size=(batch, 1)) + np.sin(angles) * sides
+            e1 = np.cross(directions, sides)  # perpendicular to the direction (sides is to the ray)
+            e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+            fits = np.flatnonzero(self._rims_inside(points, directions, e1, np.cross(directions, e1),
+                                                    o.constraint_sigmas))
+            if len(fits):
+                return points[fits[0]], directions[fits[0]]
+        return None
 
     def problem(self, joint_angles) -> str | None:
         problem = self.scene.pose_problem(joint_angles) or self._image_motion_problem(joint_angles)
@@ -454,19 +509,16 @@ def plan_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: int = 6, 
     options = options.with_texture(arm, collisions)
     predictor = _Predictor(arm, camera, options)
     constraints = _Constraints(predictor, arm_T_camera, collisions)
-    candidates, draws, refused = _sample(arm, constraints, options.candidates, n, options,
-                                         np.random.default_rng(options.seed), progress=progress)
     scenes = predictor.sample_scenes(arm_T_camera)
-    infos = np.empty((len(candidates), len(scenes), 6, 6))
-    for c, q in enumerate(candidates):
-        infos[c] = [predictor.information(scene, q, SEARCH_SPIN_MODEL) for scene in scenes]
-        if progress is not None:
-            progress("predictions", c + 1, len(candidates))
+    ranking = scenes[:options.rank_samples]
+    candidates, infos, draws, refused = _search(arm, predictor, constraints, ranking, n, options, progress)
+    if len(candidates) < n:
+        raise _too_few(len(candidates), draws, refused, n)
     prior = np.zeros((6, 6)) if prior_information is None else np.asarray(prior_information, dtype=float)
     chosen = _choose(infos, prior + REGULARISER, n, options)
     poses, chosen_infos = _refine([candidates[c] for c in chosen], infos[chosen], prior + REGULARISER, predictor,
-                                  constraints, scenes, rng=np.random.default_rng(options.seed + 1), options=options)
-    if options.spin_model != SEARCH_SPIN_MODEL:
+                                  constraints, ranking, rng=np.random.default_rng(options.seed + 1), options=options)
+    if options.spin_model != SEARCH_SPIN_MODEL or len(ranking) < len(scenes):
         chosen_infos = np.array([[predictor.information(scene, q) for scene in scenes] for q in poses])
     prediction = _prediction(arm_T_camera, poses, chosen_infos, prior, options, [None] * n, predictor)
     before = None
@@ -476,10 +528,71 @@ def plan_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: int = 6, 
                 list(arm.joint_names), before)
 
 
+#: what a forked search process inherits: the arguments of _search_share (set just before the fork)
+_SHARED: dict = {}
+
+
+def _search_share(part: int, shared: dict | None = None):
+    """One process' share of the search: its candidates (own random stream), their information at the ranking
+    scenes (search spin model), its draws and refusals."""
+    s = _SHARED if shared is None else shared
+    arm, predictor, options, scenes = s["arm"], s["predictor"], s["options"], s["scenes"]
+    rng = np.random.default_rng(options.seed) if options.jobs == 1 else \
+        np.random.default_rng([options.seed, part, options.jobs])
+    progress = s["progress"] if part == 0 else None
+    count = s["counts"][part]
+    candidates, draws, refused = _sample(arm, s["constraints"], count, s["need"], options, rng,
+                                         progress=progress, strict=False, in_view=True)
+    infos = np.empty((len(candidates), len(scenes), 6, 6))
+    for c, q in enumerate(candidates):
+        infos[c] = [predictor.information(scene, q, SEARCH_SPIN_MODEL) for scene in scenes]
+        if progress is not None:
+            progress("predictions", c + 1, len(candidates))
+    return candidates, infos, draws, refused
+
+
+def _search(arm: Arm, predictor: _Predictor, constraints: _Constraints, scenes: list[SpinScene], need: int,
+            options: PlanOptions, progress):
+    """``options.candidates`` candidates shared among ``options.jobs`` processes (this one takes the first share;
+    ``progress`` follows it): (candidates, information (C, scenes, 6, 6), draws, refusals)."""
+    jobs = min(options.jobs, options.candidates)
+    counts = [options.candidates // jobs + (k < options.candidates % jobs) for k in range(jobs)]
+    shared = {"arm": arm, "predictor": predictor, "constraints": constraints, "scenes": scenes, "options": options,
+              "counts": counts, "need": -(-need // jobs), "progress": progress}
+    if jobs == 1:
+        parts = [_search_share(0, shared)]
+    elif "fork" in multiprocessing.get_all_start_methods() and not multiprocessing.current_process().daemon:
+        _SHARED.update(shared)
+        try:
+            with multiprocessing.get_context("fork").Pool(jobs - 1) as pool:
+                others = pool.map_async(_search_share, range(1, jobs))
+                parts = [_search_share(0)] + others.get()
+        finally:
+            _SHARED.clear()
+    else:
+        parts = [_search_share(k, shared) for k in range(jobs)]
+    candidates = [q for part in parts for q in part[0]]
+    infos = np.concatenate([part[1] for part in parts]) if candidates else np.empty((0, len(scenes), 6, 6))
+    refused = Counter()
+    for part in parts:
+        refused.update(part[3])
+    return candidates, infos, sum(part[2] for part in parts), dict(refused)
+
+
+def _too_few(found: int, draws: int, refused: dict, need: int) -> PlanningError:
+    listed = ", ".join(f"{reason} ({n})" for reason, n in Counter(refused).most_common(5))
+    return PlanningError(f"only {found} of {draws} arm poses tried satisfy the constraints at this camera guess "
+                         f"(need {need}); refused most often: {listed}. Check the guess (X Y Z in metres, ROLL PITCH "
+                         f"YAW in degrees, the camera's optical frame, z forward, in the arm's root frame) or relax "
+                         f"the constraints (depth range, image margin, view angle, guess sigma)")
+
+
 def _sample(arm: Arm, constraints: _Constraints, count: int, need: int, options: PlanOptions,
-            rng: np.random.Generator, *, min_separation_deg: float = 0.0, progress=None):
+            rng: np.random.Generator, *, min_separation_deg: float = 0.0, progress=None, strict: bool = True,
+            in_view: bool = False):
     """Up to ``count`` random arm poses that satisfy the constraints (wrist axes at least ``min_separation_deg``
-    apart); raises PlanningError with the commonest refusals when fewer than ``need`` are found."""
+    apart); raises PlanningError with the commonest refusals when fewer than ``need`` are found (``strict``).
+    ``in_view``: the aimed draws aim at axes whose end effector stays in view (:meth:`_Constraints.aimed`)."""
     candidates, directions, refused, draws = [], [], Counter(), 0
     cos_sep = math.cos(math.radians(min_separation_deg))
     deadline = time.perf_counter() + options.search_seconds
@@ -494,7 +607,7 @@ def _sample(arm: Arm, constraints: _Constraints, count: int, need: int, options:
         if candidates and u < 0.5:
             q = arm.clip_joint_angles(candidates[rng.integers(len(candidates))] + rng.normal(scale=0.2, size=arm.dof))
         elif u < 0.75:
-            q = constraints.aimed(rng)
+            q = constraints.aimed(rng, in_view)
         else:
             q = arm.random_joint_angles(rng)
         draws += 1
@@ -514,13 +627,8 @@ def _sample(arm: Arm, constraints: _Constraints, count: int, need: int, options:
                 progress("candidates", len(candidates), count)
         else:
             refused[_reason(problem)] += 1
-    if len(candidates) < need:
-        listed = ", ".join(f"{reason} ({n})" for reason, n in refused.most_common(5))
-        raise PlanningError(f"only {len(candidates)} of {draws} arm poses tried satisfy the constraints at this "
-                            f"camera guess (need {need}); refused most often: {listed}. Check the guess (X Y Z in "
-                            f"metres, ROLL PITCH YAW in degrees, the camera's optical frame, z forward, in the arm's "
-                            f"root frame) or relax the constraints (depth range, image margin, view angle, guess "
-                            f"sigma)")
+    if strict and len(candidates) < need:
+        raise _too_few(len(candidates), draws, refused, need)
     return candidates, draws, dict(refused)
 
 

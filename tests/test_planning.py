@@ -160,6 +160,30 @@ def test_plan_satisfies_its_constraints_and_beats_random_poses(kinova, collision
         assert worst[0] < random.worst[0] and worst[1] < random.worst[1]
 
 
+def test_plan_on_two_processes_is_valid_and_repeatable(kinova, collisions, monkeypatch):
+    """``jobs=2``: two shares of the candidates, each with its own random stream; the plan satisfies the constraints,
+    its prediction (ranked at ``rank_samples`` of the guess samples) is the prediction of its poses at all of them,
+    and the same seed gives the same plan, forked or with the shares run here in turn."""
+    import gtsam_rotid.planning as planning
+
+    config = simulate.SceneConfig(duration=20.0)
+    _, truth = simulate.simulate(config.with_(duration=1.0), seed=0)
+    options = QUICK.with_(jobs=2, candidates=24, guess_samples=3, rank_samples=2)
+    plan = plan_poses(kinova, config.camera, truth.arm_T_camera, 6, options, collisions=collisions)
+    assert plan.candidates == options.candidates and len(plan.joint_angles) == 6
+    check = predict_accuracy(kinova, config.camera, truth.arm_T_camera, plan.joint_angles, options,
+                             collisions=collisions)
+    assert check.problems == [None] * 6
+    np.testing.assert_allclose(plan.prediction.sigma, check.sigma, rtol=1e-9)
+    again = plan_poses(kinova, config.camera, truth.arm_T_camera, 6, options, collisions=collisions)
+    np.testing.assert_array_equal(np.array(again.joint_angles), np.array(plan.joint_angles))
+    monkeypatch.setattr(planning.multiprocessing, "get_all_start_methods", lambda: ["spawn"])
+    here = plan_poses(kinova, config.camera, truth.arm_T_camera, 6, options, collisions=collisions)
+    np.testing.assert_array_equal(np.array(here.joint_angles), np.array(plan.joint_angles))
+    with pytest.raises(PlanningError, match="jobs"):
+        options.with_(jobs=0).check()
+
+
 def test_next_best_pose_resolves_a_single_crossing(kinova, collisions):
     dataset, truth = simulate.single_crossing_scene(seed=0, duration=2.0, n_measurements=4)
     poses = [m.joint_angles for m in truth.measurements]
