@@ -71,7 +71,6 @@ def crlb_rigid(dataset, truth, noise_var: float) -> np.ndarray:
     and circles to the truth with zero residual, where its information is the Fisher information with them
     marginalised; the pose information is the Schur complement over the lines, at the true pixel noise.
     """
-    from gtsam_rotid.dataset import Measurement, Track
     from gtsam_rotid.graph import RotIdGraph
     from gtsam_rotid.uncertainty import pose_information
 
@@ -80,18 +79,28 @@ def crlb_rigid(dataset, truth, noise_var: float) -> np.ndarray:
                          spin_model="rigid")
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(builder.pose_key, pose)
-    for k, (measurement, m_truth) in enumerate(zip(dataset, truth.measurements, strict=True)):
+    add_noise_free(builder, graph, values, dataset.camera, list(dataset), truth)
+    return np.linalg.inv(pose_information(graph, values, builder.pose_key))
+
+
+def add_noise_free(builder, graph, values, camera, measurements, truth) -> None:
+    """Each measurement's tracks as noise-free pixels (the true feature points at the tracks' frames, seen from the
+    true pose), its circles started at the truth, added to ``builder``'s graph (readings as ``measurements`` have
+    them): the estimators' graph at the truth, where its information is the Fisher information."""
+    from gtsam_rotid.dataset import Measurement, Track
+
+    pose = truth.arm_T_camera
+    for k, (measurement, m_truth) in enumerate(zip(measurements, truth.measurements, strict=True)):
         exact = []
         for j, track in enumerate(measurement.tracks):
             points = pose.transformTo(m_truth.feature_points(j, track.frames).T).T
-            exact.append(Track(dataset.camera.project(points), track.frames))
+            exact.append(Track(camera.project(points), track.frames))
         point_cam = pose.transformTo(m_truth.axis_point)
         along = point_cam @ pose.rotation().unrotate(m_truth.axis_direction)
         scale = float(m_truth.axis.distance_to(pose.translation())[0])
         circles = {j: np.array([(t.offset + along) / scale, t.radius / scale]) for j, t in enumerate(m_truth.tracks)}
         builder.add_measurement(graph, values, k, Measurement(measurement.joint_angles, exact),
                                 initial_circles=circles, refine_circles=False)
-    return np.linalg.inv(pose_information(graph, values, builder.pose_key))
 
 
 def trial(seed: int, duration: float, noise_var: float, joint_model: str, spin_model: str, methods,

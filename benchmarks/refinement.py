@@ -51,7 +51,8 @@ def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float) -
     """(pose bound 6x6, offsets bound) of the rigid-spin problem with the offsets free under their prior, at the
     truth: the estimators' graph on noise-free pixels of the same tracks, with the readings' FK plus the offsets
     (``benchmarks/accuracy.py``'s ``crlb_rigid`` with the offsets variable)."""
-    from gtsam_rotid.dataset import Measurement, Track
+    from accuracy import add_noise_free
+
     from gtsam_rotid.graph import RotIdGraph
     from gtsam_rotid.uncertainty import joint_marginal_covariance
 
@@ -62,17 +63,7 @@ def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float) -
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(builder.pose_key, pose)
     builder.add_offsets_prior(graph, values, prior_deg, initial_deg=np.degrees(offsets))
-    for k, (measurement, m_truth) in enumerate(zip(readings, truth.measurements, strict=True)):
-        exact = []
-        for j, track in enumerate(measurement.tracks):
-            points = pose.transformTo(m_truth.feature_points(j, track.frames).T).T
-            exact.append(Track(dataset.camera.project(points), track.frames))
-        point_cam = pose.transformTo(m_truth.axis_point)
-        along = point_cam @ pose.rotation().unrotate(m_truth.axis_direction)
-        scale = float(m_truth.axis.distance_to(pose.translation())[0])
-        circles = {j: np.array([(t.offset + along) / scale, t.radius / scale]) for j, t in enumerate(m_truth.tracks)}
-        builder.add_measurement(graph, values, k, Measurement(measurement.joint_angles, exact),
-                                initial_circles=circles, refine_circles=False)
+    add_noise_free(builder, graph, values, dataset.camera, list(readings), truth)
     both = joint_marginal_covariance(graph, values, [builder.pose_key, builder.offsets_key], 6 + len(joints))
     return both[:6, :6], both[6:, 6:]
 

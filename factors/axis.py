@@ -26,6 +26,16 @@ def _checked_points(noise, test_points_arm) -> np.ndarray:
     return points
 
 
+def _frozen_line_and_K(line, K) -> tuple[np.ndarray, np.ndarray]:
+    """The measured image line normalised (``l1^2 + l2^2 = 1``) and the intrinsic matrix, both read-only."""
+    line = np.array(line, dtype=float).reshape(3)
+    line = line / np.hypot(line[0], line[1])
+    K = np.array(K, dtype=float).reshape(3, 3)
+    line.setflags(write=False)
+    K.setflags(write=False)
+    return line, K
+
+
 def make_axis_to_line_factor(noise, pose_key: int, test_points_arm, line, K) -> gtsam.CustomFactor:
     """Distances of projected FK axis test points to a measured image line.
 
@@ -41,11 +51,7 @@ def make_axis_to_line_factor(noise, pose_key: int, test_points_arm, line, K) -> 
         ``gtsam.CustomFactor`` with an (M, 6) Jacobian wrt the Pose3 tangent (rotation, translation).
     """
     points_arm = _checked_points(noise, test_points_arm)
-    line = np.array(line, dtype=float).reshape(3)
-    line = line / np.hypot(line[0], line[1])
-    K = np.array(K, dtype=float).reshape(3, 3)
-    line.setflags(write=False)
-    K.setflags(write=False)
+    line, K = _frozen_line_and_K(line, K)
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         arm_T_camera = values.atPose3(this.keys()[0])
@@ -113,11 +119,7 @@ def make_axis_offsets_to_line_factor(noise, pose_key: int, offsets_key: int, axi
     Returns:
         ``gtsam.CustomFactor`` with Jacobians (M, 6) wrt the Pose3 tangent and (M, n) wrt the offsets.
     """
-    line = np.array(line, dtype=float).reshape(3)
-    line = line / np.hypot(line[0], line[1])
-    K = np.array(K, dtype=float).reshape(3, 3)
-    line.setflags(write=False)
-    K.setflags(write=False)
+    line, K = _frozen_line_and_K(line, K)
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         keys = this.keys()
