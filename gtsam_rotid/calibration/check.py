@@ -129,7 +129,7 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
     readings are taken plus them, and their uncertainty (``offsets_covariance``, n x n rad², and its cross-covariance
     with the pose, ``pose_offsets_covariance``, 6 x n) moves every new spin's FK axis: it is in each spin's χ², in
     the move's covariance (the part of the offsets' error the move takes up) and in the spins' agreement at the
-    moved pose (the rest, spin by spin: its correlation between spins is left out)."""
+    moved pose (the rest, which they share: tested on all spins together, by generalised least squares)."""
     if isinstance(dataset, Dataset):
         arm, camera, measurements, metadata = dataset.arm, dataset.camera, list(dataset), dataset.metadata
     else:
