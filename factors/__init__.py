@@ -45,6 +45,7 @@ factor modules :mod:`.circle`, :mod:`.axis`, :mod:`.pose_circle`, :mod:`.rigid` 
 """
 
 from .axis import (
+    axis_offsets_residuals,
     make_axis_offsets_to_line_factor,
     make_axis_offsets_to_line_variable_factor,
     make_axis_to_line_factor,
@@ -87,6 +88,7 @@ __all__ = [
     "RigidLineFactor",
     "RigidTracks",
     "SpinInit",
+    "axis_offsets_residuals",
     "axis_point_residuals",
     "chunk_segments",
     "circle_coordinates",

@@ -12,7 +12,8 @@ import numpy as np
 
 from .geometry import axis_point_residuals, image_line_from_rot3, line_distance_covariance
 
-__all__ = ["line_distance_covariance", "make_axis_offsets_to_line_factor", "make_axis_offsets_to_line_variable_factor",
+__all__ = ["axis_offsets_residuals", "line_distance_covariance",
+           "make_axis_offsets_to_line_factor", "make_axis_offsets_to_line_variable_factor",
            "make_axis_to_line_factor", "make_axis_to_line_variable_factor"]
 
 
@@ -93,7 +94,7 @@ def make_axis_to_line_variable_factor(noise, pose_key: int, line_key: int, test_
     return gtsam.CustomFactor(noise, [pose_key, line_key], error_func)
 
 
-def _offsets_residuals(K, arm_T_camera, axis_of, delta, line):
+def axis_offsets_residuals(K, arm_T_camera, axis_of, delta, line):
     """The distances at the offsets ``delta`` and their Jacobians (pose, line, offsets): ``axis_of(delta)`` gives
     the (M, 3) test points and their (M, 3, n) derivatives; ``de_i/dP_i = -H_pose[i, 3:] R^T`` (the translation
     block of the pose Jacobian is ``-de_i/dX_i``, X = R^T (P - t))."""
@@ -123,7 +124,7 @@ def make_axis_offsets_to_line_factor(noise, pose_key: int, offsets_key: int, axi
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         keys = this.keys()
-        e, H_pose, _, H_offsets = _offsets_residuals(K, values.atPose3(keys[0]), axis_of, values.atVector(keys[1]),
+        e, H_pose, _, H_offsets = axis_offsets_residuals(K, values.atPose3(keys[0]), axis_of, values.atVector(keys[1]),
                                                      line)
         if H is not None:
             H[0], H[1] = H_pose, H_offsets
@@ -147,7 +148,7 @@ def make_axis_offsets_to_line_variable_factor(noise, pose_key: int, line_key: in
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         keys = this.keys()
         line, J_line = image_line_from_rot3(K, values.atRot3(keys[1]))
-        e, H_pose, H_l, H_offsets = _offsets_residuals(K, values.atPose3(keys[0]), axis_of,
+        e, H_pose, H_l, H_offsets = axis_offsets_residuals(K, values.atPose3(keys[0]), axis_of,
                                                        values.atVector(keys[2]), line)
         if H is not None:
             H[0], H[1], H[2] = H_pose, H_l @ J_line, H_offsets

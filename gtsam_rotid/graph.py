@@ -103,6 +103,19 @@ def axis_test_points(axis) -> np.ndarray:
     return axis.points_at([0.0, TEST_POINT_SPACING])
 
 
+def offset_axis_test_points(arm: Arm, joint_angles, joints):
+    """``delta -> (test points (2, 3), their derivatives (2, 3, n))``: :func:`axis_test_points` of the FK axis at
+    ``joint_angles`` plus the offsets ``delta`` (radians) of the joint indices ``joints``, and their derivatives by
+    those offsets (:meth:`gtsam_rotid.arm.Arm.wrist_axis_offset_derivatives`); the ``axis_of`` of the offsets'
+    factors (:func:`gtsam_rotid.factors.make_axis_offsets_to_line_factor`)."""
+    spacing = np.array([0.0, TEST_POINT_SPACING])
+
+    def axis_of(delta):
+        axis, d_point, d_direction = arm.wrist_axis_offset_derivatives(joint_angles, joints, delta)
+        return axis.points_at(spacing), d_point[None] + spacing[:, None, None] * d_direction[None]
+    return axis_of
+
+
 @dataclass
 class PreparedTrack:
     """A usable track: its ideal (undistorted) pixels, its ellipse, and its pixels' frame indices (or None)."""
@@ -316,14 +329,8 @@ class RotIdGraph:
 
     def axis_of(self, joint_angles):
         """``delta -> (test points (2, 3), their derivatives (2, 3, n))`` of the FK axis at ``joint_angles`` with
-        the offsets ``delta`` (radians) of :attr:`offset_joints`."""
-        arm, joints, spacing = self.arm, self.offset_joints, np.array([0.0, TEST_POINT_SPACING])
-
-        def axis_of(delta):
-            axis, d_point, d_direction = arm.wrist_axis_offset_derivatives(joint_angles, joints, delta)
-            points = axis.points_at(spacing)
-            return points, d_point[None] + spacing[:, None, None] * d_direction[None]
-        return axis_of
+        the offsets ``delta`` (radians) of :attr:`offset_joints` (:func:`offset_axis_test_points`)."""
+        return offset_axis_test_points(self.arm, joint_angles, self.offset_joints)
 
     def line_key(self, k: int) -> int:
         return gtsam.symbol(self.line_symbol, k)

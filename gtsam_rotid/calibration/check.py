@@ -21,8 +21,8 @@ from ..arm import Arm
 from ..camera import Camera
 from ..dataset import Dataset, Measurement
 from ..errors import InputError, RotIdError
-from ..factors import axis_point_residuals
-from ..graph import Model, axis_test_points, track_huber
+from ..factors import axis_offsets_residuals, axis_point_residuals
+from ..graph import Model, axis_test_points, offset_axis_test_points, track_huber
 from ..uncertainty import chi2_sf
 from .lm import _builder
 from .options import CalibrationError, CalibrationOptions
@@ -243,15 +243,10 @@ def _block_diagonal(blocks) -> np.ndarray:
 
 def _offsets_jacobian(arm: Arm, camera: Camera, measurement: Measurement, joints, pose: gtsam.Pose3,
                       line: np.ndarray) -> np.ndarray:
-    """(2, n): a spin's axis distances by the joint offsets (at the readings given), through the FK test points'
-    derivatives (:meth:`gtsam_rotid.arm.Arm.wrist_axis_offset_derivatives`)."""
-    axis, d_point, d_direction = arm.wrist_axis_offset_derivatives(measurement.joint_angles, joints)
-    points = axis_test_points(axis)
-    spacing = (points - axis.point) @ axis.direction
-    d_points = d_point[None] + spacing[:, None, None] * d_direction[None]
-    _, J, _ = axis_point_residuals(camera.K, pose, points, line)
-    de_dP = -J[:, 3:] @ pose.rotation().matrix().T
-    return np.einsum("mi,min->mn", de_dP, d_points)
+    """(2, n): a spin's axis distances by the joint offsets (at the readings given): the offsets' factor's Jacobian
+    (:func:`gtsam_rotid.factors.axis_offsets_residuals`)."""
+    axis_of = offset_axis_test_points(arm, measurement.joint_angles, joints)
+    return axis_offsets_residuals(camera.K, pose, axis_of, np.zeros(len(joints)), line)[3]
 
 
 def _test(pose: gtsam.Pose3, rows, at_pose, prior: np.ndarray, covariance: np.ndarray, G=None,

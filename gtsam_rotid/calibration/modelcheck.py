@@ -116,29 +116,35 @@ def _apart(a, b, covariance, rows=None, prior_sigma=None) -> float | None:
 
 
 def _gauss_newton(rows_of: Callable, theta: np.ndarray, pose, free: bool, rcond: float | None = None,
-                  prior_sigma: float | None = None):
+                  prior_sigma=None, huber: float | None = None, iterations: int = ITERATIONS, tol: float = 1e-9):
     """Gauss-Newton on the axes' chi-square over the pose (and the model's parameters ``theta`` when ``free``):
     ``rows_of(theta, pose)`` gives the rows of :func:`stage2._axis_rows` (Jacobians extended by theta's when free).
     Returns (chi-square at the last linearisation's minimum, theta, pose, the rank of the last normal matrix at
-    ``rcond``). ``prior_sigma``: theta under a zero-mean Gaussian prior of that sigma (not in the chi-square)."""
+    ``rcond``). ``prior_sigma`` (a scalar or one per parameter): theta under a zero-mean Gaussian prior of that sigma
+    (not in the chi-square). ``huber``: each row weighted down by Huber's rule where the square root of its
+    chi-square exceeds this threshold."""
     chi2, rank = np.inf, 0
-    for _ in range(ITERATIONS):
+    for _ in range(iterations):
         rows = rows_of(theta, pose)
         if not all(np.all(np.isfinite(e)) and np.all(np.isfinite(A)) for e, _, A in rows):
             break
         W = [np.linalg.inv(cov) for _, cov, _ in rows]
+        if huber is not None:
+            norms = [float(np.sqrt(max(e @ w @ e, 0.0))) for (e, _, _), w in zip(rows, W, strict=True)]
+            W = [w if norm <= huber else w * (huber / norm) for w, norm in zip(W, norms, strict=True)]
         H = sum(A.T @ w @ A for (_, _, A), w in zip(rows, W, strict=True))
         g = sum(A.T @ w @ e for (e, _, A), w in zip(rows, W, strict=True))
         if free and prior_sigma is not None:
-            H[6:, 6:] += np.eye(len(theta)) / prior_sigma**2
-            g[6:] += theta / prior_sigma**2
+            information = np.broadcast_to(1.0 / np.asarray(prior_sigma, dtype=float) ** 2, theta.shape)
+            H[6:, 6:] += np.diag(information)
+            g[6:] += information * theta
         step, _, rank, _ = np.linalg.lstsq(H, g, rcond=rcond)
         step = -step
         chi2 = _refitted_chi2(rows, 0.0)
         pose = pose.retract(step[:6])
         if free:
             theta = theta + step[6:]
-        if np.linalg.norm(step) < 1e-9:
+        if np.linalg.norm(step) < tol:
             break
     return chi2, theta, pose, int(rank)
 

@@ -23,7 +23,7 @@ import numpy as np
 from ..arm import Arm
 from ..dataset import Measurement
 from ..graph import chi2_quantile
-from .modelcheck import _offset_rows
+from .modelcheck import _gauss_newton, _offset_rows
 
 #: Gauss-Newton iterations of the axes' fit, and its Huber threshold on a measurement's axis chi-square (2 dof).
 ITERATIONS = 30
@@ -68,27 +68,13 @@ def offsets_from_axes(arm: Arm, camera, setup, stage1, pose, measurements, joint
     sigma2 = {k: float(stage1[k].sigma2) for k in ks}
     angles = [arm.joint_angle_vector(m.joint_angles) for m in measurements]
     joints = np.asarray(joints, dtype=int)
-    n = len(joints)
-    prior = np.zeros((6 + n, 6 + n))
-    prior[6:, 6:] = np.diag(1.0 / np.asarray(sigma, dtype=float) ** 2)
-    threshold = np.sqrt(chi2_quantile(2, HUBER_Z))
-    delta = np.zeros(n)
-    for _ in range(ITERATIONS):
-        rows = _offset_rows(arm, camera, setup, stage1, ks, angles, joints, pose, sigma2, delta, True)
-        if not all(np.all(np.isfinite(e)) and np.all(np.isfinite(A)) for e, _, A in rows):
-            break
-        H, g = prior.copy(), prior @ np.concatenate([np.zeros(6), delta])
-        for e, cov, A in rows:
-            W = np.linalg.inv(cov)
-            norm = float(np.sqrt(max(e @ W @ e, 0.0)))
-            weight = 1.0 if norm <= threshold else threshold / norm
-            H += weight * A.T @ W @ A
-            g += weight * A.T @ W @ e
-        step = -np.linalg.solve(H, g)
-        pose = pose.retract(step[:6])
-        delta = delta + step[6:]
-        if np.linalg.norm(step) < 1e-10:
-            break
+
+    def rows_of(delta, pose):
+        return _offset_rows(arm, camera, setup, stage1, ks, angles, joints, pose, sigma2, delta, True)
+    _, delta, pose, _ = _gauss_newton(rows_of, np.zeros(len(joints)), pose, True,
+                                      prior_sigma=np.asarray(sigma, dtype=float),
+                                      huber=float(np.sqrt(chi2_quantile(2, HUBER_Z))), iterations=ITERATIONS,
+                                      tol=1e-10)
     return delta, pose
 
 
