@@ -311,7 +311,6 @@ def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigm
     best = int(np.argmin([fit[0] for fit in one_outs]))
     one_out = float(one_outs[best][0])
     plausible = np.full(len(joints), np.radians(PLAUSIBLE_OFFSET_DEG))
-    moved = _apart(one_outs[best][2], freed_pose, covariance, rows_of(True)(delta, freed_pose), plausible)
     p = float(chi2_sf(freed, dof))
     largest = float(np.degrees(np.max(np.abs(delta))))
     if largest > MAX_OFFSET_DEG:
@@ -323,7 +322,7 @@ def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigm
         if np.isfinite(held) and chi2_sf(held, dof) >= FREED_P:
             freed, delta, freed_pose, p = float(held), held_delta, held_pose, float(chi2_sf(held, dof))
             largest = float(np.degrees(np.max(np.abs(delta))))
-            moved = _apart(one_outs[best][2], freed_pose, covariance, rows_of(True)(delta, freed_pose), plausible)
+    moved = _apart(one_outs[best][2], freed_pose, covariance, rows_of(True)(delta, freed_pose), plausible)
     offsets_like = bool(p >= FREED_P and exact - freed > chi2_quantile(determined, IMPROVEMENT_Z)
                         and MIN_OFFSET_DEG <= largest <= MAX_OFFSET_DEG)
     likely = offsets_like and freed + AIC_PER_PARAMETER * (determined - 2) < one_out
