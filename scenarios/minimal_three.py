@@ -100,8 +100,13 @@ def main(argv=None) -> int:
         figures.append(save_figure(plot_pose_3d(joint, minimal), args.out, "minimal_pose_3d.png"))
     weighted = results.get("weighted")
     if weighted is not None:
+        # with 10 s spins (--quick) one measurement's ellipses are thin against the noise and its free-phase line
+        # has two minima (leaving out any one of four of its 13 tracks moves it 18 sigma): the jackknife then leaves
+        # the pose undetermined, honestly; with 60 s spins it is determined (error chi-square 5.5): judged at full
+        # size only
         verdict.check(weighted.covariance_usable and make_report(weighted, minimal).chi2.dof == 0,
-                      "(a) weighted: determined, with no redundancy (0 residual dof: the report says so)")
+                      "(a) weighted: determined, with no redundancy (0 residual dof: the report says so)",
+                      robust_when_quick=False)
 
     print("\n(b) measurements 0, 1, 2: three axes through P")
     degenerate, seconds, failure = run_calibration(through_p, "joint")

@@ -15,8 +15,8 @@ from .lm import _builder, _lm
 from .setup import _Setup
 from .stage1 import (
     FitRejection,
+    _checked,
     _circles,
-    _jackknife,
     _outlier_tracks,
     _Stage1,
     _stage1_measurement,
@@ -114,10 +114,8 @@ def _reselected(builder: RotIdGraph, measurement, k: int, prepared, s: _Stage1, 
         return None
     if not (np.isfinite(cost_new) and cost_new < cost_old):
         return None
-    if not setup.short_arcs:
-        return new
     try:  # as stage 1's own fits (``_refined_stage1``)
-        return _jackknife(builder, measurement, k, pose, prepared, new, options)
+        return _checked(builder, measurement, k, pose, prepared, new, options, setup)
     except (np.linalg.LinAlgError, RuntimeError, ValueError):
         return new
 
@@ -154,8 +152,8 @@ def _second_opinion(arm, camera, measurements, setup: _Setup, stage1: list[_Stag
     new_free = float(sum(v[0] for v in stats.values()))
     if np.isfinite(new_free) and new_free < free * (1.0 - 1e-9):
         refit = _stage1_result(builder, graph, keys, result, stats, dict(s.outliers), s.iterations + it, options)
-        if setup.short_arcs:  # as stage 1's own fits (``_refined_stage1``)
-            refit = _jackknife(builder, measurements[k], k, pose, setup.prepared[k], refit, options)
+        # as stage 1's own fits (``_refined_stage1``)
+        refit = _checked(builder, measurements[k], k, pose, setup.prepared[k], refit, options, setup)
         free = new_free
     variance = max(s.sigma2 if refit is None else refit.sigma2, median)
     return refit, max(sse_tied - free, 0.0) / variance + tie

@@ -157,7 +157,8 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
     if options.joint_offsets is not None:  # the readings shifted by the offsets the image axes give, then refined
         measurements, offsets = _offsets_start(arm, camera, measurements, method, options, index)
     starts, setup, anchors = _initial(arm, camera, measurements, options, index, INITIAL_TOLERANCE)
-    setup = replace(setup, offsets=offsets)
+    setup = replace(setup, offsets=offsets, thin_check=method is Method.WEIGHTED
+                    or (method is Method.JOINT and options.spin_model == "free"))
     # Short arcs (a tracker's drift shared by a measurement's tracks, which neither the per-track scores nor the
     # jackknife see) lower the level at which the axes' scatter scales the covariance: the test has 2 n - 6
     # dof, little power with six poses (18 rendered corner-tracked scenes: at 0.01 three of nine usable results

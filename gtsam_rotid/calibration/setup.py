@@ -46,6 +46,9 @@ class _Setup:
     #: the joint offsets the calibration refines (:class:`gtsam_rotid.calibration.offsets.OffsetsPrior`; the
     #: measurements' readings, hence ``axes``, are already shifted by its ``start``); None: the kinematics as given
     offsets: object | None = None
+    #: the estimate rests on stage 1's free-phase lines and their covariances (``weighted``, or the joint fit with a
+    #: free phase per observation): their covariance is jackknifed where the ellipses are thin (:func:`stage1._checked`)
+    thin_check: bool = False
 
     def noise(self, k: int) -> np.ndarray | None:
         return self.axis_noise[k] if self.axis_noise else None

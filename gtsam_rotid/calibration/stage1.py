@@ -42,6 +42,7 @@ from .tuning import (
     STAGE1_MAX_ITERATIONS,
     STAGE1_ROUNDS,
     STALL_DECREASE,
+    THIN_CURVATURE_SIGMAS,
     WATCH_LINE_PX,
 )
 
@@ -330,6 +331,27 @@ def _jackknife(builder: RotIdGraph, measurement, k: int, pose: gtsam.Pose3, prep
     cov_R = s.rotation_cov + excess
     _, J = image_line_from_rot3(builder.camera.K, s.rotation)
     return replace(s, image_axis_cov=J @ cov_R @ J.T, rotation_cov=cov_R, excess=excess)
+
+
+def _thin(prepared, s: _Stage1) -> bool:
+    """Whether measurement ``s``'s kept tracks' ellipses are thin against its pixel noise: their median radius of
+    curvature at the ellipse's ends (b^2 / a) below THIN_CURVATURE_SIGMAS pixel sigmas."""
+    tracks = [prepared.usable[j] for j in (s.keys.tracks if s.keys is not None else []) if j in prepared.usable]
+    if not tracks or not np.isfinite(s.sigma2) or s.sigma2 <= 0.0:
+        return False
+    semi = np.array([t.ellipse.axes for t in tracks], dtype=float) / 2.0
+    curvature_radius = semi.min(axis=1) ** 2 / np.maximum(semi.max(axis=1), 1e-12)
+    return bool(np.median(curvature_radius) < THIN_CURVATURE_SIGMAS * np.sqrt(s.sigma2))
+
+
+def _checked(builder: RotIdGraph, measurement, k: int, pose: gtsam.Pose3, prepared, s: _Stage1, options,
+             setup: _Setup) -> _Stage1:
+    """Measurement k's fit, its line covariance checked by the jackknife (:func:`_jackknife`) where the linearised
+    one is in doubt: some measurement has short arcs (``setup.short_arcs``), or, where the estimate rests on these
+    free-phase lines (``setup.thin_check``), this one's ellipses are thin against its noise (:func:`_thin`)."""
+    if setup.short_arcs or (setup.thin_check and _thin(prepared, s)):
+        return _jackknife(builder, measurement, k, pose, prepared, s, options)
+    return s
 
 
 def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepared, options,

@@ -37,7 +37,7 @@ from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Met
 from .result import AMBIGUITY_CHI2, Alternative, AxisConsistency, CalibrationResult
 from .setup import _Setup
 from .stage1 import (
-    _jackknife,
+    _checked,
     _Stage1,
     _stage1,
 )
@@ -70,7 +70,8 @@ def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup
     everything = list(range(len(measurements)))
     stage1 = _stage1(arm, camera, measurements, pose, setup, options)
     if not setup.short_arcs:
-        return pose, stage1
+        return pose, [_checked(builder, measurements[k], k, pose, setup.prepared[k], s, options, setup)
+                      for k, s in enumerate(stage1)]
     for _ in range(REFINE_PASSES - 1):
         moved, _, _ = _weighted_stage2(camera, setup, stage1, everything, pose, options, anchor)
         if _turned(moved, pose) < np.radians(REFINE_DEG) and np.linalg.norm(
@@ -78,7 +79,7 @@ def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup
             break
         pose = moved
         stage1 = _stage1(arm, camera, measurements, pose, setup, options, image_axes=False)
-    return pose, [_jackknife(builder, measurements[k], k, pose, setup.prepared[k], s, options)
+    return pose, [_checked(builder, measurements[k], k, pose, setup.prepared[k], s, options, setup)
                   for k, s in enumerate(stage1)]
 
 
