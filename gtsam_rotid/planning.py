@@ -96,12 +96,14 @@ class PlanOptions:
     #: candidate poses sampled (and the most random draws spent finding them); a worst-axis unit pair
     candidates: int = 450
     max_draws: int = 100_000
-    #: the search for candidates stops after this long (s) once it has a third of them; local steps after the choice
-    search_seconds: float = 12.0
+    #: the search for candidates stops after this long (s) once it has a third of them (None: never, so that a plan
+    #: does not depend on the machine's speed or load); local steps after the choice
+    search_seconds: float | None = 12.0
     refine_steps: int = 60
     #: processes that search for and evaluate candidates (1: this process only). Each takes its share of the
     #: candidates with its own random stream: a seed gives the same plan for the same ``jobs`` (unless a search stops
-    #: at ``search_seconds``). Other processes are forked (Linux); where they cannot be, the shares run here in turn
+    #: at ``search_seconds``: None makes it machine-independent). Other processes are forked (Linux); where they
+    #: cannot be, the shares run here in turn
     jobs: int = 2
     worst_axis_mm: float = 1.0
     worst_axis_deg: float = 0.05
@@ -152,6 +154,9 @@ class PlanOptions:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
                 raise PlanningError(f"{name} must be a number >= 0, got {value!r}")
+        seconds = self.search_seconds
+        if seconds is not None and not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
+            raise PlanningError(f"search_seconds must be a positive number or None (no deadline), got {seconds!r}")
         if self.spin_model not in ("rigid", "free"):
             raise PlanningError(f"spin_model must be 'rigid' or 'free', got {self.spin_model!r}")
         if self.n_features < 2 or self.guess_samples < 1 or self.candidates < 1:
@@ -595,7 +600,7 @@ def _sample(arm: Arm, constraints: _Constraints, count: int, need: int, options:
     ``in_view``: the aimed draws aim at axes whose end effector stays in view (:meth:`_Constraints.aimed`)."""
     candidates, directions, refused, draws = [], [], Counter(), 0
     cos_sep = math.cos(math.radians(min_separation_deg))
-    deadline = time.perf_counter() + options.search_seconds
+    deadline = math.inf if options.search_seconds is None else time.perf_counter() + options.search_seconds
     while len(candidates) < count and draws < options.max_draws:
         if len(candidates) >= max(need, count // 3) and time.perf_counter() > deadline:
             break

@@ -184,6 +184,25 @@ def test_plan_on_two_processes_is_valid_and_repeatable(kinova, collisions, monke
         options.with_(jobs=0).check()
 
 
+def test_without_a_deadline_the_search_does_not_depend_on_the_clock(kinova, collisions, monkeypatch):
+    """On a machine so slow that every clock reading is past the deadline, the search stops at a third of its
+    candidates; with ``search_seconds=None`` it searches them all, as on any machine."""
+    import gtsam_rotid.planning as planning
+
+    config = simulate.SceneConfig(duration=20.0)
+    _, truth = simulate.simulate(config.with_(duration=1.0), seed=0)
+    clock = iter(range(0, 10**9, 100))
+    monkeypatch.setattr(planning.time, "perf_counter", lambda: float(next(clock)))
+    options = QUICK.with_(jobs=1, candidates=24, guess_samples=1)
+    hurried = plan_poses(kinova, config.camera, truth.arm_T_camera, 6, options, collisions=collisions)
+    assert hurried.candidates < options.candidates
+    patient = plan_poses(kinova, config.camera, truth.arm_T_camera, 6, options.with_(search_seconds=None),
+                         collisions=collisions)
+    assert patient.candidates == options.candidates
+    with pytest.raises(PlanningError, match="search_seconds"):
+        options.with_(search_seconds=0.0).check()
+
+
 def test_next_best_pose_resolves_a_single_crossing(kinova, collisions):
     dataset, truth = simulate.single_crossing_scene(seed=0, duration=2.0, n_measurements=4)
     poses = [m.joint_angles for m in truth.measurements]
