@@ -3,7 +3,10 @@ plan's constraints checked by the simulator and by Pinocchio, plans against rand
 next best poses, and the command line."""
 
 import math
+import os
+import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 import gtsam
@@ -201,6 +204,39 @@ def test_without_a_deadline_the_search_does_not_depend_on_the_clock(kinova, coll
     assert patient.candidates == options.candidates
     with pytest.raises(PlanningError, match="search_seconds"):
         options.with_(search_seconds=0.0).check()
+
+
+def test_a_plan_forks_safely_from_a_host_with_busy_threads():
+    """A host such as a Dask worker runs other threads when it plans: two log and run BLAS (on its own threads) while
+    ``jobs=2`` forks; the forked search must not inherit a held lock and hang (run in a subprocess with
+    a timeout, so that a hang fails the test instead of the suite)."""
+    script = textwrap.dedent("""
+        import logging, math, threading, numpy as np
+        from gtsam_rotid.arm import Arm
+        from gtsam_rotid.planning import PlanOptions, plan_poses
+        from gtsam_rotid import simulate
+        logging.basicConfig(level=logging.INFO, handlers=[logging.NullHandler()])
+        stop = threading.Event()
+        def busy():
+            a = np.random.default_rng(0).normal(size=(300, 300))
+            while not stop.is_set():
+                np.linalg.inv(a @ a.T + np.eye(300))
+                logging.getLogger("host").info("working")
+        threads = [threading.Thread(target=busy, daemon=True) for _ in range(2)]
+        for t in threads:
+            t.start()
+        config = simulate.SceneConfig(duration=20.0)
+        _, truth = simulate.simulate(config.with_(duration=1.0), seed=0)
+        options = PlanOptions(candidates=24, guess_samples=2, rank_samples=1, pixel_sigma=math.sqrt(1.5),
+                              axis_floor_px=0.0, radius_range=(0.03, 0.06), offset_range=(0.0, 0.10), jobs=2)
+        plan = plan_poses(Arm.from_robot("kinova"), config.camera, truth.arm_T_camera, 6, options)
+        stop.set()
+        print("planned", len(plan.joint_angles), plan.candidates)
+    """)
+    env = {**os.environ, **{name: "2" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}}
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "planned 6 24" in proc.stdout
 
 
 def test_next_best_pose_resolves_a_single_crossing(kinova, collisions):
