@@ -87,7 +87,9 @@ class _Templates:
         return x - x @ self._proj
 
     def make(self, image: np.ndarray, points: np.ndarray):
-        """(T (n, P), SDw (n, 6, P), Hinv (n, 6, 6), Htinv (n, 2, 2), strength (n,)) of patches at ``points``."""
+        """(T (n, P), SDw (n, 6, P), Hinv (n, 6, 6), Htinv (n, 2, 2), strength (n,), anisotropy (n,)) of patches
+        at ``points``: strength is the translation's smaller Hessian eigenvalue (grey levels² per px²), anisotropy
+        the ratio of its larger to its smaller eigenvalue (1 for a round corner, large along an edge)."""
         half, n = self.half, len(points)
         side = 2 * half + 1
         big = _sample(image, _identity(points), half + 1).reshape(n, side + 2, side + 2)
@@ -111,8 +113,10 @@ class _Templates:
         spread = float(self.w @ (self.u**2))
         damp = self.damping * spread * 0.5 * np.trace(ht, axis1=1, axis2=2)
         h[:, np.arange(4), np.arange(4)] += damp[:, None]
-        strength = np.linalg.eigvalsh(ht)[:, 0] * std**2                        # translation min eigenvalue
-        return t, sdw, np.linalg.inv(h), np.linalg.inv(ht), strength
+        eig = np.linalg.eigvalsh(ht)
+        strength = eig[:, 0] * std**2                                           # translation min eigenvalue
+        anisotropy = eig[:, 1] / np.maximum(eig[:, 0], 1e-12)
+        return t, sdw, np.linalg.inv(h), np.linalg.inv(ht), strength, anisotropy
 
     def track(self, image, warp, t, sdw, hinv, htinv, iterations: int, translation_iterations: int = 1):
         """Refine warps (n, 2, 3) on ``image``; returns (warp, zncc (n,), last translation step (n,) px)."""
@@ -426,8 +430,10 @@ class CornerFollower:
         if found is None or not len(found):
             return
         pts = found.reshape(-1, 2).astype(np.float64) + [x0, y0]
-        *templates, strength = self._tpl.make(grey.astype(np.float32), pts)
-        strong = strength >= p.corner_min_eigen
+        *templates, strength, anisotropy = self._tpl.make(grey.astype(np.float32), pts)
+        # an edge-like patch is followed along its edge by its appearance changes alone, not by its texture: such a
+        # track drifts smoothly off its ellipse (normal to its motion) as the surface turns
+        strong = (strength >= p.corner_min_eigen) & (anisotropy <= p.corner_max_anisotropy)
         if self._prev_grey is not None and p.seed_motion_fraction > 0:
             # a patch straddling a silhouette is partly still: most of a seed's window must have just changed
             crop = (slice(y0, y1), slice(x0, x1))
