@@ -357,6 +357,8 @@ def main(argv=None) -> int:
     parser.add_argument("--variants", default="nominal", help=f"comma-separated, of {', '.join(VARIANTS)}")
     parser.add_argument("--duration", type=float, default=20.0, help="spin length per arm pose (s)")
     parser.add_argument("--features", default=None, help="TrackerParams.features (default: the tracker's default)")
+    parser.add_argument("--corner-max-anisotropy", type=float, default=None,
+                        help="TrackerParams.corner_max_anisotropy (default: the tracker's default, every corner kept)")
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--save", default=None, metavar="DIR", help="write each scene's tracked dataset under DIR")
     parser.add_argument("--load", default=None, metavar="DIR",
@@ -391,7 +393,10 @@ def main(argv=None) -> int:
     unknown = [v for v in variants if v not in VARIANTS]
     if unknown:
         parser.error(f"unknown variant(s) {unknown}; choose of {list(VARIANTS)}")
-    params = TrackerParams() if args.features is None else TrackerParams(features=args.features)
+    settings = {} if args.features is None else {"features": args.features}
+    if args.corner_max_anisotropy is not None:
+        settings["corner_max_anisotropy"] = args.corner_max_anisotropy
+    params = TrackerParams(**settings)
     scenes = list(itertools.product(args.robots.split(","), args.coverings.split(","), variants,
                                     [int(s) for s in args.seeds.split(",")]))
     print(f"{len(scenes)} scenes, {args.duration:g} s spins (short: {VARIANTS['short'][0]:g} s), tracker "

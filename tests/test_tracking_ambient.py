@@ -209,7 +209,7 @@ def test_edge_like_patches_are_anisotropic():
 
 def test_mesh_rendered_photo_edge_like_corners_drift_less():
     """200 frames of the reference scene's first measurement, the hand covered by a photograph: with edge-like
-    corners left out (``corner_max_anisotropy``, default 5) the tracks lie closer to their best rigid point's
+    corners left out (``corner_max_anisotropy=5``) the tracks lie closer to their best rigid point's
     circle than with every corner kept (an edge-like patch slides along its edge, across its motion, as the
     surface turns: a smooth error a short arc turns into a wrong image axis)."""
     from gtsam_rotid import meshrender as mr
@@ -220,7 +220,7 @@ def test_mesh_rendered_photo_edge_like_corners_drift_less():
                                       frames=slice(0, 200))
     frames = list(spin.frames())
     rigid = {}
-    for limit in (TrackerParams().corner_max_anisotropy, 1e30):
+    for limit in (5.0, 1e30):
         result = Tracker(TrackerParams(features="corners", corner_max_anisotropy=limit)).run(frames)
         errors = mr.track_errors(result.tracks, spin)
         assert len(result.tracks) >= 10 and len(errors.off_links) == 0
