@@ -159,12 +159,12 @@ def _calibrate(arm, camera, measurements, method, options, index) -> tuple[Calib
     starts, setup, anchors = _initial(arm, camera, measurements, options, index, INITIAL_TOLERANCE)
     setup = replace(setup, offsets=offsets, thin_check=method is Method.WEIGHTED
                     or (method is Method.JOINT and options.spin_model == "free"))
-    # Short arcs (a tracker's drift shared by a measurement's tracks, which neither the per-track scores nor the
-    # jackknife see) lower the level at which the axes' scatter scales the covariance: the test has 2 n - 6
-    # dof, little power with six poses (18 rendered corner-tracked scenes: at 0.01 three of nine usable results
-    # were outside their 99.9 % region, 11 mm off with a 1 sigma of 4-8 mm; at 0.2 none). They also make stage 1
-    # refit itself from its own estimate (``_refined_stage1``: the axis through short arcs' ellipse centres, which
-    # starts it, is unreliable).
+    # Short arcs (each track's smooth drift, which a short arc turns into a wrong circle and which neither the
+    # per-track scores nor the jackknife see) lower the level at which the axes' scatter scales the covariance: the
+    # test has 2 n - 6 dof, little power with six poses (18 rendered corner-tracked scenes: at 0.01 three of nine
+    # usable results were outside their 99.9 % region, 11 mm off with a 1 sigma of 4-8 mm; at 0.2 none). They also
+    # make stage 1 refit itself from its own estimate (``_refined_stage1``: the axis through short arcs' ellipse
+    # centres, which starts it, is unreliable).
     if options.axis_consistency_p is None:
         options = replace(options, axis_consistency_p=SHORT_ARC_CONSISTENCY_P if setup.short_arcs
                           else LONG_ARC_CONSISTENCY_P)
