@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import multiprocessing
 import re
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
@@ -103,7 +104,7 @@ class PlanOptions:
     #: processes that search for and evaluate candidates (1: this process only). Each takes its share of the
     #: candidates with its own random stream: a seed gives the same plan for the same ``jobs`` (unless a search stops
     #: at ``search_seconds``: None makes it machine-independent). Other processes are forked (Linux); where they
-    #: cannot be, the shares run here in turn
+    #: cannot be, or other threads run in this process (a Dask worker), the shares run here in turn
     jobs: int = 2
     worst_axis_mm: float = 1.0
     worst_axis_deg: float = 0.05
@@ -556,17 +557,27 @@ def _search_share(part: int, shared: dict | None = None):
     return candidates, infos, draws, refused
 
 
+def _other_threads() -> bool:
+    """Whether other threads of this process are running (tqdm's monitor aside, which only sleeps): a fork copies
+    whatever locks they hold (one inside a BLAS call left the forked search hanging), so the shares then run here."""
+    this = threading.current_thread()
+    return any(t is not this and t.is_alive() and type(t).__name__ != "TMonitor" for t in threading.enumerate())
+
+
 def _search(arm: Arm, predictor: _Predictor, constraints: _Constraints, scenes: list[SpinScene], need: int,
             options: PlanOptions, progress):
     """``options.candidates`` candidates shared among ``options.jobs`` processes (this one takes the first share;
-    ``progress`` follows it): (candidates, information (C, scenes, 6, 6), draws, refusals)."""
+    ``progress`` follows it): (candidates, information (C, scenes, 6, 6), draws, refusals). The other processes are
+    forked, unless fork is unavailable, this process is a daemon, or other threads run here (:func:`_other_threads`):
+    the shares then run here in turn (the same plan)."""
     jobs = min(options.jobs, options.candidates)
     counts = [options.candidates // jobs + (k < options.candidates % jobs) for k in range(jobs)]
     shared = {"arm": arm, "predictor": predictor, "constraints": constraints, "scenes": scenes, "options": options,
               "counts": counts, "need": -(-need // jobs), "progress": progress}
     if jobs == 1:
         parts = [_search_share(0, shared)]
-    elif "fork" in multiprocessing.get_all_start_methods() and not multiprocessing.current_process().daemon:
+    elif ("fork" in multiprocessing.get_all_start_methods() and not multiprocessing.current_process().daemon
+          and not _other_threads()):
         _SHARED.update(shared)
         try:
             with multiprocessing.get_context("fork").Pool(jobs - 1) as pool:
