@@ -27,7 +27,7 @@ from ..uncertainty import chi2_sf
 from .lm import _builder
 from .options import CalibrationError, CalibrationOptions
 from .setup import _setup
-from .stage1 import _jackknife, _stage1
+from .stage1 import _checked, _stage1
 from .stage2 import _axis_distances
 
 #: The calibration still holds unless the new spins' χ² is beyond this P value (the 99.9 % point).
@@ -318,11 +318,9 @@ def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
                 best[k] = s
     if best is None:
         raise CalibrationError("no spin's circles could be fitted from the pose checked (few or short tracks?)")
-    if setup.short_arcs:
-        builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
-        best = [_jackknife(builder, measurements[k], k, pose, setup.prepared[k], s, options)
-                for k, s in enumerate(best)]
-    return best
+    builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
+    return [_checked(builder, measurements[k], k, pose, setup.prepared[k], s, options, setup)
+            for k, s in enumerate(best)]
 
 
 def _move(pose: gtsam.Pose3, rows, at_pose, prior: np.ndarray, steps: int = 8):

@@ -336,7 +336,7 @@ def _jackknife(builder: RotIdGraph, measurement, k: int, pose: gtsam.Pose3, prep
 def _thin(prepared, s: _Stage1) -> bool:
     """Whether measurement ``s``'s kept tracks' ellipses are thin against its pixel noise: their median radius of
     curvature at the ellipse's ends (b^2 / a) below THIN_CURVATURE_SIGMAS pixel sigmas."""
-    tracks = [prepared.usable[j] for j in (s.keys.tracks if s.keys is not None else []) if j in prepared.usable]
+    tracks = [prepared.usable[j] for j in s.keys.tracks if j in prepared.usable]
     if not tracks or not np.isfinite(s.sigma2) or s.sigma2 <= 0.0:
         return False
     semi = np.array([t.ellipse.axes for t in tracks], dtype=float) / 2.0

@@ -57,8 +57,9 @@ def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup
                     anchor) -> tuple[gtsam.Pose3, list[_Stage1]]:
     """Stage 1 from ``start``; where some measurement has only short arcs (``setup.short_arcs``), again from the
     pose its lines give (weighted stage 2, Huber on whole measurements) while that pose moves more than REFINE_DEG
-    or REFINE_M (at most REFINE_PASSES fits), and the last fit jackknifed (:func:`_jackknife`). Returns the pose
-    stage 1 last started from and its fit. Where every measurement has a long arc: one fit from the start.
+    or REFINE_M (at most REFINE_PASSES fits), and the last fit jackknifed (:func:`_checked`; so are thin ellipses'
+    fits where ``setup.thin_check``). Returns the pose stage 1 last started from and its fit. Where every
+    measurement has a long arc: one fit from the start.
 
     Each measurement's fit starts from the FK axis seen from the start. With long arcs it finds the same circles
     from anywhere near; with short ones (corner tracks of 25 degrees) it stays in a minimum near the start, and
@@ -69,10 +70,8 @@ def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup
     builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
     everything = list(range(len(measurements)))
     stage1 = _stage1(arm, camera, measurements, pose, setup, options)
-    if not setup.short_arcs:
-        return pose, [_checked(builder, measurements[k], k, pose, setup.prepared[k], s, options, setup)
-                      for k, s in enumerate(stage1)]
-    for _ in range(REFINE_PASSES - 1):
+    refits = REFINE_PASSES - 1 if setup.short_arcs else 0  # long arcs: the first fit stands
+    for _ in range(refits):
         moved, _, _ = _weighted_stage2(camera, setup, stage1, everything, pose, options, anchor)
         if _turned(moved, pose) < np.radians(REFINE_DEG) and np.linalg.norm(
                 moved.translation() - pose.translation()) < REFINE_M:

@@ -32,17 +32,23 @@ def thin_scene():
     return simulate(scene, seed=12_003, arm=Arm.from_robot("panda"))
 
 
+@pytest.fixture
+def thin(monkeypatch) -> list[bool]:
+    """What each thin-ellipse test (``stage1._thin``) said, in call order."""
+    calls = []
+    original = stage1_module._thin
+    monkeypatch.setattr(stage1_module, "_thin", lambda prepared, s: calls.append(original(prepared, s)) or calls[-1])
+    return calls
+
+
 def _chi2(result, truth) -> float:
     e = result.error_to(truth.arm_T_camera)
     return float(e @ np.linalg.solve(result.covariance, e))
 
 
 @pytest.mark.parametrize("kind", ["weighted", "free"])
-def test_estimates_resting_on_thin_ellipses_hold_their_covariance(thin_scene, kind, monkeypatch):
+def test_estimates_resting_on_thin_ellipses_hold_their_covariance(thin_scene, kind, thin):
     dataset, truth = thin_scene
-    thin = []
-    original = stage1_module._thin
-    monkeypatch.setattr(stage1_module, "_thin", lambda prepared, s: thin.append(original(prepared, s)) or thin[-1])
     result = (calibrate(dataset, method="weighted") if kind == "weighted"
               else calibrate(dataset, options=CalibrationOptions(spin_model="free")))
     assert result.covariance_usable
@@ -51,11 +57,8 @@ def test_estimates_resting_on_thin_ellipses_hold_their_covariance(thin_scene, ki
     assert any(thin)  # the jackknife checked the thin measurements' lines
 
 
-def test_the_rigid_spin_does_not_rest_on_the_free_phase_lines(thin_scene, monkeypatch):
+def test_the_rigid_spin_does_not_rest_on_the_free_phase_lines(thin_scene, thin):
     dataset, truth = thin_scene
-    thin = []
-    original = stage1_module._thin
-    monkeypatch.setattr(stage1_module, "_thin", lambda prepared, s: thin.append(original(prepared, s)) or thin[-1])
     result = calibrate(dataset)  # joint, rigid spin: its phases come from time, the thin ellipses do not bias it
     assert result.covariance_usable
     assert _chi2(result, truth) < 22.46
