@@ -45,7 +45,11 @@ class SpinModel:
             return None
         moments = moments / np.asarray(counts, float)[:, None, None]
         reduced = _reduced(moments)
-        weights = np.ones(len(moments))
+        # start with no track weighing more than the median one: a single track far off every ellipse (a point
+        # sliding along a straight edge) has a large reduced scatter and alone could make the sum's best conic a
+        # hyperbola
+        size = np.trace(reduced, axis1=1, axis2=2)
+        weights = 1.0 / np.maximum(size / max(float(np.median(size)), 1e-18), 1.0)
         model = None
         for _ in range(iterations):
             values, vectors = np.linalg.eigh((reduced * weights[:, None, None]).sum(axis=0))
