@@ -8,6 +8,7 @@ import pytest
 from gtsam_rotid.arm import Arm
 from gtsam_rotid.calibration import CalibrationOptions, calibrate
 from gtsam_rotid.calibration import stage1 as stage1_module
+from gtsam_rotid.calibration.check import check_calibration
 from gtsam_rotid.camera import Camera
 from gtsam_rotid.simulate import SceneConfig, simulate
 
@@ -63,3 +64,11 @@ def test_the_rigid_spin_does_not_rest_on_the_free_phase_lines(thin_scene, thin):
     assert result.covariance_usable
     assert _chi2(result, truth) < 22.46
     assert not thin  # so its stage 1 is not jackknifed for them (the cost, and the rigid fit's covariance, unchanged)
+
+
+def test_checking_the_true_pose_on_thin_ellipses_does_not_call_it_changed(thin_scene, thin):
+    dataset, truth = thin_scene
+    # the pose exact (a tiny covariance): the spins must agree with it within their own uncertainty
+    check = check_calibration(truth.arm_T_camera, dataset, covariance=np.eye(6) * 1e-8)
+    assert check.still_valid, check.chi2   # without the jackknife: chi-square 31 (6 dof), called changed
+    assert any(thin)
