@@ -125,8 +125,9 @@ def _turn_sse(x: np.ndarray, t: np.ndarray, omegas: np.ndarray, w: np.ndarray) -
 
 
 def _rate_residual(track: Track, model: SpinModel, omega: float, tolerance: float = 0.0, steps: int = 21) -> float:
-    """RMS (px) of a track's points about the best turn about any centre at a rate within ``tolerance`` (a
-    fraction) of the common rate ``omega``, in the frame where the spin's ellipses are circles. A point sliding
+    """RMS (image px) of a track's points about the best turn about any centre at a rate within ``tolerance`` (a
+    fraction) of the common rate ``omega`` (the turn taken in the frame where the spin's ellipses are circles,
+    :func:`_turn_sse`). A point sliding
     along an outline (stopping and going, or at another rate over an arc long enough to tell) strays from every
     such turn; a good short arc does not, whatever its own centre's scatter (the centre is free here)."""
     frames = np.asarray(track.frames if track.frames is not None else np.arange(len(track)), float)

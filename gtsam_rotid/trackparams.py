@@ -181,7 +181,7 @@ class TrackerParams:
     #: rate within ``rate_tolerance`` (a fraction) of the spin's common rate, in the frame where the spin's
     #: ellipses are circles, slides or does not turn with the spin. The band is wide because that rate is only
     #: known to tens of per cent on real images (one ellipse shape for all tracks is an affine approximation):
-    #: on Jaco2 renders the common rate read 0.64-1.4 times the true one and arcs of 1 rad read 0.6-2 times it
+    #: on Jaco2 renders the common rate read 0.64-1.4 times the true one and arcs of 1 rad read 1.3-1.9 times it
     #: about their own ellipses, so a 10 % test rejected good tracks (0.08 px from their surface points) by the
     #: hundred.
     rate_tolerance: float = 0.5
