@@ -94,8 +94,7 @@ def spin_filter(tracks: list[Track], params):
         # the spin's rate in the frame where its ellipses are circles is only known to tens of per cent on real
         # renders (one ellipse shape for all tracks is an affine approximation; a 0.5 rad arc's own rate read
         # 0.3-3 times the spin's): a track must fit a turn at some rate within rate_tolerance of the spin's
-        lag = _rate_residual(t, model, omega, p.rate_tolerance)
-        if omega != 0 and lag > p.max_phase_residual:
+        if omega != 0 and (lag := _rate_residual(t, model, omega, p.rate_tolerance)) > p.max_phase_residual:
             rejected.append(("rate", t, f"its points stray {lag:.1f} px (RMS) from the best turn about any centre "
                                         f"at a rate within {100 * p.rate_tolerance:.0f} % of the spin's "
                                         f"{omega:+.4f} rad/frame (limit {p.max_phase_residual:g} px): it slides or "
@@ -124,14 +123,14 @@ def _turn_sse(x: np.ndarray, t: np.ndarray, omegas: np.ndarray, w: np.ndarray) -
     return np.maximum(float(np.sum(x * x)) - np.sum(solution * rhs, axis=1), 0.0)
 
 
-def _rate_residual(track: Track, model: SpinModel, omega: float, tolerance: float = 0.0, steps: int = 21) -> float:
+def _rate_residual(track: Track, model: SpinModel, omega: float, tolerance: float, steps: int = 21) -> float:
     """RMS (image px) of a track's points about the best turn about any centre at a rate within ``tolerance`` (a
     fraction) of the common rate ``omega`` (the turn taken in the frame where the spin's ellipses are circles,
     :func:`_turn_sse`). A point sliding
     along an outline (stopping and going, or at another rate over an arc long enough to tell) strays from every
     such turn; a good short arc does not, whatever its own centre's scatter (the centre is free here)."""
     frames = np.asarray(track.frames if track.frames is not None else np.arange(len(track)), float)
-    rates = omega * (1.0 + tolerance * np.linspace(-1.0, 1.0, steps)) if tolerance > 0 else np.array([omega])
+    rates = omega * (1.0 + tolerance * np.linspace(-1.0, 1.0, steps))
     sse = _turn_sse(model.normalise(track.pixels), frames - frames.mean(), rates, model.W)
     return float(np.sqrt(np.min(sse) / len(track))) * model.scale
 
