@@ -1,0 +1,137 @@
+"""The corner tracker's prior floor on the image axes (``trackparams.AXIS_FLOOR_PX``), measured on rendered scenes.
+
+For each scene saved by ``benchmarks/ambient.py --save DIR``: the calibration (``joint``, no prior floor), and for
+each strong measurement it used (not weak: enough tracks and arc), the two test points of its FK axis projected by
+the *true* camera pose, their distances from its stage-1 image axis and those distances' covariance (pixel noise at
+the measurement's variance, joint-angle noise). A ``tau`` (px) added in quadrature to every distance
+(``V_k + tau^2 I``) makes the floor ``tau / sqrt(2)`` (a shift and a turn of that much each: the ``axis_floor_px``
+convention). Printed, over all scenes, the usable ones only and without each robot in turn: the moment ``tau``,
+which makes the mean of the squared errors in units of their 1 sigma 1 (the covariance then holds the errors'
+second moment, as a covariance must; DerSimonian and Laird's estimator of a random effect), which
+``AXIS_FLOOR_PX["corners"]`` takes; and the Gaussian maximum-likelihood ``tau``, which fits the bulk of a
+heavy-tailed error and leaves its tail out; then the RMS and median of the errors in units of their 1 sigma at a
+few floors (heavy tails show as an RMS well above 1 where the median sits inside).
+
+Run: ``python benchmarks/axis_floor.py --load DIR`` (one core, about 40 s per scene).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def scene_rows(root: Path) -> tuple[list[dict], bool] | None:
+    """The strong measurements' test-point distances from the truth and their covariance, and whether the
+    calibration called its covariance usable; None when the scene has no dataset or is refused."""
+    import gtsam
+
+    from gtsam_rotid import CalibrationOptions, Dataset, calibrate
+    from gtsam_rotid.calibration import joint, stage2
+    from gtsam_rotid.calibration.evidence import classify
+    from gtsam_rotid.errors import RotIdError
+
+    document = json.loads((root / "scene.json").read_text(encoding="utf-8"))
+    if not (root / "dataset").is_dir() or document.get("arm_T_camera") is None:
+        return None
+    dataset = Dataset.load(root / "dataset")
+    truth = gtsam.Pose3(np.array(document["arm_T_camera"], dtype=float))
+    captured = []
+    original = joint._axis_consistency
+
+    def spy(camera, setup, stage1, used, pose, sigma2, options, fitted=0):  # the joint fit's own test's inputs
+        captured.append((camera, setup, stage1, list(used), dict(sigma2)))
+        return original(camera, setup, stage1, used, pose, sigma2, options, fitted)
+
+    joint._axis_consistency = spy
+    try:
+        result = calibrate(dataset, options=CalibrationOptions(axis_floor_px=0.0))
+    except RotIdError:
+        return None
+    finally:
+        joint._axis_consistency = original
+    if not captured:
+        return None
+    camera, setup, stage1, used, sigma2 = captured[-1]
+    weak = classify(setup, stage1).weak
+    rows = stage2._axis_rows(camera, setup, stage1, used, truth, sigma2)
+    out = [{"e": e, "cov": cov} for k, (e, cov, _) in zip(used, rows, strict=True) if k not in weak]
+    return out, bool(result.covariance_usable)
+
+
+def ml_tau(rows: list[dict]) -> float:
+    """The maximum-likelihood common floor (px) on a grid of 1 000 values up to 1 px."""
+    grid = np.linspace(0.0, 1.0, 1001) ** 2
+    E = np.array([r["e"] for r in rows])
+    V = np.array([r["cov"] for r in rows])
+    nll = []
+    for t2 in grid:
+        C = V + t2 * np.eye(2)
+        nll.append(np.sum(np.linalg.slogdet(C)[1]) + np.einsum("ki,ki->", E, np.linalg.solve(C, E[..., None])[..., 0]))
+    return float(np.sqrt(grid[int(np.argmin(nll))]))
+
+
+def moment_tau(rows: list[dict]) -> float:
+    """The common floor (px) at which the errors' mean square in units of their 1 sigma is 1 (0 when it is below
+    1 without a floor), by bisection: that mean falls as the floor grows."""
+    def excess(tau: float) -> float:
+        return z_stats(rows, tau)[0] ** 2 - 1.0
+
+    if excess(0.0) <= 0.0:
+        return 0.0
+    low, high = 0.0, 1.0
+    while excess(high) > 0.0:
+        high *= 2.0
+    for _ in range(50):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if excess(middle) > 0.0 else (low, middle)
+    return high
+
+
+def z_stats(rows: list[dict], tau: float) -> tuple[float, float]:
+    """RMS and median of the errors in units of their 1 sigma (per distance) with floor ``tau``."""
+    z2 = np.array([r["e"] @ np.linalg.solve(r["cov"] + tau**2 * np.eye(2), r["e"]) / 2.0 for r in rows])
+    return float(np.sqrt(np.mean(z2))), float(np.sqrt(np.median(z2)))
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--load", required=True, metavar="DIR", help="scenes saved by benchmarks/ambient.py --save")
+    args = parser.parse_args(argv)
+    scenes = {}
+    for root in sorted(p for p in Path(args.load).iterdir() if p.is_dir()):
+        got = scene_rows(root)
+        if got is None:
+            print(f"{root.name}: no calibration")
+            continue
+        scenes[root.name] = got
+        print(f"{root.name}: {len(got[0])} strong measurements, {'usable' if got[1] else 'not usable'}", flush=True)
+    if not scenes:
+        print("no scene calibrated")
+        return 1
+    groups = {"all scenes": list(scenes), "usable scenes": [n for n, (_, u) in scenes.items() if u]}
+    for robot in sorted({n.split("_")[0] for n in scenes}):
+        groups[f"without {robot}"] = [n for n in scenes if not n.startswith(robot + "_")]
+    print()
+    for name, members in groups.items():
+        rows = [r for n in members for r in scenes[n][0]]
+        if not rows:
+            continue
+        moment, ml = moment_tau(rows), ml_tau(rows)
+        rms, median = z_stats(rows, ml)
+        print(f"{name}: {len(rows)} strong measurements; moment tau {moment:.3f} px -> axis_floor_px "
+              f"{moment / np.sqrt(2):.3f}; Gaussian maximum-likelihood tau {ml:.3f} px -> {ml / np.sqrt(2):.3f}, "
+              f"where |error| / 1 sigma has RMS {rms:.2f}, median {median:.2f} (Gaussian: 1, 0.83)")
+    rows = [r for n in groups["all scenes"] for r in scenes[n][0]]
+    for tau in (0.0, 0.05, 0.1, 0.2):
+        rms, median = z_stats(rows, tau)
+        print(f"  all scenes at tau {tau:.2f} px (floor {tau / np.sqrt(2):.3f}): RMS {rms:.2f}, median {median:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
