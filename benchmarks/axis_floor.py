@@ -24,6 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from ambient import DATASET_DIR, SCENE_FILE  # noqa: E402  (the layout ambient.py --save writes)
+
 
 def scene_rows(root: Path) -> tuple[list[dict], bool] | None:
     """The strong measurements' test-point distances from the truth and their covariance, and whether the
@@ -35,10 +39,10 @@ def scene_rows(root: Path) -> tuple[list[dict], bool] | None:
     from gtsam_rotid.calibration.evidence import classify
     from gtsam_rotid.errors import RotIdError
 
-    document = json.loads((root / "scene.json").read_text(encoding="utf-8"))
-    if not (root / "dataset").is_dir() or document.get("arm_T_camera") is None:
+    document = json.loads((root / SCENE_FILE).read_text(encoding="utf-8"))
+    if not (root / DATASET_DIR).is_dir() or document.get("arm_T_camera") is None:
         return None
-    dataset = Dataset.load(root / "dataset")
+    dataset = Dataset.load(root / DATASET_DIR)
     truth = gtsam.Pose3(np.array(document["arm_T_camera"], dtype=float))
     captured = []
     original = joint._axis_consistency
@@ -63,16 +67,22 @@ def scene_rows(root: Path) -> tuple[list[dict], bool] | None:
     return out, bool(result.covariance_usable)
 
 
+def _stacked(rows: list[dict]) -> tuple[np.ndarray, np.ndarray]:
+    """The rows' distances (k, 2) and their covariances (k, 2, 2)."""
+    return np.array([r["e"] for r in rows]), np.array([r["cov"] for r in rows])
+
+
+def _squared(E: np.ndarray, V: np.ndarray, tau: float) -> np.ndarray:
+    """Each row's squared error over its covariance with ``tau^2`` added (2 dof per row)."""
+    return np.einsum("ki,ki->k", E, np.linalg.solve(V + tau**2 * np.eye(2), E[..., None])[..., 0])
+
+
 def ml_tau(rows: list[dict]) -> float:
     """The maximum-likelihood common floor (px) on a grid of 1 000 values up to 1 px."""
-    grid = np.linspace(0.0, 1.0, 1001) ** 2
-    E = np.array([r["e"] for r in rows])
-    V = np.array([r["cov"] for r in rows])
-    nll = []
-    for t2 in grid:
-        C = V + t2 * np.eye(2)
-        nll.append(np.sum(np.linalg.slogdet(C)[1]) + np.einsum("ki,ki->", E, np.linalg.solve(C, E[..., None])[..., 0]))
-    return float(np.sqrt(grid[int(np.argmin(nll))]))
+    E, V = _stacked(rows)
+    taus = np.linspace(0.0, 1.0, 1001)
+    nll = [np.sum(np.linalg.slogdet(V + tau**2 * np.eye(2))[1]) + np.sum(_squared(E, V, tau)) for tau in taus]
+    return float(taus[int(np.argmin(nll))])
 
 
 def moment_tau(rows: list[dict]) -> float:
@@ -94,7 +104,7 @@ def moment_tau(rows: list[dict]) -> float:
 
 def z_stats(rows: list[dict], tau: float) -> tuple[float, float]:
     """RMS and median of the errors in units of their 1 sigma (per distance) with floor ``tau``."""
-    z2 = np.array([r["e"] @ np.linalg.solve(r["cov"] + tau**2 * np.eye(2), r["e"]) / 2.0 for r in rows])
+    z2 = _squared(*_stacked(rows), tau) / 2.0
     return float(np.sqrt(np.mean(z2))), float(np.sqrt(np.median(z2)))
 
 
