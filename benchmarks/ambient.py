@@ -284,15 +284,23 @@ def pose_axis_errors_px(result, tracked: Dataset, arm_T_camera) -> np.ndarray:
     """Per measurement with a stage-1 image axis: the RMS distance (px) of its FK axis' two test points, projected
     by the true ``arm_T_camera``, from that image axis. What a measurement's tracks share (a bias no number of
     tracks averages out) shows here; white pixel noise on many tracks leaves it near zero."""
+    return np.asarray([float(np.sqrt(np.mean(d**2))) for d in true_axis_distances(result, tracked, arm_T_camera)
+                       if d is not None])
+
+
+def true_axis_distances(result, tracked: Dataset, arm_T_camera) -> list[np.ndarray | None]:
+    """Per measurement of ``result``: the signed distances (px, 2) from its stage-1 image axis of its FK axis' two
+    test points projected by ``arm_T_camera`` (None without an image axis): the distances whose covariance at the
+    estimate is the measurement's ``axis_test_covariance``."""
     out = []
     for m in result.measurements:
         if m.image_axis is None or m.axis_point is None:
+            out.append(None)
             continue
         axis = tracked.arm.wrist_axis(tracked[m.index].joint_angles)
         points = np.array([arm_T_camera.transformTo(p) for p in axis_test_points(axis)])
-        distances = line_distances(np.asarray(m.image_axis), tracked.camera.project(points, distort=False))
-        out.append(float(np.sqrt(np.mean(distances**2))))
-    return np.asarray(out)
+        out.append(line_distances(np.asarray(m.image_axis), tracked.camera.project(points, distort=False)))
+    return out
 
 
 def _number(row: dict, key: str, fmt: str) -> str:

@@ -2,8 +2,9 @@
 
 For each scene saved by ``benchmarks/ambient.py --save DIR``: the calibration (``joint``, no prior floor), and for
 each strong measurement it used (not weak: enough tracks and arc), the two test points of its FK axis projected by
-the *true* camera pose, their distances from its stage-1 image axis and those distances' covariance (pixel noise at
-the measurement's variance, joint-angle noise). A ``tau`` (px) added in quadrature to every distance
+the *true* camera pose, their distances from its stage-1 image axis and those distances' covariance at the estimate
+(the result's ``MeasurementReport.axis_test_covariance``: pixel noise at the measurement's variance, joint-angle
+noise). A ``tau`` (px) added in quadrature to every distance
 (``V_k + tau^2 I``) makes the floor ``tau / sqrt(2)`` (a shift and a turn of that much each: the ``axis_floor_px``
 convention). Printed, over all scenes, the usable ones only and without each robot in turn: the moment ``tau``,
 which makes the mean of the squared errors in units of their 1 sigma 1 (the covariance then holds the errors'
@@ -26,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from ambient import DATASET_DIR, SCENE_FILE  # noqa: E402  (the layout ambient.py --save writes)
+from ambient import DATASET_DIR, SCENE_FILE, true_axis_distances  # noqa: E402  (ambient.py --save's layout)
 
 
 def scene_rows(root: Path) -> tuple[list[dict], bool] | None:
@@ -35,8 +36,6 @@ def scene_rows(root: Path) -> tuple[list[dict], bool] | None:
     import gtsam
 
     from gtsam_rotid import CalibrationOptions, Dataset, calibrate
-    from gtsam_rotid.calibration import joint, stage2
-    from gtsam_rotid.calibration.evidence import classify
     from gtsam_rotid.errors import RotIdError
 
     document = json.loads((root / SCENE_FILE).read_text(encoding="utf-8"))
@@ -44,26 +43,13 @@ def scene_rows(root: Path) -> tuple[list[dict], bool] | None:
         return None
     dataset = Dataset.load(root / DATASET_DIR)
     truth = gtsam.Pose3(np.array(document["arm_T_camera"], dtype=float))
-    captured = []
-    original = joint._axis_consistency
-
-    def spy(camera, setup, stage1, used, pose, sigma2, options, fitted=0):  # the joint fit's own test's inputs
-        captured.append((camera, setup, stage1, list(used), dict(sigma2)))
-        return original(camera, setup, stage1, used, pose, sigma2, options, fitted)
-
-    joint._axis_consistency = spy
     try:
         result = calibrate(dataset, options=CalibrationOptions(axis_floor_px=0.0))
     except RotIdError:
         return None
-    finally:
-        joint._axis_consistency = original
-    if not captured:
-        return None
-    camera, setup, stage1, used, sigma2 = captured[-1]
-    weak = classify(setup, stage1).weak
-    rows = stage2._axis_rows(camera, setup, stage1, used, truth, sigma2)
-    out = [{"e": e, "cov": cov} for k, (e, cov, _) in zip(used, rows, strict=True) if k not in weak]
+    out = [{"e": e, "cov": np.asarray(m.axis_test_covariance, dtype=float)}
+           for m, e in zip(result.measurements, true_axis_distances(result, dataset, truth), strict=True)
+           if m.used and not m.weak and m.axis_test_covariance is not None]
     return out, bool(result.covariance_usable)
 
 

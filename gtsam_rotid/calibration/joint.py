@@ -39,6 +39,7 @@ from .stage2 import (
     _Stage2,
     _tied_circles,
     _weighted_stage2,
+    _with_axis_covariances,
 )
 from .tuning import (
     DISTINCT_Z,
@@ -75,6 +76,7 @@ def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anch
     tied = _tied_circles(arm, camera, measurements, setup, stage1, fit.pose, options, range(len(stage1)))
     reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, fit.chi2, tied)
     variances = {k: stage1[k].sigma2 for k in used}
+    _with_axis_covariances(reports, camera, setup, stage1, used, fit.pose, variances)
     consistency = _axis_consistency(camera, setup, stage1, used, fit.pose, variances, options)
     solved = _Solved(fit.pose, None, pose_information(fit.graph, values, POSE_KEY), Method.WEIGHTED, True,
                      fit.iterations, fit.graph.error(values))
@@ -238,6 +240,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
     reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, chi2, tied)
     variances = {k: sigmas[k] ** 2 for k in used}
+    _with_axis_covariances(reports, camera, setup, stage1, used, pose, variances)
     try:
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
     except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why

@@ -57,6 +57,12 @@ class MeasurementReport:
     image_axis: list[float] | None = None
     #: chi-square (2 dof) of its image axis against the FK axis projected by the estimate (weighted and joint)
     axis_chi2: float | None = None
+    #: the covariance (px^2, 2x2) of the distances from its image axis of its FK axis' two test points
+    #: (:func:`gtsam_rotid.graph.axis_test_points`) projected by the estimate: its pixel noise at the variance the
+    #: fit weighted it by and the joint-angle noise, without the prior floor (``axis_floor_px``); for comparing its
+    #: image axis with where another ``arm_T_camera`` (a ground truth) puts the FK axis. Weighted and joint, the
+    #: measurements used; None otherwise
+    axis_test_covariance: list[list[float]] | None = None
     #: the longest arc among its kept tracks (deg, about its fitted circle: :func:`circle_arc_span_deg`; about the
     #: track's own ellipse for a measurement left out before stage 1); None when unknown
     arc_span_deg: float | None = None

@@ -102,6 +102,15 @@ def _axis_distances(camera: Camera, axis, stage1: _Stage1, pose: gtsam.Pose3, si
     return e, cov
 
 
+def _with_axis_covariances(reports, camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3,
+                           sigma2: dict[int, float]) -> None:
+    """Each used measurement's report (``reports[k]``) gains its test points' distance covariance at ``pose``
+    (:attr:`MeasurementReport.axis_test_covariance`)."""
+    for k in used:
+        _, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup, k)
+        reports[k].axis_test_covariance = np.asarray(cov, dtype=float).tolist()
+
+
 def _chi2(camera, setup: _Setup, stage1, pose, sigma2: dict[int, float] | None = None) -> np.ndarray:
     """Per measurement: chi-square (2 dof) of its stage-1 image axis against the FK axis projected by ``pose``.
 

@@ -87,17 +87,32 @@ def test_the_axes_test_statistic_has_its_stated_dof_on_white_noise():
     over scenes near 6 for six measurements (measured: 5.90 over these 16 scenes). Here the joint estimate and the
     axes' own best pose nearly coincide (the chi-square at the joint estimate averages 5.92); on tracked textures,
     where the line covariances the test uses differ from what the joint fit weights by, they do not (see
-    test_the_axes_chi_square_is_their_minimum_over_the_pose)."""
+    test_the_axes_chi_square_is_their_minimum_over_the_pose). Each used measurement's test-point covariance
+    (``axis_test_covariance``) holds its image axis' error against the FK axis seen from the TRUE camera: that
+    chi-square (2 dof each) averages 2."""
+    from gtsam_rotid.factors import line_distances
+    from gtsam_rotid.graph import axis_test_points
     from gtsam_rotid.uncertainty import chi2_mean_interval
 
-    values = []
+    values, truths = [], []
     for seed in range(16):
-        dataset, _ = simulate.reference_scene(seed=100 + seed, noise_var=1.5, duration=12.0)
-        test = calibrate(dataset, method="joint").axis_consistency
+        dataset, truth = simulate.reference_scene(seed=100 + seed, noise_var=1.5, duration=12.0)
+        result = calibrate(dataset, method="joint")
+        test = result.axis_consistency
         assert test.dof == 6
         values.append(test.chi2)
+        for m in result.measurements:
+            assert m.used and m.axis_test_covariance is not None
+            cov = np.asarray(m.axis_test_covariance)
+            assert cov.shape == (2, 2) and np.all(np.linalg.eigvalsh(cov) > 0.0)
+            axis = dataset.arm.wrist_axis(dataset[m.index].joint_angles)
+            points = np.array([truth.arm_T_camera.transformTo(p) for p in axis_test_points(axis)])
+            e = line_distances(np.asarray(m.image_axis), dataset.camera.project(points, distort=False))
+            truths.append(float(e @ np.linalg.solve(cov, e)))
     low, high = chi2_mean_interval(6, len(values), z=3.29)  # 99.9 %
     assert low <= np.mean(values) <= high, (np.mean(values), (low, high), values)
+    low, high = chi2_mean_interval(2, len(truths), z=3.29)
+    assert low <= np.mean(truths) <= high, (np.mean(truths), (low, high))
 
 
 def test_the_axes_chi_square_is_their_minimum_over_the_pose():
