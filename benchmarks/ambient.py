@@ -35,7 +35,8 @@ scenes outside their 99.9 % region (the "confident wrong numbers"; the target is
 dataset the calibration saw, :meth:`Dataset.save`) and ``scene.json`` (the true ``arm_T_camera`` as a 4x4 matrix
 and the tracker's numbers). ``--load DIR`` re-runs only the calibration on every saved scene and prints the same
 table (tracker columns as saved), in seconds: for re-evaluating an estimator change without rendering.
-``--spin-model free|rigid`` and ``--axis-floor-px PX`` calibrate with those ``CalibrationOptions``; ``--json FILE``
+``--spin-model free|rigid`` and ``--axis-floor-px PX`` calibrate with those ``CalibrationOptions``, ``--method
+weighted|paper`` with that estimator (default ``joint``); ``--json FILE``
 also writes every row's numbers.
 
 ``--poses planned`` takes the arm poses from :func:`gtsam_rotid.planning.plan_poses` at a guess of the camera (the
@@ -146,7 +147,8 @@ def scene_spins(robot: str, seed: int, duration: float, poses: str = "sampled"):
 
 
 def run_scene(robot: str, covering: str, seed: int, variant: str, duration: float, params: TrackerParams,
-              save: str | None = None, options: CalibrationOptions | None = None, poses: str = "sampled") -> dict:
+              save: str | None = None, options: CalibrationOptions | None = None, poses: str = "sampled",
+              method: str = "joint") -> dict:
     """Render, track and calibrate one scene; a dict of the measured numbers (or why it could not run). With
     ``save``, the tracked dataset and the scene's numbers are written under that directory first."""
     cv2.setNumThreads(1)
@@ -217,7 +219,7 @@ def run_scene(robot: str, covering: str, seed: int, variant: str, duration: floa
         _save_scene(save, out, tracked, truth)
     if tracked is None:
         return out
-    return calibrate_scene(out, tracked, truth.arm_T_camera, options)
+    return calibrate_scene(out, tracked, truth.arm_T_camera, options, method)
 
 
 def _save_scene(directory: str, row: dict, tracked: Dataset | None, truth) -> None:
@@ -232,7 +234,7 @@ def _save_scene(directory: str, row: dict, tracked: Dataset | None, truth) -> No
     os.replace(staging, root / SCENE_FILE)
 
 
-def load_scene(root: str, options: CalibrationOptions | None = None) -> dict:
+def load_scene(root: str, options: CalibrationOptions | None = None, method: str = "joint") -> dict:
     """Re-run the calibration of one scene written by ``--save``: the row as :func:`run_scene` gives it."""
     root = Path(root)
     document = json.loads((root / SCENE_FILE).read_text(encoding="utf-8"))
@@ -248,14 +250,16 @@ def load_scene(root: str, options: CalibrationOptions | None = None) -> dict:
         return row
     if "tracker" not in tracked.metadata:  # saved before datasets named their tracker: the default's
         tracked.metadata["tracker"] = tracker_metadata(TrackerParams())
-    return calibrate_scene(row, tracked, gtsam.Pose3(np.array(document["arm_T_camera"], dtype=float)), options)
+    return calibrate_scene(row, tracked, gtsam.Pose3(np.array(document["arm_T_camera"], dtype=float)), options,
+                           method)
 
 
-def calibrate_scene(out: dict, tracked: Dataset, arm_T_camera, options: CalibrationOptions | None = None) -> dict:
-    """Calibrate a tracked dataset and add to ``out`` its error against the true ``arm_T_camera``."""
+def calibrate_scene(out: dict, tracked: Dataset, arm_T_camera, options: CalibrationOptions | None = None,
+                    method: str = "joint") -> dict:
+    """Calibrate a tracked dataset (by ``method``) and add to ``out`` its error against the true ``arm_T_camera``."""
     out = dict(out)
     try:
-        result = calibrate(tracked, options=options)
+        result = calibrate(tracked, method=method, options=options)
     except RotIdError as error:
         out["refused"] = f"{type(error).__name__}: {error}"
         return out
@@ -374,6 +378,8 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="one 3 s scene: checks that it runs")
     parser.add_argument("--spin-model", default=None, choices=("free", "rigid"),
                         help="CalibrationOptions.spin_model (default: the calibration's default)")
+    parser.add_argument("--method", default="joint", choices=("joint", "weighted", "paper"),
+                        help="the calibration's estimator (default: joint)")
     parser.add_argument("--axis-floor-px", type=float, default=None,
                         help="CalibrationOptions.axis_floor_px (default: what the tracker wrote into the dataset)")
     parser.add_argument("--json", default=None, metavar="FILE", help="also write the rows (every number) to FILE")
@@ -390,9 +396,9 @@ def main(argv=None) -> int:
         print(f"{len(roots)} saved scenes from {args.load}: calibration only", flush=True)
         if args.jobs > 1:
             from joblib import Parallel, delayed
-            rows = Parallel(n_jobs=args.jobs)(delayed(load_scene)(str(r), options) for r in roots)
+            rows = Parallel(n_jobs=args.jobs)(delayed(load_scene)(str(r), options, args.method) for r in roots)
         else:
-            rows = [load_scene(str(r), options) for r in roots]
+            rows = [load_scene(str(r), options, args.method) for r in roots]
         _report(rows, args.json, started)
         return 0
     if args.quick:
@@ -412,9 +418,10 @@ def main(argv=None) -> int:
     if args.jobs > 1:
         from joblib import Parallel, delayed
         rows = Parallel(n_jobs=args.jobs)(delayed(run_scene)(r, c, s, v, args.duration, params, args.save, options,
-                                                             args.poses) for r, c, v, s in scenes)
+                                                             args.poses, args.method) for r, c, v, s in scenes)
     else:
-        rows = [run_scene(r, c, s, v, args.duration, params, args.save, options, args.poses) for r, c, v, s in scenes]
+        rows = [run_scene(r, c, s, v, args.duration, params, args.save, options, args.poses, args.method)
+                for r, c, v, s in scenes]
     _report(rows, args.json, started)
     return 0
 

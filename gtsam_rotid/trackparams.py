@@ -22,9 +22,10 @@ FEATURES = ("auto", "blobs", "corners")
 #: tracks share, often many times its 1 sigma. The corners' value is measured: over the test points of the 95
 #: strong poses a calibration used in the 24 scenes of ``benchmarks/ambient.py`` (seeds 0-3, default tracker), the
 #: floor at which each test point's distance from the true axis, in units of its own 1 sigma with the floor, has a
-#: mean square of 1 (the covariance holds the errors' second moment) is 0.093 px (0.085-0.096 on the usable scenes
-#: or without any one robot), a shift and a turn of 0.09 px each. The errors are heavy-tailed: the Gaussian
-#: maximum-likelihood floor, 0.042 px, fits their bulk and leaves the tail out (an RMS of 1.26 sigma), and the tail
+#: mean square of 1 (the covariance holds the errors' second moment) is 0.096 px (0.088-0.099 on the usable scenes
+#: or without any one robot; each distance's 1 sigma at the estimate, as the result reports it), and 0.09 px (a
+#: shift and a turn of that much each) is taken. The errors are heavy-tailed: the Gaussian maximum-likelihood
+#: floor, 0.045 px, fits their bulk and leaves the tail out (an RMS of 1.27 sigma), and the tail
 #: is what the floor is for: the UR5 photo scene of ``tests/data`` (an older tracker) has one precise pose whose
 #: axis is ten times its 1 sigma off and alone determines two directions of the pose (chi-square 45 at 0.042, 11
 #: at 0.09). The floor is small but not weak: the precise poses' test points are known to 0.03-0.05 px, so it sets
