@@ -69,7 +69,7 @@ from gtsam_rotid.camera import Camera
 from gtsam_rotid.dataset import Dataset, Measurement
 from gtsam_rotid.errors import InputError, RotIdError
 from gtsam_rotid.estimate import CalibrationOptions, calibrate
-from gtsam_rotid.factors import line_distances
+from gtsam_rotid.factors import axis_point_residuals
 from gtsam_rotid.graph import axis_test_points
 from gtsam_rotid.simulate import SceneConfig
 from gtsam_rotid.tracking import Tracker, TrackerParams, tracker_metadata
@@ -302,8 +302,7 @@ def true_axis_distances(result, tracked: Dataset, arm_T_camera) -> list[np.ndarr
             out.append(None)
             continue
         axis = tracked.arm.wrist_axis(tracked[m.index].joint_angles)
-        points = np.array([arm_T_camera.transformTo(p) for p in axis_test_points(axis)])
-        out.append(line_distances(np.asarray(m.image_axis), tracked.camera.project(points, distort=False)))
+        out.append(axis_point_residuals(tracked.camera.K, arm_T_camera, axis_test_points(axis), m.image_axis)[0])
     return out
 
 

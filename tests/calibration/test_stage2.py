@@ -90,7 +90,7 @@ def test_the_axes_test_statistic_has_its_stated_dof_on_white_noise():
     test_the_axes_chi_square_is_their_minimum_over_the_pose). Each used measurement's test-point covariance
     (``axis_test_covariance``) holds its image axis' error against the FK axis seen from the TRUE camera: that
     chi-square (2 dof each) averages 2 (measured: 2.01 over the 96 measurements)."""
-    from gtsam_rotid.factors import line_distances
+    from gtsam_rotid.factors import axis_point_residuals
     from gtsam_rotid.graph import axis_test_points
     from gtsam_rotid.uncertainty import chi2_mean_interval
 
@@ -106,8 +106,7 @@ def test_the_axes_test_statistic_has_its_stated_dof_on_white_noise():
             cov = np.asarray(m.axis_test_covariance)
             assert cov.shape == (2, 2) and np.all(np.linalg.eigvalsh(cov) > 0.0)
             axis = dataset.arm.wrist_axis(dataset[m.index].joint_angles)
-            points = np.array([truth.arm_T_camera.transformTo(p) for p in axis_test_points(axis)])
-            e = line_distances(np.asarray(m.image_axis), dataset.camera.project(points, distort=False))
+            e = axis_point_residuals(dataset.camera.K, truth.arm_T_camera, axis_test_points(axis), m.image_axis)[0]
             truths.append(float(e @ np.linalg.solve(cov, e)))
     low, high = chi2_mean_interval(6, len(values), z=3.29)  # 99.9 %
     assert low <= np.mean(values) <= high, (np.mean(values), (low, high), values)
