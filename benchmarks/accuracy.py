@@ -99,7 +99,8 @@ def add_noise_free(builder, graph, values, camera, measurements, truth) -> None:
         along = point_cam @ pose.rotation().unrotate(m_truth.axis_direction)
         scale = float(m_truth.axis.distance_to(pose.translation())[0])
         circles = {j: np.array([(t.offset + along) / scale, t.radius / scale]) for j, t in enumerate(m_truth.tracks)}
-        builder.add_measurement(graph, values, k, Measurement(measurement.joint_angles, exact),
+        builder.add_measurement(graph, values, k, Measurement(measurement.joint_angles, exact,
+                                                              spin_joint=measurement.spin_joint),
                                 initial_circles=circles, refine_circles=False)
 
 

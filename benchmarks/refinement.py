@@ -14,10 +14,11 @@ NEES of the pose (6 dof) and of the offsets (one dof per offset), each with its 
 trials; the RMSE per axis of the refined pose over two Cramér–Rao bounds at the same poses (the rigid spin's,
 averaged over the trials): that of the exact-model problem (no offsets to find: the target is 1.2x) and that of the
 problem with the offsets free under their prior (what refining costs at these poses); the offsets' RMSE and bound;
-time per calibration.
+time per calibration. ``--two-spins``: at every pose the joint before the wrist spins too (two measurements per
+pose, ``Measurement.spin_joint``).
 
-Run: ``python benchmarks/refinement.py [--robots kinova,ur5] [--trials 30] [--duration 12]``; ``--quick`` (one
-robot, 3 trials) checks that it runs.
+Run: ``python benchmarks/refinement.py [--robots kinova,ur5] [--trials 30] [--duration 12] [--two-spins]``;
+``--quick`` (one robot, 3 trials) checks that it runs.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import argparse
 import math
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import gtsam
@@ -38,13 +40,16 @@ UNITS = np.array([math.degrees(1.0)] * 3 + [1000.0] * 3)
 NOISE_VAR = 1.5
 
 
-def _scene(robot: str, seed: int, duration: float):
+def _scene(robot: str, seed: int, duration: float, two_spins: bool = False):
     from ambient import PLACEMENTS
 
+    from gtsam_rotid.arm import Arm
     from gtsam_rotid.simulate import SceneConfig, simulate
 
-    return simulate(SceneConfig(robot=robot, duration=duration, noise_var=NOISE_VAR, **PLACEMENTS[robot]),
-                    seed=seed)
+    arm = Arm.from_robot(robot)
+    spins = tuple(arm.joint_names[arm.wrist_index - 1:arm.wrist_index + 1]) if two_spins else ()
+    return simulate(SceneConfig(robot=robot, duration=duration, noise_var=NOISE_VAR, spin_joints=spins,
+                                **PLACEMENTS[robot]), seed=seed, arm=arm)
 
 
 def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float) -> tuple[np.ndarray, np.ndarray]:
@@ -68,7 +73,8 @@ def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float) -
     return both[:6, :6], both[6:, 6:]
 
 
-def trial(robot: str, seed: int, duration: float, offset_deg: float, prior_deg: float) -> dict:
+def trial(robot: str, seed: int, duration: float, offset_deg: float, prior_deg: float, two_spins: bool = False
+          ) -> dict:
     from accuracy import crlb_rigid
 
     from gtsam_rotid.calibration import CalibrationOptions
@@ -76,16 +82,21 @@ def trial(robot: str, seed: int, duration: float, offset_deg: float, prior_deg: 
     from gtsam_rotid.errors import RotIdError
     from gtsam_rotid.estimate import calibrate
 
-    dataset, truth = _scene(robot, seed, duration)
+    dataset, truth = _scene(robot, seed, duration, two_spins)
     arm = dataset.arm
     joints = arm.offset_joints(True)
     rng = np.random.default_rng(10_000 + seed)
     offsets = np.radians(offset_deg) * rng.choice([-1.0, 1.0], size=len(joints))
     shift = np.zeros(arm.dof)
     shift[joints] = offsets
-    readings = Dataset(arm, dataset.camera, [Measurement(dataset.joint_angles(k) - shift, m.tracks)
-                                             for k, m in enumerate(dataset)])
+    readings = Dataset(arm, dataset.camera, [Measurement(dataset.joint_angles(k) - shift, m.tracks,
+                                                         spin_joint=m.spin_joint) for k, m in enumerate(dataset)])
     out = {"seed": seed, "bound_exact": crlb_rigid(dataset, truth, NOISE_VAR)}
+    if two_spins:  # the exact-model bound of the wrist's spins alone (the poses' spins as usually recorded)
+        wrist = [k for k, m in enumerate(dataset) if m.spin_joint == arm.wrist_joint]
+        out["bound_wrist"] = crlb_rigid(Dataset(arm, dataset.camera, [dataset[k] for k in wrist]),
+                                        replace(truth, measurements=[truth.measurements[k] for k in wrist]),
+                                        NOISE_VAR)
     out["bound_offsets"], out["bound_offsets_joint"] = _offset_bound(dataset, truth, readings, joints, offsets,
                                                                      prior_deg)
     start = time.perf_counter()
@@ -150,6 +161,11 @@ def report(robot: str, results: list[dict]) -> None:
     print(f"  {'bound, exact model':28}" + "".join(f"{v:9.4f}" for v in exact_bound))
     print(f"  {'RMSE / exact-model bound':28}" + "".join(f"{v:9.2f}" for v in rmse / exact_bound)
           + "   (target <= 1.2, with more poses)")
+    if "bound_wrist" in results[0]:  # the target's reference: the exact model at the same poses, wrist spins only
+        wrist_bound = np.sqrt(np.diag(np.mean([r["bound_wrist"] for r in results], axis=0))) * UNITS
+        print(f"  {'bound, exact, wrist spins':28}" + "".join(f"{v:9.4f}" for v in wrist_bound))
+        print(f"  {'RMSE / that bound':28}" + "".join(f"{v:9.2f}" for v in rmse / wrist_bound)
+              + "   (target <= 1.2, with the second spins)")
     print(f"  {'bound, offsets free':28}" + "".join(f"{v:9.4f}" for v in free_bound))
     print(f"  {'RMSE / offsets-free bound':28}" + "".join(f"{v:9.2f}" for v in rmse / free_bound))
     miss = np.degrees(np.array([r["offsets_miss"] for r in usable]))
@@ -166,6 +182,8 @@ def main(argv=None) -> int:
     parser.add_argument("--duration", type=float, default=12.0, help="spin length, s (default 12)")
     parser.add_argument("--offset-deg", type=float, default=0.5)
     parser.add_argument("--prior-deg", type=float, default=1.0)
+    parser.add_argument("--two-spins", action="store_true",
+                        help="at every pose the joint before the wrist spins too (two measurements per pose)")
     parser.add_argument("--quick", action="store_true", help="one robot, 3 trials")
     args = parser.parse_args(argv)
     robots = args.robots.split(",")
@@ -173,10 +191,11 @@ def main(argv=None) -> int:
         robots, args.trials = robots[:1], 3
     print(f"joint offsets of {args.offset_deg} deg (random signs) on every joint between the first and the spinning "
           f"one; {args.trials} trials per robot, {args.duration:g} s spins, pixel noise {NOISE_VAR} px^2, prior "
-          f"{args.prior_deg} deg")
+          f"{args.prior_deg} deg" + ("; the joint before the wrist spins too at every pose" if args.two_spins else ""))
     for robot in robots:
         start = time.perf_counter()
-        results = [trial(robot, seed, args.duration, args.offset_deg, args.prior_deg) for seed in range(args.trials)]
+        results = [trial(robot, seed, args.duration, args.offset_deg, args.prior_deg, args.two_spins)
+                   for seed in range(args.trials)]
         report(robot, results)
         print(f"  ({time.perf_counter() - start:.0f} s)")
     return 0

@@ -300,34 +300,51 @@ class Arm:
         S = np.array(self._data.joints[jid].S).reshape(6)
         return unit(S[3:], "joint axis")
 
-    def wrist_axis(self, joint_angles) -> Line3:
-        """The wrist rotation axis in the arm-base frame: ``.point`` = wrist joint origin, ``.direction``."""
-        self._forward(joint_angles)
-        oMi = self._data.oMi[self._wrist_id]
-        return Line3(np.array(oMi.translation), np.array(oMi.rotation) @ self._local_axis(self._wrist_id))
+    def spin_index(self, joint: str | None = None) -> int:
+        """Model-order index of the spinning joint ``joint`` (a revolute joint's name; None: the wrist joint).
+        Raises :class:`ArmError` naming the joints it can be."""
+        if joint is None:
+            return self.wrist_index
+        if joint not in self.joint_names:
+            raise ArmError(f"spinning joint {joint!r} is not a revolute joint of the model; revolute joints: "
+                           f"{self.joint_names}")
+        return self.joint_names.index(joint)
 
-    def offset_joints(self, names=True) -> list[int]:
+    def wrist_axis(self, joint_angles, joint: str | None = None) -> Line3:
+        """The rotation axis of the spinning joint (default the wrist) in the arm-base frame: ``.point`` = the joint's
+        origin, ``.direction``."""
+        jid = self._joint_ids[self.spin_index(joint)]
+        self._forward(joint_angles)
+        oMi = self._data.oMi[jid]
+        return Line3(np.array(oMi.translation), np.array(oMi.rotation) @ self._local_axis(jid))
+
+    def offset_joints(self, names=True, spin_joints=None) -> list[int]:
         """Indices (model order) of the joints whose offsets to refine: ``True`` every revolute joint between the
-        first and the spinning one (the first joint's offset turns the whole arm about an axis fixed in its root
+        first and the last spinning one (the first joint's offset turns the whole arm about an axis fixed in its root
         frame, as ``arm_T_camera`` does: no camera data ever determine it), or the named ones (each a revolute joint
-        before the spinning one; the first may be named, its offset then stays at its prior). Raises
-        :class:`ArmError` naming the joint that cannot be one."""
-        before = [self.joint_names[i] for i in range(self.wrist_index)]
+        before the last spinning one; the first may be named, its offset then stays at its prior). ``spin_joints``:
+        the measurements' spinning joints (names; None or empty: the wrist joint). Raises :class:`ArmError` naming
+        the joint that cannot be one."""
+        spins = sorted({self.spin_index(j) for j in (spin_joints or [None])})
+        last = spins[-1]
+        spinning = self.joint_names[last] if len(spins) == 1 else [self.joint_names[i] for i in spins]
+        before = [self.joint_names[i] for i in range(last)]
         if names is True:
-            if self.wrist_index < 2:
+            if last < 2:
                 raise ArmError(f"no joint offset the poses can determine: only {before} is before the spinning "
-                               f"joint {self.wrist_joint!r}, and its offset turns the arm as the camera pose does")
-            return list(range(1, self.wrist_index))
+                               f"joint {spinning!r}, and its offset turns the arm as the camera pose does")
+            return list(range(1, last))
         if isinstance(names, str):
             names = [names]
         out = []
         for name in names:
-            if name == self.wrist_joint:
-                raise ArmError(f"joint {name!r} is the spinning joint: its offset never shows in its own spin's "
-                               f"axis; offsets can be refined for {before}")
+            if name == self.joint_names[last]:
+                which = "the spinning joint" if len(spins) == 1 else "the last spinning joint"
+                raise ArmError(f"joint {name!r} is {which}: its offset never shows in its own spin's axis; offsets "
+                               f"can be refined for {before}")
             if name not in before:
                 raise ArmError(f"joint {name!r} is not a revolute joint before the spinning joint "
-                               f"{self.wrist_joint!r}; offsets can be refined for {before}")
+                               f"{self.joint_names[last]!r}; offsets can be refined for {before}")
             if self.joint_names.index(name) in out:
                 raise ArmError(f"joint {name!r} is listed twice among the offsets")
             out.append(self.joint_names.index(name))
@@ -346,27 +363,29 @@ class Arm:
         turn = gtsam.Pose3(gtsam.Rot3.AxisAngle(gtsam.Point3(*axis), float(offset)), np.zeros(3))
         return _pose3(self.model.jointPlacements[jid]).compose(turn)
 
-    def wrist_axis_offset_derivatives(self, joint_angles, joints, offsets=None
+    def wrist_axis_offset_derivatives(self, joint_angles, joints, offsets=None, joint: str | None = None
                                       ) -> tuple[Line3, np.ndarray, np.ndarray]:
-        """The wrist axis at ``joint_angles`` plus ``offsets`` (radians, one per index in ``joints``: the reading
-        plus the offset is the joint's angle), and the derivatives of its point and direction with respect to
-        those offsets, each (3, len(joints)), arm frame. A revolute joint j turns everything after it about its
-        axis (unit w_j through o_j): ``dp/d delta_j = w_j x (p - o_j)``, ``dd/d delta_j = w_j x d``; zero for a
-        joint that does not carry the wrist (another branch)."""
+        """The spinning joint's axis (``joint``; default the wrist) at ``joint_angles`` plus ``offsets`` (radians,
+        one per index in ``joints``: the reading plus the offset is the joint's angle), and the derivatives of its
+        point and direction with respect to those offsets, each (3, len(joints)), arm frame. A revolute joint j
+        turns everything after it about its axis (unit w_j through o_j): ``dp/d delta_j = w_j x (p - o_j)``,
+        ``dd/d delta_j = w_j x d``; zero for the spinning joint itself, the joints after it and a joint that does
+        not carry it (another branch)."""
         joints = [int(j) for j in joints]
         angles = self.joint_angle_vector(joint_angles).copy()
         if offsets is not None:
             offsets = np.asarray(offsets, dtype=float).reshape(len(joints))
             angles[joints] += offsets
+        spin = self._joint_ids[self.spin_index(joint)]
         self._forward(angles)
-        wrist = self._data.oMi[self._wrist_id]
+        wrist = self._data.oMi[spin]
         point = np.array(wrist.translation)
-        direction = np.array(wrist.rotation) @ self._local_axis(self._wrist_id)
-        ancestors = set(self.model.supports[self._wrist_id])
+        direction = np.array(wrist.rotation) @ self._local_axis(spin)
+        ancestors = set(self.model.supports[spin])
         d_point, d_direction = np.zeros((3, len(joints))), np.zeros((3, len(joints)))
         for c, j in enumerate(joints):
             jid = self._joint_ids[j]
-            if jid not in ancestors or jid == self._wrist_id:
+            if jid not in ancestors or jid == spin:
                 continue
             placement = self._data.oMi[jid]
             w = np.array(placement.rotation) @ self._local_axis(jid)
@@ -374,10 +393,11 @@ class Arm:
             d_direction[:, c] = np.cross(w, direction)
         return Line3(point, direction), d_point, d_direction
 
-    def wrist_axis_local(self) -> np.ndarray:
-        """Unit wrist axis in the wrist joint's own frame (constant)."""
+    def wrist_axis_local(self, joint: str | None = None) -> np.ndarray:
+        """Unit axis of the spinning joint (default the wrist) in its own frame (constant)."""
+        jid = self._joint_ids[self.spin_index(joint)]
         pin.forwardKinematics(self.model, self._data, pin.neutral(self.model))
-        return self._local_axis(self._wrist_id)
+        return self._local_axis(jid)
 
     def arm_T_joint(self, joint_angles, joint: str | None = None) -> gtsam.Pose3:
         """Placement of a joint frame (default the wrist) in the arm-base frame."""

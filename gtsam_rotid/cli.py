@@ -58,6 +58,8 @@ def _scene_changes(args) -> dict:
         value = getattr(args, name, None)
         if value is not None:
             changes[name] = value
+    if getattr(args, "spin_joints", None):
+        changes["spin_joints"] = tuple(args.spin_joints)
     return changes
 
 
@@ -584,6 +586,9 @@ def _add_scene_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, help="seconds of wrist spin per measurement (default 60)")
     parser.add_argument("--n-measurements", type=int, help="number of arm poses (default 6)")
     parser.add_argument("--outlier-fraction", type=float, help="fraction of tracks replaced by wrong arcs")
+    parser.add_argument("--spin-joints", nargs="+", metavar="JOINT",
+                        help="spin each of these joints at every arm pose, one measurement each (default: the "
+                             "wrist joint only)")
 
 
 def _add_method_option(parser: argparse.ArgumentParser) -> None:

@@ -5,15 +5,17 @@ arm pose: its joint angles and the :class:`Track` of every feature seen during t
 (distorted) pixels, OpenCV convention (origin at the centre of the top-left pixel, docs/design.md §2), with
 optional frame indices that let the estimators model the rigid spin (docs/design.md §4).
 
-On disk a dataset is a directory (format version :data:`FORMAT_VERSION`)::
+On disk a dataset is a directory (format version :data:`FORMAT_VERSION`; version 1, without the measurements'
+``spin_joint``, still loads)::
 
     dataset.json   arm, camera, measurements (joint angles, track array names), metadata
     tracks.npz     one (N, 2) float array of pixels and, when known, one (N,) int array of frames per track
     arm.urdf       the arm's URDF text, only for arms built from a URDF
 
-``dataset.json`` is checked against ``gtsam_rotid/schemas/dataset-v1.schema.json`` (JSON Schema 2020-12) when
-loading. :meth:`Dataset.save` writes atomically: a crash leaves either the old dataset or the new one, never a
-half-written directory, and an unrelated file or directory is never replaced.
+``dataset.json`` is checked against ``gtsam_rotid/schemas/dataset-v2.schema.json`` (JSON Schema 2020-12; a
+version-1 file against ``dataset-v1.schema.json``) when loading. :meth:`Dataset.save` writes atomically: a crash
+leaves either the old dataset or the new one, never a half-written directory, and an unrelated file or directory is
+never replaced.
 """
 
 from __future__ import annotations
@@ -50,11 +52,13 @@ from .measurements import MAX_FRAME_SPAN, Measurement, Track, _located, _plural
 #: ``"format"`` marker of ``dataset.json``.
 FORMAT = "gtsam_rotid.dataset"
 #: Newest on-disk format version this module reads and the one it writes.
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 DATASET_FILE = "dataset.json"
 TRACKS_FILE = "tracks.npz"
 URDF_FILE = "arm.urdf"
-SCHEMA_FILE = "dataset-v1.schema.json"
+SCHEMA_FILE = "dataset-v2.schema.json"
+#: The schema of each format version this module reads.
+SCHEMA_FILES = {1: "dataset-v1.schema.json", 2: SCHEMA_FILE}
 _TRACK_KEY = re.compile(r"^m(\d+)_t(\d+)_")
 _SHORT_REPR = reprlib.Repr()  # keyword arguments need Python 3.12
 _SHORT_REPR.maxlevel, _SHORT_REPR.maxdict, _SHORT_REPR.maxlist = 2, 4, 4
@@ -84,9 +88,9 @@ def _reject_json_constant(name: str) -> float:
     raise ValueError(f"{name} is not valid JSON")
 
 
-@lru_cache(maxsize=1)
-def _schema_validator() -> jsonschema.protocols.Validator:
-    text = (resources.files("gtsam_rotid") / "schemas" / SCHEMA_FILE).read_text(encoding="utf-8")
+@lru_cache(maxsize=len(SCHEMA_FILES))
+def _schema_validator(version: int = FORMAT_VERSION) -> jsonschema.protocols.Validator:
+    text = (resources.files("gtsam_rotid") / "schemas" / SCHEMA_FILES[version]).read_text(encoding="utf-8")
     schema = json.loads(text)
     validator_class = jsonschema.validators.validator_for(schema)
     validator_class.check_schema(schema)
@@ -110,7 +114,8 @@ def _validate_document(document: Any) -> None:
     if isinstance(version, int) and not isinstance(version, bool) and version > FORMAT_VERSION:
         raise ValidationError(f"dataset format version {version} is newer than this gtsam_rotid supports "
                               f"({FORMAT_VERSION}); upgrade gtsam_rotid to read it")
-    error = jsonschema.exceptions.best_match(_schema_validator().iter_errors(document))
+    version = version if version in SCHEMA_FILES else FORMAT_VERSION  # (the schema then names what is wrong)
+    error = jsonschema.exceptions.best_match(_schema_validator(version).iter_errors(document))
     if error is None:
         return
     where = list(error.absolute_path)
@@ -121,7 +126,7 @@ def _validate_document(document: Any) -> None:
             track = where[3]
     message = error.message.replace(repr(error.instance), _SHORT_REPR.repr(error.instance))
     message = message if len(message) <= 300 else message[:300] + "..."
-    raise ValidationError(f"{DATASET_FILE} does not match the format-{FORMAT_VERSION} schema at "
+    raise ValidationError(f"{DATASET_FILE} does not match the format-{version} schema at "
                           f"{error.json_path}: {message}", measurement=measurement, track=track)
 
 
@@ -225,6 +230,9 @@ class Dataset:
         except ArmError as err:
             raise ValidationError(f"joint angles do not fit the arm {self.arm.name!r}: {err}",
                                   measurement=k) from None
+        if measurement.spin_joint is not None and measurement.spin_joint not in self.arm.joint_names:
+            raise ValidationError(f"spin_joint {measurement.spin_joint!r} is not a revolute joint of the arm "
+                                  f"{self.arm.name!r}; revolute joints: {self.arm.joint_names}", measurement=k)
         problem = self.arm.limit_problem(angles)
         if problem is not None:
             raise ValidationError(problem, measurement=k)
@@ -285,6 +293,7 @@ class Dataset:
             lines.append(f"  metadata: {', '.join(sorted(self.metadata))}")
         for k, m in enumerate(self.measurements):
             label = "" if m.name is None else f" {m.name!r}"
+            label += "" if m.spin_joint is None else f" (spin of {m.spin_joint})"
             span = m.frame_span()
             without = sum(t.frames is None for t in m.tracks)
             if span is None:
@@ -340,7 +349,10 @@ class Dataset:
                     arrays[frames_key] = track.frames
                 tracks.append({"pixels": pixels_key, "frames": frames_key, "n": len(track)})
             angles = dict(m.joint_angles) if isinstance(m.joint_angles, dict) else m.joint_angles.tolist()
-            entries.append({"name": m.name, "joint_angles": angles, "tracks": tracks})
+            entry = {"name": m.name, "joint_angles": angles, "tracks": tracks}
+            if m.spin_joint is not None:
+                entry["spin_joint"] = m.spin_joint
+            entries.append(entry)
         document = {
             "format": FORMAT,
             "version": FORMAT_VERSION,
@@ -505,7 +517,8 @@ def _load_measurements(npz_path: Path, entries: list[dict]) -> list[Measurement]
                 except ValidationError as err:
                     raise _located(err, measurement=k, track=j) from None
             try:
-                measurements.append(Measurement(entry["joint_angles"], tracks, name=entry["name"]))
+                measurements.append(Measurement(entry["joint_angles"], tracks, name=entry["name"],
+                                                spin_joint=entry.get("spin_joint")))
             except ValidationError as err:
                 raise _located(err, measurement=k) from None
         extra = sorted(set(npz.files) - used)

@@ -144,7 +144,7 @@ def wrist_axes(result, dataset=None) -> dict[int, Line3] | None:
         if len(dataset) != len(result.measurements):
             raise InputError(f"the dataset has {len(dataset)} measurements but the result {len(result.measurements)}: "
                              "it is not the dataset this result was calibrated from")
-        return {k: dataset.arm.wrist_axis(dataset.joint_angles(k)) for k in range(len(dataset))}
+        return {k: dataset.arm.wrist_axis(dataset.joint_angles(k), dataset[k].spin_joint) for k in range(len(dataset))}
     axes = {}
     for m in result.measurements:
         point, direction = m.axis_point, m.axis_direction

@@ -103,15 +103,15 @@ def axis_test_points(axis) -> np.ndarray:
     return axis.points_at([0.0, TEST_POINT_SPACING])
 
 
-def offset_axis_test_points(arm: Arm, joint_angles, joints):
-    """``delta -> (test points (2, 3), their derivatives (2, 3, n))``: :func:`axis_test_points` of the FK axis at
-    ``joint_angles`` plus the offsets ``delta`` (radians) of the joint indices ``joints``, and their derivatives by
-    those offsets (:meth:`gtsam_rotid.arm.Arm.wrist_axis_offset_derivatives`); the ``axis_of`` of the offsets'
-    factors (:func:`gtsam_rotid.factors.make_axis_offsets_to_line_factor`)."""
+def offset_axis_test_points(arm: Arm, joint_angles, joints, spin_joint: str | None = None):
+    """``delta -> (test points (2, 3), their derivatives (2, 3, n))``: :func:`axis_test_points` of the FK axis (of
+    ``spin_joint``, default the wrist) at ``joint_angles`` plus the offsets ``delta`` (radians) of the joint indices
+    ``joints``, and their derivatives by those offsets (:meth:`gtsam_rotid.arm.Arm.wrist_axis_offset_derivatives`);
+    the ``axis_of`` of the offsets' factors (:func:`gtsam_rotid.factors.make_axis_offsets_to_line_factor`)."""
     spacing = np.array([0.0, TEST_POINT_SPACING])
 
     def axis_of(delta):
-        axis, d_point, d_direction = arm.wrist_axis_offset_derivatives(joint_angles, joints, delta)
+        axis, d_point, d_direction = arm.wrist_axis_offset_derivatives(joint_angles, joints, delta, spin_joint)
         return axis.points_at(spacing), d_point[None] + spacing[:, None, None] * d_direction[None]
     return axis_of
 
@@ -327,10 +327,11 @@ class RotIdGraph:
         graph.add(gtsam.PriorFactorVector(self.offsets_key, np.radians(mean),
                                           gtsam.noiseModel.Diagonal.Sigmas(np.radians(sigma))))
 
-    def axis_of(self, joint_angles):
-        """``delta -> (test points (2, 3), their derivatives (2, 3, n))`` of the FK axis at ``joint_angles`` with
-        the offsets ``delta`` (radians) of :attr:`offset_joints` (:func:`offset_axis_test_points`)."""
-        return offset_axis_test_points(self.arm, joint_angles, self.offset_joints)
+    def axis_of(self, joint_angles, spin_joint: str | None = None):
+        """``delta -> (test points (2, 3), their derivatives (2, 3, n))`` of the FK axis of ``spin_joint`` (default
+        the wrist) at ``joint_angles`` with the offsets ``delta`` (radians) of :attr:`offset_joints`
+        (:func:`offset_axis_test_points`)."""
+        return offset_axis_test_points(self.arm, joint_angles, self.offset_joints, spin_joint)
 
     def line_key(self, k: int) -> int:
         return gtsam.symbol(self.line_symbol, k)
@@ -392,9 +393,10 @@ class RotIdGraph:
             raise InputError("insert the joint offsets first (RotIdGraph.add_offsets_prior)")
         if tie and self.offset_joints:
             axis = self.arm.wrist_axis_offset_derivatives(measurement.joint_angles, self.offset_joints,
-                                                          values.atVector(self.offsets_key))[0]
+                                                          values.atVector(self.offsets_key),
+                                                          measurement.spin_joint)[0]
         else:
-            axis = self.arm.wrist_axis(measurement.joint_angles)
+            axis = self.arm.wrist_axis(measurement.joint_angles, measurement.spin_joint)
         camera_T_arm = arm_T_camera.inverse()
         point_cam = camera_T_arm.transformFrom(axis.point)
         direction_cam = camera_T_arm.rotation().matrix() @ axis.direction
@@ -438,8 +440,9 @@ class RotIdGraph:
         # nothing is added to the caller's graph or values before every check has passed
         _commit(graph, values, new_factors, new_values, keys, line_cam)
         if tie and not bound and self.offset_joints:
+            axis_of = self.axis_of(measurement.joint_angles, measurement.spin_joint)
             graph.add(make_axis_offsets_to_line_variable_factor(tie_noise, self.pose_key, line_key, self.offsets_key,
-                                                                self.axis_of(measurement.joint_angles), K))
+                                                                axis_of, K))
             keys.tie_factor = graph.size() - 1
         elif tie and not bound:
             graph.add(make_axis_to_line_variable_factor(tie_noise, self.pose_key, line_key, axis_test_points(axis), K))

@@ -194,14 +194,20 @@ class Measurement:
         tracks: non-empty list of :class:`Track` or (N, 2) pixel arrays (converted with
             :meth:`Track.from_any`; errors name the track index).
         name: optional label.
+        spin_joint: the name of the joint that spun (its features trace circles about its axis); None (default):
+            the arm's wrist joint (:attr:`gtsam_rotid.arm.Arm.wrist_joint`, the last revolute joint unless the arm
+            names another). Checked against the arm by :class:`Dataset`.
     """
 
-    __slots__ = ("joint_angles", "tracks", "name")
+    __slots__ = ("joint_angles", "tracks", "name", "spin_joint")
 
-    def __init__(self, joint_angles, tracks, *, name: str | None = None):
+    def __init__(self, joint_angles, tracks, *, name: str | None = None, spin_joint: str | None = None):
         if name is not None and not isinstance(name, str):
             raise ValidationError(f"measurement name must be a string or None, got {type(name).__name__}")
+        if spin_joint is not None and (not isinstance(spin_joint, str) or not spin_joint):
+            raise ValidationError(f"spin_joint must be a joint name or None, got {spin_joint!r}")
         self.name = name
+        self.spin_joint = spin_joint
         self.joint_angles = _checked_joint_angles(joint_angles)
         if isinstance(tracks, (Track, str, bytes, Mapping)) or (isinstance(tracks, np.ndarray) and tracks.ndim < 3):
             raise ValidationError(f"tracks must be a list of Track or (N, 2) arrays, got a single "
@@ -239,10 +245,12 @@ class Measurement:
             same_angles = isinstance(a, dict) and isinstance(b, dict) and a == b
         else:
             same_angles = np.array_equal(a, b)
-        return self.name == other.name and same_angles and self.tracks == other.tracks
+        return (self.name == other.name and self.spin_joint == other.spin_joint and same_angles
+                and self.tracks == other.tracks)
 
     __hash__ = None
 
     def __repr__(self) -> str:
         label = "" if self.name is None else f"{self.name!r}, "
+        label += "" if self.spin_joint is None else f"spinning {self.spin_joint!r}, "
         return f"Measurement({label}{_plural(self.n_tracks, 'track')}, {_plural(self.n_observations, 'point')})"

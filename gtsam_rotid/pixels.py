@@ -317,7 +317,8 @@ def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | Me
             if not tracks:  # (one track is kept: the calibration leaves such a measurement out and names it)
                 raise InputError(f"measurement {k}: the tracker kept no track in {spin.n_frames} rendered frames"
                                  f"\n{result.summary()}")
-            measurements.append(Measurement(dataset[k].joint_angles, tracks, name=dataset[k].name))
+            measurements.append(Measurement(dataset[k].joint_angles, tracks, name=dataset[k].name,
+                                            spin_joint=dataset[k].spin_joint))
             results.append(result)
             accuracies.append(mesh_accuracy(tracks, spin) if mesh else spin_accuracy(tracks, spin))
             spins.append(spin)

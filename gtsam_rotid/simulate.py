@@ -42,6 +42,9 @@ class SceneConfig:
     n_measurements: int = 6
     #: Explicit arm poses (one joint-angle vector per measurement); sampled when None.
     joint_angles: tuple | None = None
+    #: The joints spun at every arm pose, one measurement each, in this order (names; empty: the wrist joint only).
+    #: The features stay on the hand (after the wrist joint); a spin of an earlier joint swings them about its axis.
+    spin_joints: tuple = ()
     n_features: int = 12
     radius_range: tuple = (0.03, 0.06)
     offset_range: tuple = (0.0, 0.10)
@@ -89,8 +92,9 @@ class MeasurementTruth:
     axis_direction: np.ndarray  # unit, arm frame
     e1: np.ndarray  # fixed basis perpendicular to the axis: phase 0 direction
     e2: np.ndarray
-    spin_angles: np.ndarray  # wrist spin angle of every frame (rad)
+    spin_angles: np.ndarray  # spin angle of every frame (rad)
     tracks: list[TrackTruth]
+    spin_joint: str | None = None  # the joint that spun (None: the wrist joint); the axis is its axis
 
     @property
     def axis(self) -> Line3:
@@ -130,6 +134,7 @@ class GroundTruth:
                     "e2": m.e2.tolist(),
                     "spin_angles": m.spin_angles.tolist(),
                     "tracks": [asdict(t) for t in m.tracks],
+                    "spin_joint": m.spin_joint,
                 }
                 for m in self.measurements
             ],
@@ -149,6 +154,7 @@ class GroundTruth:
                     e2=np.array(m["e2"]),
                     spin_angles=np.array(m["spin_angles"]),
                     tracks=[TrackTruth(**t) for t in m["tracks"]],
+                    spin_joint=m.get("spin_joint"),
                 )
                 for m in data["measurements"]
             ],
@@ -200,16 +206,43 @@ class SpinScene:
         R = self.arm.arm_T_wrist(joint_angles).rotation().matrix()
         return axis, R @ self.local_e1, R @ self.local_e2
 
+    def _wrist_spin(self, joint: str | None) -> bool:
+        return joint is None or joint == self.arm.wrist_joint
+
+    def spin_features(self, joint_angles, joint: str | None = None):
+        """The features at ``joint_angles`` as circles about the axis of the spinning ``joint`` (default the
+        wrist): ``(axis, e1, e2, radii, offsets, phases, normals)``, the phases at spin angle 0 in the (e1, e2)
+        basis and each feature's outward normal at spin 0 as its components along (axis, e1, e2), (n, 3)."""
+        axis, e1, e2 = self.basis(joint_angles)
+        cos_p, sin_p = np.cos(self.phases), np.sin(self.phases)
+        if self._wrist_spin(joint):
+            normals = np.stack([np.zeros_like(cos_p), cos_p, sin_p], axis=1)
+            return axis, e1, e2, self.radii, self.offsets, self.phases, normals
+        radial = cos_p[:, None] * e1 + sin_p[:, None] * e2  # the outward normal, about the wrist axis
+        points = axis.point + self.offsets[:, None] * axis.direction + self.radii[:, None] * radial
+        spin_axis = self.arm.wrist_axis(joint_angles, joint)
+        a = spin_axis.direction
+        f1, f2 = perpendicular_basis(a)
+        relative = points - spin_axis.point
+        offsets = relative @ a
+        across = relative - offsets[:, None] * a
+        phases = np.arctan2(across @ f2, across @ f1)
+        normals = np.stack([radial @ a, radial @ f1, radial @ f2], axis=1)
+        return spin_axis, f1, f2, np.linalg.norm(across, axis=1), offsets, phases, normals
+
     def project(self, points_arm: np.ndarray) -> np.ndarray:
         R = self.camera_T_arm.rotation().matrix()
         t = self.camera_T_arm.translation()
         return self.camera.project(points_arm @ R.T + t)
 
-    def pose_problem(self, joint_angles) -> str | None:
-        """Why this arm pose is unusable for the scene, or None when it is fine."""
+    def pose_problem(self, joint_angles, joint: str | None = None) -> str | None:
+        """Why this arm pose is unusable for the scene with a spin of ``joint`` (default the wrist), or None when
+        it is fine."""
         cfg = self.config
         if not self.arm.within_limits(joint_angles):
             return "outside joint limits"
+        if not self._wrist_spin(joint):
+            return self._swing_problem(joint_angles, joint)
         axis, e1, e2 = self.basis(joint_angles)
         ray = axis.point - self.camera_centre
         depth = np.linalg.norm(ray)
@@ -231,6 +264,36 @@ class SpinScene:
             return "end effector leaves the image"
         return None
 
+    def _swing_problem(self, joint_angles, joint: str) -> str | None:
+        """:meth:`pose_problem` for a spin of another joint than the wrist: the wrist pose must be fine and the
+        features' whole swing about the joint's axis stay in view and above ``min_height``."""
+        problem = self.pose_problem(joint_angles)
+        if problem is not None:
+            return problem
+        cfg = self.config
+        axis = self.arm.wrist_axis(joint_angles, joint)
+        ray = axis.point - self.camera_centre
+        angle = np.degrees(np.arccos(min(1.0, abs(ray @ axis.direction) / np.linalg.norm(ray))))
+        if not cfg.axis_view_angle_deg[0] <= angle <= cfg.axis_view_angle_deg[1]:
+            return f"{joint} axis at {angle:.0f} deg to the viewing ray"
+        wrist, e1, e2 = self.basis(joint_angles)
+        phases = np.linspace(0.0, 2.0 * np.pi, 12, endpoint=False)
+        rims = np.vstack([circle_points(wrist.point + offset * wrist.direction, wrist.direction,
+                                        cfg.radius_range[1], phases, e1, e2)
+                          for offset in (cfg.offset_range[0], cfg.offset_range[1])])
+        a = axis.direction
+        relative = rims - axis.point
+        swept = []
+        for s in np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False):  # Rodrigues about the joint's axis
+            swept.append(axis.point + relative * np.cos(s) + np.cross(a, relative) * np.sin(s)
+                         + np.outer(relative @ a, a) * (1.0 - np.cos(s)))
+        swept = np.vstack(swept)
+        if np.min(swept[:, 2]) < cfg.min_height:
+            return f"end effector too low during the {joint} spin"
+        if not np.all(self.camera.in_image(self.project(swept), cfg.image_margin)):
+            return f"end effector leaves the image during the {joint} spin"
+        return None
+
     def sample_poses(self, rng: np.random.Generator) -> list[np.ndarray]:
         cfg = self.config
         chosen: list[np.ndarray] = []
@@ -238,7 +301,7 @@ class SpinScene:
         cos_sep = np.cos(np.radians(cfg.min_axis_separation_deg))
         for _ in range(cfg.max_pose_samples):
             q = self.arm.random_joint_angles(rng)
-            if self.pose_problem(q) is not None:
+            if any(self.pose_problem(q, joint) is not None for joint in cfg.spin_joints or (None,)):
                 continue
             a = self.arm.wrist_axis(q).direction
             if any(abs(a @ b) > cos_sep for b in directions):
@@ -251,9 +314,11 @@ class SpinScene:
             f"found only {len(chosen)} of {cfg.n_measurements} arm poses with the wrist in view after "
             f"{cfg.max_pose_samples} samples; move the camera target towards the arm's workspace")
 
-    def measurement(self, joint_angles, rng: np.random.Generator) -> tuple[Measurement, MeasurementTruth]:
+    def measurement(self, joint_angles, rng: np.random.Generator, joint: str | None = None
+                    ) -> tuple[Measurement, MeasurementTruth]:
+        """One spin of ``joint`` (default the wrist) at ``joint_angles``: the tracks and their truth."""
         cfg = self.config
-        axis, e1, e2 = self.basis(joint_angles)
+        axis, e1, e2, radii, offsets, phases, normals = self.spin_features(joint_angles, joint)
         n_frames = int(round(cfg.duration * cfg.fps))
         frames = np.arange(n_frames)
         spin = cfg.wrist_speed * frames / cfg.fps
@@ -261,11 +326,16 @@ class SpinScene:
         tracks: list[Track] = []
         truths: list[TrackTruth] = []
         # (features, frames) arrays: phase, 3-D point, outward normal, visibility
-        phase = self.phases[:, None] + spin[None, :]
+        phase = phases[:, None] + spin[None, :]
         cos_p, sin_p = np.cos(phase)[..., None], np.sin(phase)[..., None]
-        normal = cos_p * e1 + sin_p * e2
-        points = (axis.point + self.offsets[:, None, None] * axis.direction
-                  + self.radii[:, None, None] * normal)
+        radial = cos_p * e1 + sin_p * e2
+        points = (axis.point + offsets[:, None, None] * axis.direction + radii[:, None, None] * radial)
+        if self._wrist_spin(joint):
+            normal = radial
+        else:  # the normal turns with the feature: its components along (e1, e2) by the spin, along the axis kept
+            cos_s, sin_s = np.cos(spin)[None, :, None], np.sin(spin)[None, :, None]
+            n_a, n_1, n_2 = (normals[:, i, None, None] for i in range(3))
+            normal = (n_a * axis.direction + (n_1 * cos_s - n_2 * sin_s) * e1 + (n_1 * sin_s + n_2 * cos_s) * e2)
         to_camera = self.camera_centre - points
         facing = np.einsum("fti,fti->ft", normal, to_camera) / np.linalg.norm(to_camera, axis=-1)
         pixels = self.project(points.reshape(-1, 3)).reshape(cfg.n_features, n_frames, 2)
@@ -277,12 +347,12 @@ class SpinScene:
                 if stop - start < cfg.min_track_length:
                     continue
                 tracks.append(Track(pixels[feature, start:stop], frames[start:stop]))
-                truths.append(TrackTruth(feature, float(self.radii[feature]), float(self.offsets[feature]),
-                                         float(self.phases[feature])))
+                truths.append(TrackTruth(feature, float(radii[feature]), float(offsets[feature]),
+                                         float(phases[feature])))
         self._plant_outliers(tracks, truths, axis, rng)
         truth = MeasurementTruth(np.asarray(joint_angles, dtype=float), axis.point.copy(),
-                                 axis.direction.copy(), e1, e2, spin, truths)
-        return Measurement(np.asarray(joint_angles, dtype=float), tracks), truth
+                                 axis.direction.copy(), e1, e2, spin, truths, spin_joint=joint)
+        return Measurement(np.asarray(joint_angles, dtype=float), tracks, spin_joint=joint), truth
 
     def _plant_outliers(self, tracks, truths, axis: Line3, rng: np.random.Generator) -> None:
         """Replace a fraction of the tracks by arcs of circles about a wrong axis."""
@@ -331,6 +401,8 @@ def _check_config(config: SceneConfig) -> None:
     number("outlier_fraction", 0.0, 1.0)
     number("n_features", 1)
     number("min_track_length", 2, what=" (points)")
+    if isinstance(config.spin_joints, str) or not all(isinstance(j, str) for j in config.spin_joints):
+        raise InputError(f"spin_joints must be a tuple of joint names, got {config.spin_joints!r}")
     if not (isinstance(config.wrist_speed, int | float) and math.isfinite(config.wrist_speed)
             and config.wrist_speed != 0):
         raise InputError(f"wrist_speed must be a finite, non-zero number (rad/s), got {config.wrist_speed!r}")
@@ -343,20 +415,25 @@ def simulate(config: SceneConfig | None = None, seed: int | None = 0, *, arm: Ar
     _check_config(config)
     rng = np.random.default_rng(seed)
     arm = Arm.from_robot(config.robot) if arm is None else arm
+    for joint in config.spin_joints:
+        arm.spin_index(joint)  # ArmError (an InputError) names a joint the arm does not have
     scene = SpinScene(config, arm, rng)
     if config.joint_angles is not None:
         poses = [arm.joint_angle_vector(q) for q in config.joint_angles]
         for k, q in enumerate(poses):
-            problem = scene.pose_problem(q)
-            if problem is not None:
-                raise SimulationError(f"measurement {k}: the given arm pose is unusable ({problem})")
+            for joint in config.spin_joints or (None,):
+                problem = scene.pose_problem(q, joint)
+                if problem is not None:
+                    where = f"measurement {k}" if not config.spin_joints else f"arm pose {k}, spin of {joint}"
+                    raise SimulationError(f"{where}: the given arm pose is unusable ({problem})")
     else:
         poses = scene.sample_poses(rng)
     measurements, truths = [], []
     for q in poses:
-        measurement, truth = scene.measurement(q, rng)
-        measurements.append(measurement)
-        truths.append(truth)
+        for joint in config.spin_joints or (None,):
+            measurement, truth = scene.measurement(q, rng, joint)
+            measurements.append(measurement)
+            truths.append(truth)
     config_dict = {k: v for k, v in asdict(config).items() if k != "camera"}
     metadata = {"simulated": True, "seed": seed, "noise_var": config.noise_var, "fps": config.fps}
     dataset = Dataset(arm, config.camera, measurements, metadata=metadata)

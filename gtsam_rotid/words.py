@@ -227,7 +227,7 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
         elif kind == "inconsistent" and not np.isfinite(result.axis_consistency.chi2):
             out.append("the FK axes do not even project at the estimate (their test points lie at or behind the "
                        "camera): the fit ran away from the data, a poor minimum; check the joint angles, the "
-                       "intrinsics and the wrist joint, and give the hand more texture or the wrist longer spins")
+                       "intrinsics and the spinning joint, and give the hand more texture or the wrist longer spins")
         elif kind == "inconsistent":
             c = result.axis_consistency
             out.append(f"the measurements' axes disagree with one pose by χ²/dof = {c.chi2 / c.dof:.3g}, more than "

@@ -293,7 +293,7 @@ def test_round_trip_kinova_is_exact(kinova_dataset, tmp_path):
     assert sorted(os.listdir(root)) == ["dataset.json", "tracks.npz"]
     assert leftovers(tmp_path) == []
     document = read_json(root)
-    assert document["format"] == "gtsam_rotid.dataset" and document["version"] == 1
+    assert document["format"] == "gtsam_rotid.dataset" and document["version"] == 2
     assert document["arm"]["robot"] == "kinova"
     assert document["measurements"][0]["tracks"][0] == {"pixels": "m0_t0_pixels", "frames": "m0_t0_frames", "n": 7}
     assert document["measurements"][1]["tracks"][0]["frames"] is None
@@ -487,11 +487,11 @@ def test_load_rejects_urdf_file_outside_the_dataset(urdf_arm, camera, tmp_path):
 
 def test_load_newer_version(saved):
     document = read_json(saved)
-    document["version"] = 2
+    document["version"] = 3
     document["something_new"] = {"x": 1}  # a future layout must not hide behind a schema error
     write_json(saved, document)
     with pytest.raises(ValidationError,
-                       match=r"dataset format version 2 is newer than this gtsam_rotid supports \(1\)"):
+                       match=r"dataset format version 3 is newer than this gtsam_rotid supports \(2\)"):
         Dataset.load(saved)
 
 
@@ -573,12 +573,15 @@ def test_load_pixel_outside_image_names_measurement(saved):
 
 # ---------------------------------------------------------------------------------------------- schema
 def test_schema_is_valid_draft_2020_12_and_matches_saved_files(saved):
-    text = (resources.files("gtsam_rotid") / "schemas" / "dataset-v1.schema.json").read_text(encoding="utf-8")
-    schema = json.loads(text)
-    assert schema["$schema"] == "https://json-schema.org/draft/2020-12/schema"
-    jsonschema.Draft202012Validator.check_schema(schema)
-    errors = list(jsonschema.Draft202012Validator(schema).iter_errors(read_json(saved)))
-    assert errors == []
+    schemas = {version: json.loads((resources.files("gtsam_rotid") / "schemas" / f"dataset-v{version}.schema.json"
+                                    ).read_text(encoding="utf-8")) for version in (1, 2)}
+    for schema in schemas.values():
+        assert schema["$schema"] == "https://json-schema.org/draft/2020-12/schema"
+        jsonschema.Draft202012Validator.check_schema(schema)
+    document = read_json(saved)
+    assert list(jsonschema.Draft202012Validator(schemas[2]).iter_errors(document)) == []
+    document["version"] = 1  # a file without spin joints is a version-1 file but for its version
+    assert list(jsonschema.Draft202012Validator(schemas[1]).iter_errors(document)) == []
 
 
 def test_load_schema_violation_in_arm_is_short_and_clear(saved):

@@ -248,7 +248,7 @@ def _offsets_jacobian(arm: Arm, camera: Camera, measurement: Measurement, joints
                       line: np.ndarray) -> np.ndarray:
     """(2, n): a spin's axis distances by the joint offsets (at the readings given): the offsets' factor's Jacobian
     (:func:`gtsam_rotid.factors.axis_offsets_residuals`)."""
-    axis_of = offset_axis_test_points(arm, measurement.joint_angles, joints)
+    axis_of = offset_axis_test_points(arm, measurement.joint_angles, joints, measurement.spin_joint)
     return axis_offsets_residuals(camera.K, pose, axis_of, np.zeros(len(joints)), line)[3]
 
 

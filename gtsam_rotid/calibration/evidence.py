@@ -70,7 +70,7 @@ def poor_minimum(chi2: np.ndarray, limit: float, what: str, setup: _Setup | None
     return CalibrationError(
         f"the estimate ended in a poor minimum or the data are inconsistent: {what} (chi-square of each "
         f"measurement's image axis against the projected FK axis, 2 dof, limit {limit:g}: {listing}); check "
-        "the joint angles, the intrinsics and the wrist joint (if the kinematics are known to be inaccurate, "
+        "the joint angles, the intrinsics and the spinning joint (if the kinematics are known to be inaccurate, "
         "raise CalibrationOptions.outlier_measurement_chi2)" + weak_words(setup, evidence, bad))
 
 

@@ -237,7 +237,7 @@ def _offset_rows(arm: Arm, camera: Camera, setup: _Setup, stage1, ks, joint_angl
     def axis(k, d):
         q = np.array(joint_angles[k], dtype=float)
         q[joints] += d
-        return arm.wrist_axis(q)
+        return arm.wrist_axis(q, setup.spin_joint(k))
 
     rows = _axis_rows(camera, setup, stage1, ks, pose, sigma2, floor=True, axes={k: axis(k, delta) for k in ks})
     if not free:
@@ -282,7 +282,7 @@ def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigm
     measurement left out, the rest agreeing, 13 mm off at chi-square 2 700 under a covariance called usable).
     """
     ks = [k for k in sigma2 if np.all(np.isfinite(stage1[k].image_axis))]
-    joints = np.arange(arm.wrist_index)
+    joints = np.arange(max(arm.spin_index(setup.spin_joint(k)) for k in ks) if ks else 0)
     if len(ks) < 4 or len(joints) == 0:
         return None
 

@@ -80,7 +80,7 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
     for k, p in enumerate(prepared):
         if k in kept:
             continue
-        axis = arm.wrist_axis(measurements[k].joint_angles)
+        axis = arm.wrist_axis(measurements[k].joint_angles, measurements[k].spin_joint)
         spans = [arc_span_deg(t.ideal, t.ellipse) for t in p.usable.values()]
         reports.append(MeasurementReport(
             k, len(p.usable), sum(len(t.ideal) for t in p.usable.values()), float("nan"), 0.0, True,
@@ -195,7 +195,7 @@ def _offsets_start(arm, camera, measurements, method, options, index) -> tuple[l
     if method is not Method.JOINT:
         raise InputError(f"joint offsets are refined by the joint method only, not {method.value!r}")
     names = options.joint_offsets
-    joints = arm.offset_joints(True if names is True else list(names))
+    joints = arm.offset_joints(True if names is True else list(names), [m.spin_joint for m in measurements])
     sigma = np.full(len(joints), np.radians(options.joint_offset_sigma_deg))
     starts, setup, anchors = _initial(arm, camera, measurements, options, index, INITIAL_TOLERANCE)
     pose, stage1 = _refined_stage1(arm, camera, measurements, starts[0], setup, options, anchors[0])
@@ -204,7 +204,7 @@ def _offsets_start(arm, camera, measurements, method, options, index) -> tuple[l
         named = ", ".join(f"{arm.joint_names[j]} {np.degrees(d):+.3g}°" for j, d in zip(joints, delta, strict=True))
         raise CalibrationError(f"the joint offsets that the image axes give ({named}) lie beyond "
                                f"{MAX_OFFSET_SIGMAS:g} times their prior ({options.joint_offset_sigma_deg:g}°): "
-                               "check the joint angles, the intrinsics and the wrist joint, or widen "
+                               "check the joint angles, the intrinsics and the spinning joint, or widen "
                                "CalibrationOptions.joint_offset_sigma_deg (--joint-offset-sigma-deg) if the robot's "
                                "zero positions may be that far off")
     return shifted(arm, measurements, joints, delta), OffsetsPrior(tuple(joints), delta, sigma)

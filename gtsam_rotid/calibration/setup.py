@@ -30,7 +30,7 @@ from .tuning import ARC_TRIM, WEAK_ARC_DEG
 class _Setup:
     """Built once per calibration (:func:`_setup`) and read by every stage; none changes it."""
 
-    axes: list  # FK wrist axes (Line3, arm frame)
+    axes: list  # FK axes of the spinning joints (Line3, arm frame)
     prepared: list[PreparedMeasurement]
     centre_axes: list[np.ndarray]  # the initial image axes: lines through the tracks' ellipse centres
     #: per measurement, the axis' test points' derivative by each joint angle times its sigma, (6, n_joints), or
@@ -49,6 +49,11 @@ class _Setup:
     #: the estimate rests on stage 1's free-phase lines and their covariances (``weighted``, or the joint fit with a
     #: free phase per observation): their covariance is jackknifed where the ellipses are thin (:func:`stage1._checked`)
     thin_check: bool = False
+    #: per measurement, the joint that spun (``Measurement.spin_joint``; None: the wrist joint)
+    spin_joints: list[str | None] = field(default_factory=list)
+
+    def spin_joint(self, k: int) -> str | None:
+        return self.spin_joints[k] if self.spin_joints else None
 
     def noise(self, k: int) -> np.ndarray | None:
         return self.axis_noise[k] if self.axis_noise else None
@@ -83,7 +88,7 @@ def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: C
     builder = _builder(arm, camera, options)
     axes, prepared, lines = [], [], []
     for k, m in enumerate(measurements):
-        axes.append(arm.wrist_axis(m.joint_angles))
+        axes.append(arm.wrist_axis(m.joint_angles, m.spin_joint))
         prep = builder.prepare(m, k)
         if len(prep.usable) < 2:
             reasons = "; ".join(f"track {j}: {why}" for j, why in prep.rejected.items())
@@ -94,23 +99,23 @@ def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: C
     noise = []
     if options.joint_sigma_deg > 0.0:
         sigma = np.radians(options.joint_sigma_deg)
-        noise = [sigma * test_point_jacobian(arm, m.joint_angles) for m in measurements]
+        noise = [sigma * test_point_jacobian(arm, m.joint_angles, joint=m.spin_joint) for m in measurements]
     turning = [max((_turning_deg(t.ideal) for t in p.usable.values()), default=0.0) for p in prepared]
     index = list(range(len(measurements))) if index is None else list(index)
     return _Setup(axes, prepared, lines, noise, index, camera.K, turning=turning,
-                  floor_px=float(options.axis_floor_px or 0.0))
+                  floor_px=float(options.axis_floor_px or 0.0), spin_joints=[m.spin_joint for m in measurements])
 
 
-def test_point_jacobian(arm: Arm, joint_angles, step: float = 1e-6) -> np.ndarray:
-    """(6, n_joints): derivative of the wrist axis' two FK test points (arm frame, m, stacked) by each joint angle
-    (rad), by central differences."""
+def test_point_jacobian(arm: Arm, joint_angles, step: float = 1e-6, joint: str | None = None) -> np.ndarray:
+    """(6, n_joints): derivative of the spinning joint's (``joint``, default the wrist) axis' two FK test points (arm
+    frame, m, stacked) by each joint angle (rad), by central differences."""
     q = np.asarray(joint_angles, dtype=float)
     J = np.empty((6, q.size))
     for j in range(q.size):  # one forward kinematics per joint and side
         dq = np.zeros_like(q)
         dq[j] = step
-        plus = axis_test_points(arm.wrist_axis(q + dq)).ravel()
-        minus = axis_test_points(arm.wrist_axis(q - dq)).ravel()
+        plus = axis_test_points(arm.wrist_axis(q + dq, joint)).ravel()
+        minus = axis_test_points(arm.wrist_axis(q - dq, joint)).ravel()
         J[:, j] = (plus - minus) / (2.0 * step)
     return J
 

@@ -409,7 +409,7 @@ def _check_scale(result: CalibrationResult, setup: _Setup, stage1: list[_Stage1]
         raise CalibrationError(
             f"the estimate ended in a poor minimum: it puts the camera {distance_to_wrist:.2f} m from the wrist, "
             f"so the tracked features would lie {median:.2f} m from the wrist axis (median; limit "
-            f"{options.max_feature_radius_m} m); check the joint angles, the intrinsics and the wrist joint")
+            f"{options.max_feature_radius_m} m); check the joint angles, the intrinsics and the spinning joint")
 
 
 @dataclass(frozen=True)
@@ -436,7 +436,7 @@ def _finish(solved: _Solved, reports, sigma_px, *, info_scale: float = 1.0, dof:
     if not np.all(np.isfinite(info)):
         raise CalibrationError("the estimate ended in a poor minimum: the pose's information there is not finite "
                                "(the FK axes' test points project at or behind the camera); check the joint angles, "
-                               "the intrinsics and the wrist joint")
+                               "the intrinsics and the spinning joint")
     observability = analyse_observability(info * info_scale, pose)
     if covariance is None or not observability.is_observable:
         covariance = observability.covariance(info)

@@ -1,0 +1,155 @@
+"""Spins of other joints than the wrist (``Measurement.spin_joint``): the arm's axis of any joint, the dataset
+format's field (version 2; version 1 still loads), the simulator's truth against the arm's own forward kinematics,
+and calibrations that use them, checked against ground truth the estimator never sees."""
+
+import json
+
+import numpy as np
+import pytest
+
+from gtsam_rotid import Arm, Dataset, Measurement, cli, simulate
+from gtsam_rotid.calibration import CalibrationOptions
+from gtsam_rotid.errors import ArmError, RotIdError, ValidationError
+from gtsam_rotid.estimate import calibrate
+from gtsam_rotid.simulate import SceneConfig
+
+ARM = Arm.from_robot("kinova")
+J5, J6 = ARM.joint_names[4], ARM.joint_names[5]
+
+
+@pytest.fixture(scope="module")
+def noise_free():
+    return simulate.simulate(SceneConfig(duration=8.0, n_measurements=3, noise_var=0.0, spin_joints=(J5, J6)),
+                             seed=2, arm=ARM)
+
+
+def test_the_axis_of_another_joint_is_its_frame_and_its_offset_derivatives_are_finite_differences():
+    q = ARM.random_joint_angles(np.random.default_rng(1))
+    axis = ARM.wrist_axis(q, J5)
+    frame = ARM.arm_T_joint(q, J5)
+    np.testing.assert_allclose(axis.point, frame.translation(), atol=1e-12)
+    np.testing.assert_allclose(axis.direction, frame.rotation().matrix() @ ARM.wrist_axis_local(J5), atol=1e-12)
+    assert abs(axis.direction @ ARM.wrist_axis(q).direction) < 1 - 1e-3  # not the wrist's axis
+    joints = [1, 2, 3, 4, 5]  # joint 5 is the spinning one and joint 6 comes after it: no derivative
+    line, d_point, d_direction = ARM.wrist_axis_offset_derivatives(q, joints, None, J5)
+    np.testing.assert_allclose(line.point, axis.point, atol=1e-12)
+    step = 1e-6
+    for c, j in enumerate(joints):
+        plus, minus = q.copy(), q.copy()
+        plus[j] += step
+        minus[j] -= step
+        a, b = ARM.wrist_axis(plus, J5), ARM.wrist_axis(minus, J5)
+        np.testing.assert_allclose(d_point[:, c], (a.point - b.point) / (2 * step), atol=1e-7)
+        np.testing.assert_allclose(d_direction[:, c], (a.direction - b.direction) / (2 * step), atol=1e-7)
+    assert np.all(d_point[:, 3:] == 0) and np.all(d_direction[:, 3:] == 0)
+    with pytest.raises(ArmError, match="'joint_7' is not a revolute joint of the model"):
+        ARM.wrist_axis(q, "joint_7")
+
+
+def test_offsets_reach_the_last_spinning_joint():
+    assert ARM.offset_joints(True, [J5]) == [1, 2, 3]
+    assert ARM.offset_joints(True, [J5, J6]) == [1, 2, 3, 4]
+    assert ARM.offset_joints([J5], [J5, None]) == [4]  # (None: the wrist)
+    with pytest.raises(ArmError, match=f"'{J5}' is the spinning joint"):
+        ARM.offset_joints([J5], [J5])
+    with pytest.raises(ArmError, match=f"'{J6}' is the last spinning joint"):
+        ARM.offset_joints([J6], [J5, J6])
+
+
+def test_simulated_spins_of_another_joint_move_the_hand_as_the_arm_does(noise_free):
+    dataset, truth = noise_free
+    assert [m.spin_joint for m in dataset] == [J5, J6] * 3
+    for k, (measurement, m_truth) in enumerate(zip(dataset, truth.measurements, strict=True)):
+        q = dataset.joint_angles(k)
+        joint = ARM.joint_names.index(measurement.spin_joint)
+        axis = ARM.wrist_axis(q, measurement.spin_joint)
+        np.testing.assert_allclose(m_truth.axis_point, axis.point, atol=1e-12)
+        np.testing.assert_allclose(m_truth.axis_direction, axis.direction, atol=1e-12)
+        camera_T_arm = truth.arm_T_camera.inverse()
+        for j, track in enumerate(measurement.tracks):
+            # the feature is fixed on the hand: its wrist-frame point at the first frame, carried by the arm's
+            # forward kinematics with the spinning joint turned by each frame's spin angle
+            points = m_truth.feature_points(j, track.frames)
+            local = ARM.arm_T_wrist(q).transformTo(m_truth.feature_points(j, [0])[0])
+            for i in (0, len(track) // 2, len(track) - 1):
+                turned = q.copy()
+                turned[joint] += m_truth.spin_angles[track.frames[i]]
+                np.testing.assert_allclose(ARM.arm_T_wrist(turned).transformFrom(local), points[i], atol=1e-12)
+            pixels = dataset.camera.project(np.array([camera_T_arm.transformFrom(p) for p in points]))
+            np.testing.assert_allclose(track.pixels, pixels, atol=1e-9)
+
+
+def test_the_dataset_keeps_the_spinning_joint_and_still_reads_version_1(noise_free, tmp_path):
+    dataset, _ = noise_free
+    root = dataset.save(tmp_path / "v2")
+    document = json.loads((root / "dataset.json").read_text())
+    assert document["version"] == 2 and document["measurements"][0]["spin_joint"] == J5
+    loaded = Dataset.load(root)
+    assert [m.spin_joint for m in loaded] == [J5, J6] * 3 and loaded.measurements == dataset.measurements
+    assert f"measurement 0 (spin of {J5})" in loaded.summary()
+
+    wrist_only = Dataset(dataset.arm, dataset.camera, [Measurement(m.joint_angles, m.tracks) for m in dataset])
+    root = wrist_only.save(tmp_path / "v1")
+    document = json.loads((root / "dataset.json").read_text())
+    assert all("spin_joint" not in m for m in document["measurements"])
+    document["version"] = 1  # what an earlier gtsam_rotid wrote
+    (root / "dataset.json").write_text(json.dumps(document))
+    assert [m.spin_joint for m in Dataset.load(root)] == [None] * 6
+    document["measurements"][1]["spin_joint"] = J5  # version 1 has no such field
+    (root / "dataset.json").write_text(json.dumps(document))
+    with pytest.raises(ValidationError, match=r"format-1 schema at \$\.measurements\[1\]"):
+        Dataset.load(root)
+
+    with pytest.raises(ValidationError, match=r"^measurement 2: spin_joint 'joint_5' is not a revolute joint"):
+        Dataset(dataset.arm, dataset.camera, [*dataset.measurements[:2],
+                                              Measurement(dataset.joint_angles(2), dataset[2].tracks,
+                                                          spin_joint="joint_5")])
+    with pytest.raises(ValidationError, match="spin_joint must be a joint name"):
+        Measurement(dataset.joint_angles(0), dataset[0].tracks, spin_joint=5)
+
+
+def test_spins_of_two_joints_calibrate_within_their_covariance_and_forgetting_which_is_refused():
+    dataset, truth = simulate.simulate(SceneConfig(duration=10.0, n_measurements=4, spin_joints=(J5, J6)),
+                                       seed=4, arm=ARM)
+    result = calibrate(dataset)
+    assert result.covariance_usable, result.untrusted
+    e = result.error_to(truth.arm_T_camera)
+    assert e @ np.linalg.solve(result.covariance, e) < 22.46  # the 99.9 % point of 6 dof
+    assert np.linalg.norm(e[3:]) < 2e-3
+    # the same tracks said to be the wrist's spins: the axes disagree, never a confident number
+    forgot = Dataset(dataset.arm, dataset.camera, [Measurement(m.joint_angles, m.tracks) for m in dataset])
+    try:
+        wrong = calibrate(forgot)
+    except RotIdError as refusal:
+        assert "disagree" in str(refusal)
+    else:
+        e = wrong.error_to(truth.arm_T_camera)
+        assert not wrong.covariance_usable or e @ np.linalg.solve(wrong.covariance, e) < 22.46
+
+
+def test_offsets_with_spins_of_two_joints_hold_their_covariance():
+    dataset, truth = simulate.simulate(SceneConfig(duration=10.0, n_measurements=5, spin_joints=(J5, J6)),
+                                       seed=3, arm=ARM)
+    offsets = np.radians([0.0, 0.4, -0.3, 0.3, 0.4, 0.0])  # joints 2-5; the true angle is the reading plus it
+    readings = Dataset(dataset.arm, dataset.camera, [Measurement(dataset.joint_angles(k) - offsets, m.tracks,
+                                                                 spin_joint=m.spin_joint)
+                                                     for k, m in enumerate(dataset)])
+    result = calibrate(readings, options=CalibrationOptions(joint_offsets=True))
+    assert list(result.joint_offsets) == ARM.joint_names[1:5]  # joint 5's offset shows in joint 6's spins
+    assert result.covariance_usable, result.untrusted
+    e = result.error_to(truth.arm_T_camera)
+    assert e @ np.linalg.solve(result.covariance, e) < 22.46
+    miss = np.array(list(result.joint_offsets.values())) - offsets[1:5]
+    assert miss @ np.linalg.solve(result.joint_offsets_covariance, miss) < 18.47  # 99.9 % point, 4 dof
+    assert max(result.joint_offsets_sigma_deg.values()) < 0.2  # determined, not the 1 degree prior
+
+
+def test_the_command_line_simulates_spins_of_named_joints(tmp_path, capsys):
+    out = tmp_path / "spins"
+    assert cli.main(["simulate", "-o", str(out), "--duration", "5", "--n-measurements", "4",
+                     "--spin-joints", J5, J6]) == 0
+    assert [m.spin_joint for m in Dataset.load(out)] == [J5, J6] * 4
+    assert cli.main(["simulate", "-o", str(tmp_path / "bad"), "--spin-joints", "joint_5"]) == 1
+    err = capsys.readouterr().err
+    assert "'joint_5' is not a revolute joint" in err and J5 in err
+    assert not (tmp_path / "bad").exists()
