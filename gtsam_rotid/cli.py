@@ -468,7 +468,8 @@ def cmd_track(args: argparse.Namespace) -> int:
 def _track_bag(args: argparse.Namespace, arm: Arm, params) -> Dataset:
     """``track --bag``: the spins, joints and camera from a ROS bag."""
     given = [flag for flag, value in (("--joints", args.joints), ("--frames", args.frames), ("--spans", args.spans),
-                                      ("--degrees", args.degrees), ("--ignore-joints", args.ignore_joints))
+                                      ("--degrees", args.degrees), ("--ignore-joints", args.ignore_joints),
+                                      ("--spin-joints", args.spin_joints))
              if value]
     for flag, value in (("--time-offset", args.time_offset), ("--max-time-offset", args.max_time_offset)):
         if value is not None and not np.isfinite(value):
@@ -516,8 +517,12 @@ def _track_videos(args: argparse.Namespace, arm: Arm, params) -> Dataset:
                      "min_spin_deg": args.min_spin, "ignore_joints": list(args.ignore_joints)}
     print(f"{len(videos)} video(s); {arm!r}" + ("" if params is None else f"; features: {params.features}"),
           flush=True)
+    if args.spin_joints and len(args.spin_joints) != len(videos):
+        raise InputError(f"{len(args.spin_joints)} --spin-joints for {len(videos)} video(s); name the joint that "
+                         f"spun in each video (the wrist: {arm.wrist_joint})")
     return make_dataset(videos, args.joints, args.camera, arm, frame_ranges=frame_ranges,
-                        progress=not args.no_progress, joint_options=joint_options, tracker_params=params)
+                        progress=not args.no_progress, joint_options=joint_options, tracker_params=params,
+                        spin_joints=args.spin_joints)
 
 
 def add_track_parser(subparsers) -> argparse.ArgumentParser:
@@ -553,6 +558,9 @@ def add_track_parser(subparsers) -> argparse.ArgumentParser:
     robot.add_argument("--robot", metavar="NAME", help="example-robot-data arm (kinova, ur5, ur10, panda, xarm7)")
     robot.add_argument("--urdf", metavar="FILE", help="the arm's URDF")
     p.add_argument("--wrist-joint", metavar="NAME", help="the spinning joint (default: the last revolute joint)")
+    p.add_argument("--spin-joints", nargs="+", metavar="NAME",
+                   help="videos only: the joint that spun in each video, one per video, where they differ (default: "
+                        "the wrist joint in every video)")
     p.add_argument("--frames", nargs="+", metavar="START:STOP",
                    help="frame range per video (stop exclusive; ':' = all frames)")
     p.add_argument("--spans", nargs="+", metavar="T0:T1",

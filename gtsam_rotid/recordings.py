@@ -7,7 +7,7 @@ One video file or one folder of images per measurement (one wrist spin at a fixe
   ``ros2 topic``), read by :func:`load_camera` (in :mod:`gtsam_rotid.camerafiles`);
 * a **joint-angle file** (CSV or JSON), read by :func:`load_joints`: either one row of joint angles per
   measurement, or a time series of joint states from which each spin's still joints are read, after checking
-  that only the wrist moved.
+  that only the spinning joint moved (the wrist, or the joint each video names: ``spin_joints``).
 
 :func:`make_dataset` runs a feature tracker (by default :func:`gtsam_rotid.tracking.track`) on every video and
 builds the dataset; :func:`add_track_parser` / :func:`cmd_track` are the ``gtsam-rotid track`` command.
@@ -299,24 +299,29 @@ def _label(k: int, labels: Sequence[str] | None) -> str:
 
 
 def _still_pose(joint_file: JointFile, unwrapped: np.ndarray, inside: np.ndarray, arm: Arm, label: str,
-                still_tolerance_deg: float, min_spin_deg: float) -> np.ndarray:
-    """The arm pose held during one spin (samples ``inside``): median of the still joints, the wrist at its start."""
+                still_tolerance_deg: float, min_spin_deg: float, spin_joint: str | None = None) -> np.ndarray:
+    """The arm pose held during one spin (samples ``inside``): median of the still joints, the spinning joint
+    (``spin_joint``, default the wrist) at its start."""
     stamps = joint_file.stamps
     t0, t1 = stamps[inside[0]], stamps[inside[-1]]
     segment = unwrapped[inside]
     motion = np.degrees(np.ptp(segment, axis=0))
-    wrist = arm.wrist_index
+    wrist = arm.spin_index(spin_joint)
+    what = "the wrist" if spin_joint is None else f"the spinning joint {spin_joint!r}"
     moved = [(arm.joint_names[j], motion[j]) for j in range(arm.dof) if j != wrist and motion[j] > still_tolerance_deg]
     if moved:
         listed = ", ".join(f"{name!r} by {deg:.3g} deg" for name, deg in moved)
-        raise RecordingError(f"{label}: only the wrist may move during a spin, but between the stamps {t0:g} and "
+        raise RecordingError(f"{label}: only {what} may move during a spin, but between the stamps {t0:g} and "
                              f"{t1:g} the joint(s) {listed} moved (tolerance {still_tolerance_deg:g} deg, peak to "
                              f"peak) in {joint_file.path}")
     if motion[wrist] < min_spin_deg:
-        raise RecordingError(f"{label}: the wrist {arm.wrist_joint!r} turned by only {motion[wrist]:.3g} deg between "
+        what = f"the wrist {arm.wrist_joint!r}" if spin_joint is None else what
+        raise RecordingError(f"{label}: {what} turned by only {motion[wrist]:.3g} deg between "
                              f"the stamps {t0:g} and {t1:g} (a spin needs at least {min_spin_deg:g} deg) in "
                              f"{joint_file.path}")
-    pose = np.median(segment, axis=0)
+    # the medians of the unwrapped series, taken back by the turns the unwrapping added (a continuous wrist that
+    # wrapped during earlier spins, still while another joint spins, is read as its own reading, not 2 pi off)
+    pose = np.median(segment, axis=0) + (joint_file.positions[inside[0]] - segment[0])
     pose[wrist] = joint_file.positions[inside[0], wrist]
     return pose
 
@@ -324,7 +329,8 @@ def _still_pose(joint_file: JointFile, unwrapped: np.ndarray, inside: np.ndarray
 def load_joints(path: str | os.PathLike, arm: Arm, n_measurements: int | None = None, *, degrees: bool = False,
                 spans: Sequence[tuple[float, float]] | None = None,
                 still_tolerance_deg: float = STILL_TOLERANCE_DEG, min_spin_deg: float = MIN_SPIN_DEG,
-                ignore_joints: Sequence[str] = (), labels: Sequence[str] | None = None) -> np.ndarray:
+                ignore_joints: Sequence[str] = (), labels: Sequence[str] | None = None,
+                spin_joints: Sequence[str | None] | None = None) -> np.ndarray:
     """The joint angles of each measurement, (n_measurements, dof) radians in ``arm.joint_names`` order.
 
     ``path`` is read by :func:`read_joint_file`. A file of one row per measurement must have
@@ -333,7 +339,8 @@ def load_joints(path: str | os.PathLike, arm: Arm, n_measurements: int | None = 
     :func:`find_spins`; the still joints are the median over the span, the wrist is its angle at the span's
     start. Every non-wrist joint must stay within ``still_tolerance_deg`` (peak to peak) and the wrist must
     turn by at least ``min_spin_deg``, else a :class:`RecordingError` names the measurement (with its
-    ``labels[k]``, e.g. the video), the joint and how much it moved.
+    ``labels[k]``, e.g. the video), the joint and how much it moved. ``spin_joints`` (one joint name or None per
+    measurement): the joint that spun in each, in the wrist's place; spins of different joints need ``spans``.
     """
     joint_file = read_joint_file(path, arm, degrees=degrees, ignore_joints=ignore_joints)
     if n_measurements is not None and (isinstance(n_measurements, bool) or not isinstance(n_measurements, int)
@@ -350,15 +357,25 @@ def load_joints(path: str | os.PathLike, arm: Arm, n_measurements: int | None = 
         return _within_limits(joint_file.positions.copy(), arm, joint_file.path, labels)
     unwrapped = np.unwrap(joint_file.positions, axis=0)
     stamps = joint_file.stamps
+    spinning = list(spin_joints) if spin_joints is not None else None
+    if spinning is not None and n_measurements is not None and len(spinning) != n_measurements:
+        raise InputError(f"{len(spinning)} spin joint(s) for {n_measurements} measurements; give one per video")
+    for joint in spinning or ():
+        arm.spin_index(joint)  # ArmError (an InputError) names a joint the arm does not have
+    if spans is None and spinning is not None and len({arm.spin_index(j) for j in spinning}) > 1:
+        raise RecordingError(f"{joint_file.path}: the videos spin different joints ({sorted(set(map(str, spinning)))})"
+                             "; give each video's time span explicitly (spans / --spans)")
     if spans is None:
-        runs = _spin_runs(unwrapped, arm.wrist_index, still_tolerance_deg, min_spin_deg)
+        spin = arm.spin_index(spinning[0]) if spinning else arm.wrist_index
+        runs = _spin_runs(unwrapped, spin, still_tolerance_deg, min_spin_deg)
         if not runs or (n_measurements is not None and len(runs) != n_measurements):
             found = "; ".join(f"{stamps[a]:g} to {stamps[b - 1]:g}" for a, b in runs) or "none"
             expected = f", expected {n_measurements} (one per video)" if n_measurements is not None else ""
-            raise RecordingError(f"{joint_file.path}: found {len(runs)} spin(s) (time spans in which only the wrist "
-                                 f"{arm.wrist_joint!r} moved, by at least {min_spin_deg:g} deg, the other joints "
-                                 f"within {still_tolerance_deg:g} deg){expected}: {found}. Give each video's time "
-                                 f"span explicitly (spans / --spans), or adjust still_tolerance_deg / min_spin_deg")
+            raise RecordingError(f"{joint_file.path}: found {len(runs)} spin(s) (time spans in which only the "
+                                 f"joint {arm.joint_names[spin]!r} moved, by at least {min_spin_deg:g} deg, the other "
+                                 f"joints within {still_tolerance_deg:g} deg){expected}: {found}. Give each video's "
+                                 f"time span explicitly (spans / --spans), or adjust still_tolerance_deg / "
+                                 f"min_spin_deg")
         selections = [np.arange(a, b) for a, b in runs]
     else:
         spans = [tuple(span) for span in spans]
@@ -378,7 +395,8 @@ def load_joints(path: str | os.PathLike, arm: Arm, n_measurements: int | None = 
                                      f"{stamps[0]:g} to {stamps[-1]:g}); a spin needs at least 2")
             selections.append(inside)
     return _within_limits(np.array([_still_pose(joint_file, unwrapped, inside, arm, _label(k, labels),
-                                                still_tolerance_deg, min_spin_deg)
+                                                still_tolerance_deg, min_spin_deg,
+                                                None if spinning is None else spinning[k])
                                     for k, inside in enumerate(selections)]), arm, joint_file.path, labels)
 
 
@@ -393,11 +411,12 @@ def _within_limits(angles: np.ndarray, arm: Arm, path: Path, labels: Sequence[st
 
 
 # ---------------------------------------------------------------------------------------------- dataset
-def _joint_rows(joints, arm: Arm, labels: list[str], joint_options: Mapping | None) -> list[np.ndarray]:
+def _joint_rows(joints, arm: Arm, labels: list[str], joint_options: Mapping | None,
+                spin_joints: list[str | None] | None = None) -> list[np.ndarray]:
     """One joint-angle vector per video (``joints``: rows, or a joint-angle file read with ``joint_options``)."""
     n = len(labels)
     if isinstance(joints, (str, os.PathLike)):
-        joints = load_joints(joints, arm, n, labels=labels, **dict(joint_options or {}))
+        joints = load_joints(joints, arm, n, labels=labels, spin_joints=spin_joints, **dict(joint_options or {}))
     elif joint_options:
         raise InputError("joint_options apply only when joints is the path of a joint-angle file")
     if isinstance(joints, np.ndarray) and joints.ndim != 2:
@@ -425,7 +444,7 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
                  tracker: Callable | None = None, tracker_params: Any = None,
                  frame_ranges: Sequence[tuple[int | None, int | None] | None] | None = None,
                  progress: bool = True, joint_options: Mapping | None = None,
-                 metadata: Mapping | None = None) -> Dataset:
+                 metadata: Mapping | None = None, spin_joints: Sequence[str | None] | None = None) -> Dataset:
     """A :class:`Dataset` from one video (file or image folder) per measurement.
 
     Args:
@@ -443,6 +462,8 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
         joint_options: keyword arguments of :func:`load_joints` when ``joints`` is a path (``degrees``,
             ``spans``, ``still_tolerance_deg``, ``min_spin_deg``, ``ignore_joints``).
         metadata: extra dataset metadata (merged with a ``"recording"`` entry naming the sources).
+        spin_joints: the joint that spun in each video (one name or None per video; None: the wrist), each
+            measurement's ``spin_joint``; a joint time series then checks that joint moved and the others did not.
 
     Every video is checked before any tracking (missing, unreadable, empty, a range beyond a folder's end);
     a range beyond a video's end, frames of another size than the camera's, or fewer than 2 tracks in a video
@@ -467,8 +488,17 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
         camera_file = os.fspath(camera)
         camera = load_camera(camera)
     labels = [v.name for v in videos]
+    if spin_joints is not None:
+        spin_joints = [None if j is None or j == arm.wrist_joint else j for j in spin_joints]
+        if len(spin_joints) != n:
+            raise InputError(f"{len(spin_joints)} spin joint(s) for {n} video(s); give one per video")
+        for k, joint in enumerate(spin_joints):
+            try:
+                arm.spin_index(joint)
+            except ArmError as exc:
+                raise InputError(f"{_label(k, labels)}: {exc}") from None
     joints_file = os.fspath(joints) if isinstance(joints, (str, os.PathLike)) else None
-    angles = _joint_rows(joints, arm, labels, joint_options)
+    angles = _joint_rows(joints, arm, labels, joint_options, spin_joints)
     sources = [open_source(v) for v in videos]  # fail fast, before the slow tracking
     checked_ranges = [checked_range(r, v) for r, v in zip(frame_ranges, videos, strict=True)]
     from .trackparams import tracker_metadata
@@ -477,7 +507,8 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
     with tqdm(total=n, desc="videos", unit="video", disable=not progress, file=sys.stderr) as bar:
         for k, (source, frame_range) in enumerate(zip(sources, checked_ranges, strict=True)):
             tracks = _tracked(source, frame_range, camera, tracker, tracker_params, k, _label(k, labels), progress)
-            measurements.append(Measurement(angles[k], tracks, name=source.path.name))
+            measurements.append(Measurement(angles[k], tracks, name=source.path.name,
+                                            spin_joint=None if spin_joints is None else spin_joints[k]))
             bar.update(1)
     recording = {
         "videos": [os.path.abspath(v) for v in videos],

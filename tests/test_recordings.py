@@ -341,6 +341,28 @@ def test_time_series_json_with_explicit_spans_in_degrees(tmp_path, arm):
     assert read_joint_file(path, arm, degrees=True).is_time_series
 
 
+def test_time_series_with_spins_of_another_joint(tmp_path, arm):
+    """Pose 1 spins the elbow (by 60 deg), the others the wrist: each pose's spinning joint is read at its start, the
+    others are the medians; whichever joint moved must be the one each video names."""
+    stamps, positions, held = joint_series(np.random.default_rng(4))
+    idx = held[1]
+    positions[idx, 2] = POSES[1, 2] + np.random.default_rng(5).uniform(-1, 1, len(idx)) * np.radians(0.03)
+    positions[idx[20:220], 1] = POSES[1, 1] + np.linspace(0.0, np.radians(60.0), 200)
+    positions[idx[220:], 1] = POSES[1, 1] + np.radians(60.0)
+    path = write_series_csv(tmp_path / "states.csv", stamps, positions)
+    spans = [(stamps[i[0]], stamps[i[-1]]) for i in held]
+    joints = load_joints(path, arm, 3, spans=spans, spin_joints=[None, "elbow", "wrist"])
+    expected = expected_poses(positions, held)
+    expected[1, 1:] = positions[idx[0], 1], np.median(positions[idx, 2])
+    np.testing.assert_allclose(joints, expected, rtol=0, atol=1e-12)
+    with pytest.raises(RecordingError, match=r"measurement 1: only the wrist may move .* 'elbow' by 60"):
+        load_joints(path, arm, 3, spans=spans)
+    with pytest.raises(RecordingError, match=r"the videos spin different joints .*give each video's time span"):
+        load_joints(path, arm, 3, spin_joints=[None, "elbow", None])
+    with pytest.raises(InputError, match="'knee' is not a revolute joint"):
+        load_joints(path, arm, 3, spans=spans, spin_joints=[None, "knee", None])
+
+
 def test_time_series_errors(tmp_path, arm):
     stamps, positions, held = joint_series(np.random.default_rng(3))
     path = write_series_csv(tmp_path / "states.csv", stamps, positions)
@@ -497,6 +519,18 @@ def test_make_dataset_end_to_end(tmp_path, arm, camera):
     assert "tracker" not in dataset.metadata  # another tracker's tracks: no image axes' floor is claimed for them
 
 
+def test_make_dataset_names_each_videos_spinning_joint(tmp_path, arm, camera):
+    videos = recording(tmp_path)
+    dataset = make_dataset(videos, POSES, camera, arm, tracker=FakeTracker(), progress=False,
+                           spin_joints=["wrist", "elbow", None])
+    assert [m.spin_joint for m in dataset] == [None, "elbow", None]  # (the arm's wrist joint is the default)
+    with pytest.raises(InputError, match=r"measurement 2 \(pose_c.mp4\): spinning joint 'knee' is not"):
+        make_dataset(videos, POSES, camera, arm, tracker=FakeTracker(), progress=False,
+                     spin_joints=[None, "elbow", "knee"])
+    with pytest.raises(InputError, match="2 spin joint"):
+        make_dataset(videos, POSES, camera, arm, tracker=FakeTracker(), progress=False, spin_joints=[None, None])
+
+
 def test_make_dataset_from_files_with_progress(tmp_path, arm, capsys):
     videos = recording(tmp_path)
     joints = write(tmp_path / "joints.csv", "shoulder,elbow,wrist\n" + "\n".join(
@@ -595,6 +629,14 @@ def test_cli_videos_dir_and_errors(tmp_path, fake_tracking_module):
     args = track_parser().parse_args(["track", "--videos-dir", str(session), *common, "-o", str(tmp_path / "d")])
     assert cmd_track(args) == 0
     assert [m.name for m in Dataset.load(tmp_path / "d")] == ["pose_a.mp4", "pose_b", "pose_c.mp4"]
+    args = track_parser().parse_args(["track", "--videos-dir", str(session), *common, "--spin-joints", "wrist",
+                                      "elbow", "wrist", "-o", str(tmp_path / "s")])
+    assert cmd_track(args) == 0
+    assert [m.spin_joint for m in Dataset.load(tmp_path / "s")] == [None, "elbow", None]
+    args = track_parser().parse_args(["track", "--videos-dir", str(session), *common, "--spin-joints", "elbow",
+                                      "-o", str(tmp_path / "t")])
+    with pytest.raises(InputError, match=r"1 --spin-joints for 3 video\(s\)"):
+        cmd_track(args)
     args = track_parser().parse_args(["track", "--videos-dir", str(session), *common, "--frames", "1:2",
                                       "-o", str(tmp_path / "e")])
     with pytest.raises(InputError, match=r"1 --frames range\(s\) for 3 video"):
