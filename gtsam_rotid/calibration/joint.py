@@ -32,6 +32,7 @@ from .result import CalibrationResult
 from .stage1 import _circles, _noise_variance, _Stage1, _track_correlation, _track_stats
 from .stage2 import (
     _axis_consistency,
+    _axis_rows,
     _finish,
     _prior_floor_covariance,
     _robust_weighted,
@@ -76,13 +77,13 @@ def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anch
     tied = _tied_circles(arm, camera, measurements, setup, stage1, fit.pose, options, range(len(stage1)))
     reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, fit.chi2, tied)
     variances = {k: stage1[k].sigma2 for k in used}
-    _with_axis_covariances(reports, camera, setup, stage1, used, fit.pose, variances)
-    consistency = _axis_consistency(camera, setup, stage1, used, fit.pose, variances, options)
+    rows = _axis_rows(camera, setup, stage1, used, fit.pose, variances)  # (one pass for the three below)
+    _with_axis_covariances(reports, used, rows)
+    consistency = _axis_consistency(rows, setup, options)
     solved = _Solved(fit.pose, None, pose_information(fit.graph, values, POSE_KEY), Method.WEIGHTED, True,
                      fit.iterations, fit.graph.error(values))
     result = _finish(solved, reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(fit.graph, values),
-                     consistency=consistency, prior=_prior_floor_covariance(camera, setup, stage1, used, fit.pose,
-                                                                            variances))
+                     consistency=consistency, prior=_prior_floor_covariance(rows, setup))
     return Fitted(replace(result, alternatives=_outside(fit.alternatives, result)), stage1)
 
 
@@ -240,7 +241,8 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
     reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, chi2, tied)
     variances = {k: sigmas[k] ** 2 for k in used}
-    _with_axis_covariances(reports, camera, setup, stage1, used, pose, variances)
+    rows = _axis_rows(camera, setup, stage1, used, pose, variances)  # (one pass for the three below)
+    _with_axis_covariances(reports, used, rows)
     try:
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
     except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
@@ -261,9 +263,8 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
             offsets_covariance, cross = both[6:, 6:], both[:6, 6:]
         determined = determined_offsets(offsets_covariance, offsets.sigma)
     out = _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
-                  consistency=_axis_consistency(camera, setup, stage1, used, pose, variances, options,
-                                                fitted=determined),
-                  prior=_prior_floor_covariance(camera, setup, stage1, used, pose, variances))
+                  consistency=_axis_consistency(rows, setup, options, fitted=determined),
+                  prior=_prior_floor_covariance(rows, setup))
     if offsets is not None:
         c = out.axis_consistency
         if offsets_covariance is not None and c is not None and not c.consistent:

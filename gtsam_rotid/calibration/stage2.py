@@ -102,12 +102,10 @@ def _axis_distances(camera: Camera, axis, stage1: _Stage1, pose: gtsam.Pose3, si
     return e, cov
 
 
-def _with_axis_covariances(reports, camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3,
-                           sigma2: dict[int, float]) -> None:
-    """Each used measurement's report (``reports[k]``) gains its test points' distance covariance at ``pose``
-    (:attr:`MeasurementReport.axis_test_covariance`)."""
-    for k in used:
-        _, cov = _axis_distances(camera, setup.axes[k], stage1[k], pose, sigma2[k], setup, k)
+def _with_axis_covariances(reports, used: list[int], rows) -> None:
+    """Each used measurement's report (``reports[k]``) gains its test points' distance covariance, from its row of
+    :func:`_axis_rows` (without the floor) at the estimate (:attr:`MeasurementReport.axis_test_covariance`)."""
+    for k, (_, cov, _) in zip(used, rows, strict=True):
         reports[k].axis_test_covariance = np.asarray(cov, dtype=float).tolist()
 
 
@@ -131,10 +129,10 @@ def _chi2(camera, setup: _Setup, stage1, pose, sigma2: dict[int, float] | None =
     return np.array(out)
 
 
-def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3, sigma2: dict[int, float],
-                      options, fitted: int = 0) -> AxisConsistency | None:
-    """The test of :class:`AxisConsistency` about ``pose``, each measurement's line at its pixel noise variance
-    ``sigma2[k]`` (the one the fit weighted it by); None without redundancy (fewer than 4 measurements).
+def _axis_consistency(rows, setup: _Setup, options, fitted: int = 0) -> AxisConsistency | None:
+    """The test of :class:`AxisConsistency` about ``pose`` on the used measurements' ``rows`` there
+    (:func:`_axis_rows` without the floor, each measurement's line at the pixel noise variance the fit weighted it
+    by; the prior floor is added here); None without redundancy (fewer than 4 measurements).
 
     The chi-square is the axes' own minimum: at the pose that fits them best with those weights (linearised about
     ``pose``), which is what has ``2 n - 6`` dof. At ``pose`` itself (the joint fit's, which weights the
@@ -142,10 +140,11 @@ def _axis_consistency(camera, setup: _Setup, stage1, used: list[int], pose: gtsa
     about 6 more dof under the model: tested against ``2 n - 6`` that rejected consistent axes (four measurements
     of a rendered UR5 scene: 8.7 at the joint pose, 1.4 at the axes' own). ``fitted``: parameters beyond the pose
     that were fitted to the same axes (the joint offsets the data determine), each one dof less."""
-    dof = 2 * len(used) - 6 - fitted
+    dof = 2 * len(rows) - 6 - fitted
     if dof <= 0:
         return None
-    rows = _axis_rows(camera, setup, stage1, used, pose, sigma2, floor=True)
+    F = setup.floor_covariance
+    rows = rows if F is None else [(e, cov + F, J) for e, cov, J in rows]
     chi2 = _refitted_chi2(rows, 0.0)
     if not np.isfinite(chi2):  # the FK axes do not even project: no agreement to measure
         return AxisConsistency(np.inf, dof, 0.0, np.inf)
@@ -228,18 +227,18 @@ def _axis_floor(rows, target: float) -> tuple[float, np.ndarray | None]:
     return float(np.sqrt(tau2)), increment if np.all(np.isfinite(increment)) else None
 
 
-def _prior_floor_covariance(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3,
-                            sigma2: dict[int, float]) -> np.ndarray | None:
+def _prior_floor_covariance(rows, setup: _Setup) -> np.ndarray | None:
     """The pose covariance (6x6, Pose3 tangent) that the prior floor's errors (:attr:`_Setup.floor_covariance`,
     ``F`` on every used axis' test-point distances) pass into an estimate fitted without them, to first order:
-    ``H^-1 (sum_k J_k^T W_k F W_k J_k) H^-1`` with the fit's own weights ``W_k = V_k^-1`` (the pixel noise at
-    ``sigma2[k]`` and the joint-angle noise) and ``H = sum_k J_k^T W_k J_k``: the sandwich's part that the floor
-    adds. None without a floor or when the axes alone do not determine the pose."""
+    ``H^-1 (sum_k J_k^T W_k F W_k J_k) H^-1`` with the fit's own weights ``W_k = V_k^-1`` (``rows``: the used
+    measurements' :func:`_axis_rows` at the estimate without the floor: the pixel noise at the fit's variance and
+    the joint-angle noise) and ``H = sum_k J_k^T W_k J_k``: the sandwich's part that the floor adds. None without a
+    floor or when the axes alone do not determine the pose."""
     F = setup.floor_covariance
     if F is None:
         return None
     H, meat = np.zeros((6, 6)), np.zeros((6, 6))
-    for _, cov, J in _axis_rows(camera, setup, stage1, used, pose, sigma2):
+    for _, cov, J in rows:
         WJ = np.linalg.solve(cov, J)
         H += J.T @ WJ
         meat += WJ.T @ F @ WJ
