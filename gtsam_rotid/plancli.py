@@ -38,6 +38,9 @@ def _add_common(p: argparse.ArgumentParser, *, dataset: bool) -> None:
     p.add_argument("--package-dir", action="append", default=[], metavar="DIR",
                    help="where the URDF's package:// mesh paths resolve (repeatable)")
     p.add_argument("--wrist-joint", metavar="NAME", help="the spinning joint (default: the last revolute joint)")
+    p.add_argument("--spin-joints", nargs="+", default=(), metavar="NAME",
+                   help="spin each of these joints at every pose, one spin each (default: the wrist only); a spin "
+                        "of another joint must keep the whole swing of the hand in view and clear of the arm")
     p.add_argument("--camera", metavar="CAMERA_YAML", required=not dataset,
                    help="OpenCV calibration YAML or ROS camera_info YAML")
     p.add_argument("--camera-guess", nargs=6, type=float, required=True,
@@ -115,7 +118,7 @@ def _options(args, **extra) -> PlanOptions:
                           pixel_sigma=args.pixel_sigma, axis_floor_px=args.axis_floor_px, n_features=args.features,
                           floor_height=None if args.no_floor else args.floor_height,
                           depth_range=tuple(args.depth_range), guess_sigma_mm=args.guess_sigma[0],
-                          guess_sigma_deg=args.guess_sigma[1], **extra)
+                          guess_sigma_deg=args.guess_sigma[1], spin_joints=tuple(args.spin_joints), **extra)
     options.check()
     return options
 

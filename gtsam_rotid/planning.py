@@ -49,6 +49,8 @@ HOPELESS_DRAWS = 4000
 AIM_TRIES = 200
 #: the spin model the search ranks candidate poses by (the predictions use PlanOptions.spin_model)
 SEARCH_SPIN_MODEL = "free"
+#: the turn (degrees) between the collision checks of a spin of another joint than the wrist
+SWING_STEP_DEG = 30.0
 
 #: (deg, deg, deg, mm, mm, mm) per unit of the Pose3 tangent (rad, m)
 UNITS = np.array([math.degrees(1.0)] * 3 + [1000.0] * 3)
@@ -117,6 +119,11 @@ class PlanOptions:
     #: shared by the features, the calibration's default) or "free" (a phase per point). The predictions use it;
     #: the search ranks candidates by the free phase's information, 3x cheaper and within ~5 % of the rigid one's
     spin_model: str = "rigid"
+    #: the joints spun at every pose, one spin (one measurement) each, names (empty: the wrist only). A spin of
+    #: another joint swings the hand about that joint's axis: the whole swing must stay in view, above
+    #: ``min_height`` and, with collisions, clear of the arm and the floor (checked every SWING_STEP_DEG); it is
+    #: predicted as the simulator's unlimited spin
+    spin_joints: tuple = ()
     seed: int = 0
 
     def with_(self, **changes) -> PlanOptions:
@@ -128,7 +135,8 @@ class PlanOptions:
                            offset_range=self.offset_range, duration=self.spin_seconds, fps=self.fps,
                            wrist_speed=self.wrist_speed, noise_var=self.pixel_sigma**2,
                            axis_view_angle_deg=self.axis_view_angle_deg, depth_range=self.depth_range,
-                           image_margin=self.image_margin, min_height=self.min_height)
+                           image_margin=self.image_margin, min_height=self.min_height,
+                           spin_joints=tuple(self.spin_joints))
 
     def with_texture(self, arm: Arm, collisions: ArmCollisions | None) -> PlanOptions:
         """These options with ``radius_range`` and ``offset_range`` filled in (see their comment)."""
@@ -160,6 +168,8 @@ class PlanOptions:
             raise PlanningError(f"search_seconds must be a positive number or None (no deadline), got {seconds!r}")
         if self.spin_model not in ("rigid", "free"):
             raise PlanningError(f"spin_model must be 'rigid' or 'free', got {self.spin_model!r}")
+        if isinstance(self.spin_joints, str) or not all(isinstance(j, str) for j in self.spin_joints):
+            raise PlanningError(f"spin_joints must be a tuple of joint names, got {self.spin_joints!r}")
         if self.n_features < 2 or self.guess_samples < 1 or self.candidates < 1:
             raise PlanningError("n_features must be >= 2, guess_samples and candidates >= 1")
         for name in ("rank_samples", "jobs"):
@@ -305,22 +315,34 @@ class _Predictor:
                                            for pose in samples[1:]]
 
     def information(self, scene: SpinScene, joint_angles, spin_model: str | None = None) -> np.ndarray:
-        """The 6x6 information of one spin at ``joint_angles`` in ``scene``, with the options' spin model or
-        ``spin_model``."""
-        builder = RotIdGraph(self.arm, self.camera, model="projected", track_sigma_px=self.sigma_px,
-                             min_track_points=MIN_ELLIPSE_POINTS, min_track_extent_px=MIN_TRACK_EXTENT_PX,
-                             spin_model=spin_model or self.options.spin_model)
+        """The 6x6 information of the spins at ``joint_angles`` in ``scene`` (one per ``spin_joints``, the wrist's
+        alone by default), with the options' spin model or ``spin_model``."""
+        def builder(sigma_px: float) -> RotIdGraph:
+            return RotIdGraph(self.arm, self.camera, model="projected", track_sigma_px=sigma_px,
+                              min_track_points=MIN_ELLIPSE_POINTS, min_track_extent_px=MIN_TRACK_EXTENT_PX,
+                              spin_model=spin_model or self.options.spin_model)
+
+        wrist_builder = builder(self.sigma_px)
+        # (the wrist's limited arc and its repeats do not apply to another joint's spin: the simulator's spin)
+        other_builder = wrist_builder if self.limited_span is None else \
+            builder(self.options.pixel_sigma / math.sqrt(self.options.fps / self.fps))
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        values.insert(builder.pose_key, scene.arm_T_camera)
-        if self.wrist_start is not None:
-            joint_angles = np.array(joint_angles, dtype=float)
-            joint_angles[self.arm.wrist_index] = self.wrist_start
-        try:
-            measurement, _ = scene.measurement(joint_angles, self._rng)
-            builder.add_measurement(graph, values, 0, measurement, tie_covariance=self.tie_covariance)
-        except InputError:  # fewer than two usable arcs: this spin tells nothing
+        values.insert(wrist_builder.pose_key, scene.arm_T_camera)
+        for k, joint in enumerate(self.options.spin_joints or (None,)):
+            q, spin_builder = np.array(joint_angles, dtype=float), wrist_builder
+            if joint is None or joint == self.arm.wrist_joint:
+                if self.wrist_start is not None:
+                    q[self.arm.wrist_index] = self.wrist_start
+            else:
+                spin_builder = other_builder
+            try:
+                measurement, _ = scene.measurement(q, self._rng, joint)
+                spin_builder.add_measurement(graph, values, k, measurement, tie_covariance=self.tie_covariance)
+            except InputError:  # fewer than two usable arcs: this spin tells nothing
+                continue
+        if graph.size() == 0:
             return np.zeros((6, 6))
-        return pose_information(graph, values, builder.pose_key)
+        return pose_information(graph, values, wrist_builder.pose_key)
 
 
 class _Constraints:
@@ -419,6 +441,13 @@ class _Constraints:
 
     def problem(self, joint_angles) -> str | None:
         problem = self.scene.pose_problem(joint_angles) or self._image_motion_problem(joint_angles)
+        swings = [j for j in self.options.spin_joints if j != self.scene.arm.wrist_joint]
+        for joint in swings if problem is None else ():
+            problem = self.scene.pose_problem(joint_angles, joint)
+            if problem is None and self.collisions is not None:
+                problem = self._swing_collision(joint_angles, joint)
+            if problem is not None:
+                break
         if problem is not None or self.collisions is None:
             return problem
         pair = self.collisions.self_collision(joint_angles)
@@ -437,6 +466,21 @@ class _Constraints:
         hidden = float(np.mean(self.collisions.hidden(joint_angles, self.camera_centre, points[facing])))
         if hidden > self.options.max_hidden_fraction:
             return f"the arm hides {100 * hidden:.0f} % of the end effector"
+        return None
+
+
+    def _swing_collision(self, joint_angles, joint: str) -> str | None:
+        """Words when the arm hits itself or the floor anywhere in a full turn of ``joint`` (every SWING_STEP_DEG)."""
+        index = self.scene.arm.spin_index(joint)
+        for turn in np.radians(np.arange(SWING_STEP_DEG, 360.0, SWING_STEP_DEG)):
+            q = np.array(joint_angles, dtype=float)
+            q[index] += turn
+            pair = self.collisions.self_collision(q)
+            if pair is not None:
+                return f"self-collision of {pair[0]} and {pair[1]} during the {joint} spin"
+            link = self.collisions.below_floor(q)
+            if link is not None:
+                return f"{link} below the floor during the {joint} spin"
         return None
 
 
@@ -460,6 +504,8 @@ def _check_inputs(arm: Arm, camera: Camera, guess: gtsam.Pose3, options: PlanOpt
         raise PlanningError(f"the camera guess is {distance:.4g} m from the arm's base; its X Y Z are metres (and "
                             "ROLL PITCH YAW degrees)")
     options.check()
+    for joint in options.spin_joints:
+        arm.spin_index(joint)  # ArmError (an InputError) names a joint the arm does not have
 
 
 # ------------------------------------------------------------------------------------------------- public

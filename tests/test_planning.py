@@ -353,3 +353,31 @@ def test_cli_plan_next_pose_for_a_recorded_dataset(tmp_path, capsys):
     assert "goes from not determined to" in printed and "all six degrees of freedom" in printed
     assert "PREDICTED 1σ from 1 new pose(s) and what is already recorded" in printed
     assert len(out.read_text().splitlines()) == 2  # header and one pose
+
+
+def test_spins_of_two_joints_are_predicted_and_planned(kinova, collisions):
+    """Spins of joints 5 and 6 at every pose (``PlanOptions.spin_joints``): the prediction against the independent
+    bound of a simulated scene with those spins; a plan whose poses the simulator accepts with both spins (the
+    hand's whole swing in view); and with the Jaco2's collision hulls, the refusal that names the swing."""
+    from accuracy import crlb_rigid
+
+    j5, j6 = kinova.joint_names[4:6]
+    config = simulate.SceneConfig(duration=20.0, spin_joints=(j5, j6))
+    dataset, truth = simulate.simulate(config, seed=0, arm=kinova)
+    bound = np.sqrt(np.diag(crlb_rigid(dataset, truth, 1.5)))
+    poses = [truth.measurements[k].joint_angles for k in range(0, len(dataset), 2)]
+    both = predict_accuracy(kinova, dataset.camera, truth.arm_T_camera, poses,
+                            QUICK.with_(guess_samples=1, spin_joints=(j5, j6)))
+    ratio = np.sqrt(np.diag(both.covariance)) / bound
+    assert np.all((ratio > 0.85) & (ratio < 1.15)), ratio  # random features against evenly spread ones
+    wrist = predict_accuracy(kinova, dataset.camera, truth.arm_T_camera, poses, QUICK.with_(guess_samples=1))
+    assert np.all(np.diag(wrist.covariance) > 1.5 * np.diag(both.covariance))
+
+    plan = plan_poses(kinova, dataset.camera, truth.arm_T_camera, 6, QUICK.with_(spin_joints=(j5, j6)),
+                      collisions=None)
+    recorded, _ = simulate.simulate(config.with_(joint_angles=tuple(tuple(q) for q in plan.joint_angles)), seed=1,
+                                    arm=kinova)  # (SimulationError if a swing left the image)
+    assert [m.spin_joint for m in recorded] == [j5, j6] * 6
+    with pytest.raises(PlanningError, match=f"during the {j5} spin"):
+        plan_poses(kinova, dataset.camera, truth.arm_T_camera, 6,
+                   QUICK.with_(spin_joints=(j5, j6), max_draws=3000), collisions=collisions)
