@@ -198,7 +198,8 @@ class CalibrationReport:
                 "px (estimated from the residuals)",
                 "arm_T_camera: the camera pose (OpenCV optical frame: x right, y down, z forward) in the arm-base "
                 "frame", kinematics_words(self.joint_sigma_deg, self.joint_offsets_deg is not None),
-                *joint_offsets_words(self.joint_offsets_deg, self.joint_offsets_sigma_deg, self.joint_offset_prior_deg),
+                *joint_offsets_words(self.joint_offsets_deg, self.joint_offsets_sigma_deg, self.joint_offset_prior_deg,
+                                     all(m.spin_joint is None for m in self.measurements)),
                 tracking_words(self.axis_floor_px)]
 
     def _uncertainty_lines(self) -> list[str]:

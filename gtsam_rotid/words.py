@@ -74,7 +74,8 @@ def summary(result: CalibrationResult) -> str:
     lines.append("  " + kinematics_words(result.joint_sigma_deg, result.joint_offsets is not None))
     lines.extend("  " + line for line in joint_offsets_words(
         None if result.joint_offsets is None else {k: float(np.degrees(v)) for k, v in result.joint_offsets.items()},
-        result.joint_offsets_sigma_deg, result.joint_offset_sigma_deg))
+        result.joint_offsets_sigma_deg, result.joint_offset_sigma_deg,
+        all(m.spin_joint is None for m in result.measurements)))
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
         why = outlier_words(m, "intrinsics" in result.untrusted, kinematics_suspected(result.untrusted))
@@ -372,9 +373,10 @@ def kinematics_words(joint_sigma_deg: float, offsets: bool = False) -> str:
 
 
 def joint_offsets_words(offsets_deg: dict[str, float] | None, sigma_deg: dict[str, float],
-                        prior_deg: float) -> list[str]:
+                        prior_deg: float, wrist_only: bool = False) -> list[str]:
     """The refined joint offsets (deg, the reading plus the offset is the joint's angle) with their 1 sigma, and
-    which of them these poses leave at their prior; [] when none was refined."""
+    which of them these poses leave at their prior; [] when none was refined. ``wrist_only``: every measurement
+    spun the wrist (then how to win back what refining costs)."""
     if offsets_deg is None:
         return []
     lines = [f"joint offsets refined with the pose (prior 1 sigma {prior_deg:g} deg; the reading plus the offset is "
@@ -391,6 +393,9 @@ def joint_offsets_words(offsets_deg: dict[str, float] | None, sigma_deg: dict[st
         lines.append("  the offsets left at their prior move arm_T_camera as much as the prior allows (the first "
                      "joint's offset turns the whole arm as the camera pose does: no poses determine it; for the "
                      "others add arm poses that move those joints)")
+    if wrist_only:
+        lines.append("  refining offsets costs precision at the same poses: spin the joint before the wrist too at "
+                     "every pose (Measurement.spin_joint, track --spin-joints) to win it back")
     return lines
 
 

@@ -12,6 +12,7 @@ from gtsam_rotid.calibration import CalibrationOptions
 from gtsam_rotid.errors import ArmError, RotIdError, ValidationError
 from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.simulate import SceneConfig
+from gtsam_rotid.words import summary
 
 ARM = Arm.from_robot("kinova")
 J5, J6 = ARM.joint_names[4], ARM.joint_names[5]
@@ -142,6 +143,8 @@ def test_offsets_with_spins_of_two_joints_hold_their_covariance():
     miss = np.array(list(result.joint_offsets.values())) - offsets[1:5]
     assert miss @ np.linalg.solve(result.joint_offsets_covariance, miss) < 18.47  # 99.9 % point, 4 dof
     assert max(result.joint_offsets_sigma_deg.values()) < 0.2  # determined, not the 1 degree prior
+    assert [m.spin_joint for m in result.measurements] == [J5, J6] * 5
+    assert "spin the joint before the wrist too" not in summary(result)  # (it did)
 
 
 def test_the_command_line_simulates_spins_of_named_joints(tmp_path, capsys):

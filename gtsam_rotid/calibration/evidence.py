@@ -130,7 +130,8 @@ def measurement_reports(stage1: list[_Stage1], setup: _Setup, evidence: Evidence
             0.0 if excluded else median**2 / sigma**2, excluded, rejected, kind, values,
             axis_point=[float(v) for v in axis.point], axis_direction=[float(v) for v in axis.direction],
             image_axis=[float(v) for v in s.image_axis / np.hypot(s.image_axis[0], s.image_axis[1])],
-            axis_chi2=None if chi2 is None else float(chi2[k]), arc_span_deg=span, weak=weak))
+            axis_chi2=None if chi2 is None else float(chi2[k]), arc_span_deg=span, weak=weak,
+            spin_joint=setup.spin_joint(k)))
     _flag_outlier_measurements(reports, options)
     return reports
 

@@ -50,7 +50,9 @@ class MeasurementReport:
     #: words of that reason need
     outlier_kind: str = ""
     outlier_values: dict[str, float | str] = field(default_factory=dict)
-    #: the FK wrist axis of this arm pose (arm frame, m): a point on it and its unit direction
+    #: the joint that spun (``Measurement.spin_joint``; None: the wrist)
+    spin_joint: str | None = None
+    #: the FK axis of the spinning joint at this arm pose (arm frame, m): a point on it and its unit direction
     axis_point: list[float] | None = None
     axis_direction: list[float] | None = None
     #: the stage-1 image axis (homogeneous line, ``l1^2 + l2^2 = 1``, ideal pixels)

@@ -85,7 +85,8 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
         reports.append(MeasurementReport(
             k, len(p.usable), sum(len(t.ideal) for t in p.usable.values()), float("nan"), 0.0, True,
             dict(p.rejected), OutlierKind.FEW_TRACKS.value, axis_point=[float(v) for v in axis.point],
-            axis_direction=[float(v) for v in axis.direction], arc_span_deg=max(spans) if spans else None, weak=True))
+            axis_direction=[float(v) for v in axis.direction], arc_span_deg=max(spans) if spans else None, weak=True,
+            spin_joint=measurements[k].spin_joint))
     result = replace(result, measurements=sorted(reports, key=lambda r: r.index), robot=arm.description(),
                      dataset=source)
     return replace(result, untrusted=_untrusted(result, setup))

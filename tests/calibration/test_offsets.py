@@ -55,6 +55,7 @@ def test_offsets_refined_with_the_pose_hold_their_covariance(scene, tmp_path):
     assert "kinematics" not in result.untrusted
     words = summary(result)
     assert "joint offsets refined with the pose" in words and "NOT determined" not in words
+    assert "spin the joint before the wrist too at every pose" in words  # (wrist spins only)
     assert f"{names[1]}: {np.degrees(result.joint_offsets[names[1]]):+.3f} deg +-" in words
     result.save(tmp_path / "r.json")
     loaded = CalibrationResult.load(tmp_path / "r.json")
