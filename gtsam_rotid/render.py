@@ -525,6 +525,11 @@ def scene_spin(dataset, truth, k, frames=None) -> tuple[int, object, np.ndarray,
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < len(dataset):
         raise InputError(f"measurement index {k!r} is outside the dataset's measurements 0..{len(dataset) - 1}")
     k = int(k)
+    joint = dataset[k].spin_joint
+    if joint is not None and joint != dataset.arm.wrist_joint:
+        raise InputError(f"measurement {k} spins {joint!r}: the renderers spin the wrist joint "
+                         f"{dataset.arm.wrist_joint!r} only (its simulated tracks calibrate without video: "
+                         "demo --no-video)")
     mt = truth.measurements[k]
     spin = np.asarray(mt.spin_angles, dtype=float)
     if spin.ndim != 1 or spin.size == 0 or not np.all(np.isfinite(spin)):

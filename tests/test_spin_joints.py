@@ -9,7 +9,7 @@ import pytest
 
 from gtsam_rotid import Arm, Dataset, Measurement, cli, simulate
 from gtsam_rotid.calibration import CalibrationOptions
-from gtsam_rotid.errors import ArmError, RotIdError, ValidationError
+from gtsam_rotid.errors import ArmError, InputError, RotIdError, ValidationError
 from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.simulate import SceneConfig
 from gtsam_rotid.words import summary
@@ -78,6 +78,15 @@ def test_simulated_spins_of_another_joint_move_the_hand_as_the_arm_does(noise_fr
                 np.testing.assert_allclose(ARM.arm_T_wrist(turned).transformFrom(local), points[i], atol=1e-12)
             pixels = dataset.camera.project(np.array([camera_T_arm.transformFrom(p) for p in points]))
             np.testing.assert_allclose(track.pixels, pixels, atol=1e-9)
+
+
+def test_the_renderers_refuse_another_joints_spin_by_name(noise_free):
+    from gtsam_rotid.render import render_measurement
+
+    dataset, truth = noise_free
+    with pytest.raises(InputError, match=f"measurement 0 spins '{J5}': the renderers spin the wrist joint"):
+        render_measurement(dataset, truth, 0)
+    assert render_measurement(dataset, truth, 1, frames=slice(0, 2)).spin_angles.size > 0  # (the wrist's)
 
 
 def test_the_dataset_keeps_the_spinning_joint_and_still_reads_version_1(noise_free, tmp_path):
