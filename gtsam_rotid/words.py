@@ -353,9 +353,10 @@ def joint_offset_words(result: CalibrationResult) -> str:
         return ("the image axes disagree with any one pose through the kinematics as given and agree once the joints "
                 "before the spinning one may be offset: " + advice)
     offsets = ", ".join(f"{name} {deg:+.2f}°" for name, deg in k["offsets_deg"].items())
+    agree = "agree" if k.get("likely", True) else "come far closer (not all the way: more is off)"
     return (f"the image axes of all {len(k['measurements'])} measurements (the left-out ones too) disagree with any "
             f"one pose through the kinematics as given (χ² = {k['exact_chi2']:.3g} for {k['exact_dof']} dof, P = "
-            f"{k['exact_p']:.2g}) but agree once the joints before the spinning one may be offset (χ² = "
+            f"{k['exact_p']:.2g}) but {agree} once the joints before the spinning one may be offset (χ² = "
             f"{k['chi2']:.3g} for {k['dof']} dof, P = {k['p_value']:.2g}; {k['determined']} combinations of the "
             f"offsets determined), by about {offsets} (a first-order reading, added to the readings; the first "
             "joint's turns the whole arm, as the camera pose does, and does not show). " + advice)

@@ -270,7 +270,9 @@ def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigm
     measurements tested and ``likely``: the exact kinematics fail, the offsets pass (P >= FREED_P), improve the
     chi-square beyond the 99.9 % point of their r dof, explain the axes better than one wrong measurement by Akaike's
     criterion (AIC_PER_PARAMETER per parameter beyond that measurement's two), and are offsets a robot could have
-    (the largest between MIN_OFFSET_DEG and MAX_OFFSET_DEG). The check reads a first-order fit: it names a likely
+    (the largest between MIN_OFFSET_DEG and MAX_OFFSET_DEG); ``systematic``: all of these but the offsets' passing (they
+    explain the disagreement beyond chance and better than one wrong measurement, not necessarily all of it). The
+    check reads a first-order fit: it names a likely
     cause, it does not calibrate the offsets (``CalibrationOptions(joint_offsets=...)`` does).
 
     ``undecided``: every one of these holds but the comparison with one wrong measurement
@@ -298,7 +300,7 @@ def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigm
     exact_p = float(chi2_sf(exact, exact_dof))
     out = {"exact_chi2": float(exact), "exact_dof": exact_dof, "exact_p": exact_p, "chi2": None, "dof": None,
            "p_value": None, "offsets_deg": None, "determined": None, "one_out_chi2": None,
-           "one_out_measurement": None, "moved_chi2": None, "undecided": False,
+           "one_out_measurement": None, "moved_chi2": None, "undecided": False, "systematic": False,
            "measurements": [setup.index[k] if setup.index else k for k in ks], "likely": False}
     if exact_p >= EXACT_P:
         return out
@@ -323,6 +325,11 @@ def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigm
             freed, delta, freed_pose, p = float(held), held_delta, held_pose, float(chi2_sf(held, dof))
             largest = float(np.degrees(np.max(np.abs(delta))))
     moved = _apart(one_outs[best][2], freed_pose, covariance, rows_of(True)(delta, freed_pose), plausible)
+    # offsets explain the axes beyond chance and better than one wrong measurement, whether or not they explain
+    # all of it: the disagreement is systematic, not scatter that a scaled covariance covers
+    systematic = bool(exact - freed > chi2_quantile(determined, IMPROVEMENT_Z)
+                      and MIN_OFFSET_DEG <= largest <= MAX_OFFSET_DEG
+                      and freed + AIC_PER_PARAMETER * (determined - 2) < one_out)
     offsets_like = bool(p >= FREED_P and exact - freed > chi2_quantile(determined, IMPROVEMENT_Z)
                         and MIN_OFFSET_DEG <= largest <= MAX_OFFSET_DEG)
     likely = offsets_like and freed + AIC_PER_PARAMETER * (determined - 2) < one_out
@@ -331,5 +338,5 @@ def kinematics_check(arm: Arm, camera: Camera, setup: _Setup, stage1, pose, sigm
                offsets_deg={arm.joint_names[j]: float(np.degrees(d)) for j, d in zip(joints, delta, strict=True)},
                undecided=bool(offsets_like and not likely and moved is not None
                               and moved > chi2_quantile(6, IMPROVEMENT_Z)),
-               likely=bool(likely))
+               likely=bool(likely), systematic=systematic)
     return out
