@@ -281,13 +281,9 @@ class SpinScene:
         rims = np.vstack([circle_points(wrist.point + offset * wrist.direction, wrist.direction,
                                         cfg.radius_range[1], phases, e1, e2)
                           for offset in (cfg.offset_range[0], cfg.offset_range[1])])
-        a = axis.direction
-        relative = rims - axis.point
-        swept = []
-        for s in np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False):  # Rodrigues about the joint's axis
-            swept.append(axis.point + relative * np.cos(s) + np.cross(a, relative) * np.sin(s)
-                         + np.outer(relative @ a, a) * (1.0 - np.cos(s)))
-        swept = np.vstack(swept)
+        turns = np.array([gtsam.Rot3.AxisAngle(gtsam.Point3(*axis.direction), s).matrix()
+                          for s in np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)])
+        swept = axis.point + np.einsum("sij,nj->sni", turns, rims - axis.point).reshape(-1, 3)
         if np.min(swept[:, 2]) < cfg.min_height:
             return f"end effector too low during the {joint} spin"
         if not np.all(self.camera.in_image(self.project(swept), cfg.image_margin)):
