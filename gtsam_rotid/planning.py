@@ -450,12 +450,9 @@ class _Constraints:
                 break
         if problem is not None or self.collisions is None:
             return problem
-        pair = self.collisions.self_collision(joint_angles)
-        if pair is not None:
-            return f"self-collision of {pair[0]} and {pair[1]}"
-        link = self.collisions.below_floor(joint_angles)
-        if link is not None:
-            return f"{link} below the floor"
+        problem = self._collision(joint_angles)
+        if problem is not None:
+            return problem
         arm_T_wrist = self.scene.arm.arm_T_wrist(joint_angles)
         axis = self.scene.arm.wrist_axis(joint_angles)
         points = self._local_points @ arm_T_wrist.rotation().matrix().T + arm_T_wrist.translation()
@@ -468,6 +465,13 @@ class _Constraints:
             return f"the arm hides {100 * hidden:.0f} % of the end effector"
         return None
 
+    def _collision(self, joint_angles, during: str = "") -> str | None:
+        """Words when the arm at ``joint_angles`` hits itself or the floor (``during``: appended to them)."""
+        pair = self.collisions.self_collision(joint_angles)
+        if pair is not None:
+            return f"self-collision of {pair[0]} and {pair[1]}{during}"
+        link = self.collisions.below_floor(joint_angles)
+        return None if link is None else f"{link} below the floor{during}"
 
     def _swing_collision(self, joint_angles, joint: str) -> str | None:
         """Words when the arm hits itself or the floor anywhere in a full turn of ``joint`` (every SWING_STEP_DEG)."""
@@ -475,12 +479,9 @@ class _Constraints:
         for turn in np.radians(np.arange(SWING_STEP_DEG, 360.0, SWING_STEP_DEG)):
             q = np.array(joint_angles, dtype=float)
             q[index] += turn
-            pair = self.collisions.self_collision(q)
-            if pair is not None:
-                return f"self-collision of {pair[0]} and {pair[1]} during the {joint} spin"
-            link = self.collisions.below_floor(q)
-            if link is not None:
-                return f"{link} below the floor during the {joint} spin"
+            problem = self._collision(q, f" during the {joint} spin")
+            if problem is not None:
+                return problem
         return None
 
 

@@ -131,8 +131,8 @@ def _chi2(camera, setup: _Setup, stage1, pose, sigma2: dict[int, float] | None =
 
 def _axis_consistency(rows, setup: _Setup, options, fitted: int = 0) -> AxisConsistency | None:
     """The test of :class:`AxisConsistency` about the estimate ``pose`` on the used measurements' ``rows`` there
-    (:func:`_axis_rows` at ``pose`` without the floor, each measurement's line at the pixel noise variance the fit weighted it
-    by; the prior floor is added here); None without redundancy (fewer than 4 measurements).
+    (:func:`_axis_rows` at ``pose`` without the floor, each measurement's line at the pixel noise variance the fit
+    weighted it by; the prior floor is added here); None without redundancy (fewer than 4 measurements).
 
     The chi-square is the axes' own minimum: at the pose that fits them best with those weights (linearised about
     ``pose``), which is what has ``2 n - 6`` dof. At ``pose`` itself (the joint fit's, which weights the
