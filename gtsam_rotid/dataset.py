@@ -5,8 +5,8 @@ arm pose: its joint angles and the :class:`Track` of every feature seen during t
 (distorted) pixels, OpenCV convention (origin at the centre of the top-left pixel, docs/design.md §2), with
 optional frame indices that let the estimators model the rigid spin (docs/design.md §4).
 
-On disk a dataset is a directory (format version :data:`FORMAT_VERSION`; version 1, without the measurements'
-``spin_joint``, still loads)::
+On disk a dataset is a directory (format version :data:`FORMAT_VERSION`, or 1 where no measurement names a
+``spin_joint``: version 1 files are written and read as before)::
 
     dataset.json   arm, camera, measurements (joint angles, track array names), metadata
     tracks.npz     one (N, 2) float array of pixels and, when known, one (N,) int array of frames per track
@@ -51,7 +51,7 @@ from .measurements import MAX_FRAME_SPAN, Measurement, Track, _located, _plural
 
 #: ``"format"`` marker of ``dataset.json``.
 FORMAT = "gtsam_rotid.dataset"
-#: Newest on-disk format version this module reads and the one it writes.
+#: Newest on-disk format version this module reads, and the one it writes where a measurement names a spin joint.
 FORMAT_VERSION = 2
 DATASET_FILE = "dataset.json"
 TRACKS_FILE = "tracks.npz"
@@ -355,7 +355,8 @@ class Dataset:
             entries.append(entry)
         document = {
             "format": FORMAT,
-            "version": FORMAT_VERSION,
+            # version 1 where it holds everything (no spin of another joint): earlier gtsam_rotid reads it
+            "version": FORMAT_VERSION if any(m.spin_joint is not None for m in self.measurements) else 1,
             "arm": arm,
             "camera": self.camera.to_dict(),
             "measurements": entries,

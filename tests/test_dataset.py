@@ -293,7 +293,7 @@ def test_round_trip_kinova_is_exact(kinova_dataset, tmp_path):
     assert sorted(os.listdir(root)) == ["dataset.json", "tracks.npz"]
     assert leftovers(tmp_path) == []
     document = read_json(root)
-    assert document["format"] == "gtsam_rotid.dataset" and document["version"] == 2
+    assert document["format"] == "gtsam_rotid.dataset" and document["version"] == 1  # (no spin_joint: version 1)
     assert document["arm"]["robot"] == "kinova"
     assert document["measurements"][0]["tracks"][0] == {"pixels": "m0_t0_pixels", "frames": "m0_t0_frames", "n": 7}
     assert document["measurements"][1]["tracks"][0]["frames"] is None
@@ -578,10 +578,11 @@ def test_schema_is_valid_draft_2020_12_and_matches_saved_files(saved):
     for schema in schemas.values():
         assert schema["$schema"] == "https://json-schema.org/draft/2020-12/schema"
         jsonschema.Draft202012Validator.check_schema(schema)
-    document = read_json(saved)
-    assert list(jsonschema.Draft202012Validator(schemas[2]).iter_errors(document)) == []
-    document["version"] = 1  # a file without spin joints is a version-1 file but for its version
+    document = read_json(saved)  # no spin joints: a version-1 file
     assert list(jsonschema.Draft202012Validator(schemas[1]).iter_errors(document)) == []
+    document["version"] = 2
+    document["measurements"][0]["spin_joint"] = "j2s6s200_joint_5"
+    assert list(jsonschema.Draft202012Validator(schemas[2]).iter_errors(document)) == []
 
 
 def test_load_schema_violation_in_arm_is_short_and_clear(saved):
