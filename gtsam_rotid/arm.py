@@ -310,6 +310,10 @@ class Arm:
                            f"{self.joint_names}")
         return self.joint_names.index(joint)
 
+    def spins_wrist(self, joint: str | None) -> bool:
+        """Whether a spin of ``joint`` (a name; None: the default) is a spin of the wrist joint."""
+        return joint is None or joint == self.wrist_joint
+
     def wrist_axis(self, joint_angles, joint: str | None = None) -> Line3:
         """The rotation axis of the spinning joint (default the wrist) in the arm-base frame: ``.point`` = the joint's
         origin, ``.direction``."""

@@ -330,7 +330,7 @@ class _Predictor:
         values.insert(wrist_builder.pose_key, scene.arm_T_camera)
         for k, joint in enumerate(self.options.spin_joints or (None,)):
             q, spin_builder = np.array(joint_angles, dtype=float), wrist_builder
-            if joint is None or joint == self.arm.wrist_joint:
+            if self.arm.spins_wrist(joint):
                 if self.wrist_start is not None:
                     q[self.arm.wrist_index] = self.wrist_start
             else:
@@ -441,7 +441,7 @@ class _Constraints:
 
     def problem(self, joint_angles) -> str | None:
         problem = self.scene.pose_problem(joint_angles) or self._image_motion_problem(joint_angles)
-        swings = [j for j in self.options.spin_joints if j != self.scene.arm.wrist_joint]
+        swings = [j for j in self.options.spin_joints if not self.scene.arm.spins_wrist(j)]
         for joint in swings if problem is None else ():
             problem = self.scene.pose_problem(joint_angles, joint)
             if problem is None and self.collisions is not None:

@@ -489,7 +489,7 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
         camera = load_camera(camera)
     labels = [v.name for v in videos]
     if spin_joints is not None:
-        spin_joints = [None if j is None or j == arm.wrist_joint else j for j in spin_joints]
+        spin_joints = [None if arm.spins_wrist(j) else j for j in spin_joints]
         if len(spin_joints) != n:
             raise InputError(f"{len(spin_joints)} spin joint(s) for {n} video(s); give one per video")
         for k, joint in enumerate(spin_joints):

@@ -526,7 +526,7 @@ def scene_spin(dataset, truth, k, frames=None) -> tuple[int, object, np.ndarray,
         raise InputError(f"measurement index {k!r} is outside the dataset's measurements 0..{len(dataset) - 1}")
     k = int(k)
     joint = dataset[k].spin_joint
-    if joint is not None and joint != dataset.arm.wrist_joint:
+    if not dataset.arm.spins_wrist(joint):
         raise InputError(f"measurement {k} spins {joint!r}: the renderers spin the wrist joint "
                          f"{dataset.arm.wrist_joint!r} only (its simulated tracks calibrate without video: "
                          "demo --no-video)")

@@ -206,16 +206,13 @@ class SpinScene:
         R = self.arm.arm_T_wrist(joint_angles).rotation().matrix()
         return axis, R @ self.local_e1, R @ self.local_e2
 
-    def _wrist_spin(self, joint: str | None) -> bool:
-        return joint is None or joint == self.arm.wrist_joint
-
     def spin_features(self, joint_angles, joint: str | None = None):
         """The features at ``joint_angles`` as circles about the axis of the spinning ``joint`` (default the
         wrist): ``(axis, e1, e2, radii, offsets, phases, normals)``, the phases at spin angle 0 in the (e1, e2)
         basis and each feature's outward normal at spin 0 as its components along (axis, e1, e2), (n, 3)."""
         axis, e1, e2 = self.basis(joint_angles)
         cos_p, sin_p = np.cos(self.phases), np.sin(self.phases)
-        if self._wrist_spin(joint):
+        if self.arm.spins_wrist(joint):
             normals = np.stack([np.zeros_like(cos_p), cos_p, sin_p], axis=1)
             return axis, e1, e2, self.radii, self.offsets, self.phases, normals
         radial = cos_p[:, None] * e1 + sin_p[:, None] * e2  # the outward normal, about the wrist axis
@@ -241,7 +238,7 @@ class SpinScene:
         cfg = self.config
         if not self.arm.within_limits(joint_angles):
             return "outside joint limits"
-        if not self._wrist_spin(joint):
+        if not self.arm.spins_wrist(joint):
             return self._swing_problem(joint_angles, joint)
         axis, e1, e2 = self.basis(joint_angles)
         ray = axis.point - self.camera_centre
@@ -326,7 +323,7 @@ class SpinScene:
         cos_p, sin_p = np.cos(phase)[..., None], np.sin(phase)[..., None]
         radial = cos_p * e1 + sin_p * e2
         points = (axis.point + offsets[:, None, None] * axis.direction + radii[:, None, None] * radial)
-        if self._wrist_spin(joint):
+        if self.arm.spins_wrist(joint):
             normal = radial
         else:  # the normal turns with the feature: its components along (e1, e2) by the spin, along the axis kept
             cos_s, sin_s = np.cos(spin)[None, :, None], np.sin(spin)[None, :, None]
