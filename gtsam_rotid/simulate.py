@@ -408,8 +408,10 @@ def simulate(config: SceneConfig | None = None, seed: int | None = 0, *, arm: Ar
     _check_config(config)
     rng = np.random.default_rng(seed)
     arm = Arm.from_robot(config.robot) if arm is None else arm
-    for joint in config.spin_joints:
-        arm.spin_index(joint)  # ArmError (an InputError) names a joint the arm does not have
+    for joint in config.spin_joints:  # (ArmError, an InputError, names a joint the arm does not have)
+        if arm.spin_index(joint) > arm.wrist_index:
+            raise InputError(f"spin joint {joint!r} comes after the wrist joint {arm.wrist_joint!r}: the simulated "
+                             "features sit on the links after the wrist joint, and its spin would not move them all")
     scene = SpinScene(config, arm, rng)
     if config.joint_angles is not None:
         poses = [arm.joint_angle_vector(q) for q in config.joint_angles]

@@ -45,6 +45,8 @@ def test_the_axis_of_another_joint_is_its_frame_and_its_offset_derivatives_are_f
     assert np.all(d_point[:, 3:] == 0) and np.all(d_direction[:, 3:] == 0)
     with pytest.raises(ArmError, match="'joint_7' is not a revolute joint of the model"):
         ARM.wrist_axis(q, "joint_7")
+    with pytest.raises(InputError, match=f"spin joint '{J6}' comes after the wrist joint '{J5}'"):
+        simulate.simulate(SceneConfig(duration=1.0, spin_joints=(J6,)), arm=Arm.from_robot("kinova", wrist_joint=J5))
 
 
 def test_offsets_reach_the_last_spinning_joint():
