@@ -301,7 +301,7 @@ def true_axis_distances(result, tracked: Dataset, arm_T_camera) -> list[np.ndarr
         if m.image_axis is None or m.axis_point is None:
             out.append(None)
             continue
-        axis = tracked.arm.wrist_axis(tracked[m.index].joint_angles)
+        axis = tracked.arm.wrist_axis(tracked[m.index].joint_angles, tracked[m.index].spin_joint)
         out.append(axis_point_residuals(tracked.camera.K, arm_T_camera, axis_test_points(axis), m.image_axis)[0])
     return out
 

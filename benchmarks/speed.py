@@ -56,7 +56,7 @@ def per_pixel_graph(builder, dataset, values, made, max_pixels: int):
     count = 0
     for k, keys in enumerate(made):
         measurement = dataset[k]
-        axis = dataset.arm.wrist_axis(measurement.joint_angles)
+        axis = dataset.arm.wrist_axis(measurement.joint_angles, measurement.spin_joint)
         fk_axis = FKAxis(axis.point, axis.direction)
         for j, circle_key in zip(keys.tracks, keys.circles, strict=True):
             ideal = dataset.camera.undistort_pixels(measurement.tracks[j].pixels)

@@ -440,16 +440,14 @@ class _Constraints:
         return None
 
     def problem(self, joint_angles) -> str | None:
-        problem = self.scene.pose_problem(joint_angles) or self._image_motion_problem(joint_angles)
-        swings = [j for j in self.options.spin_joints if not self.scene.arm.spins_wrist(j)]
-        for joint in swings if problem is None else ():
-            problem = self.scene.pose_problem(joint_angles, joint)
-            if problem is None and self.collisions is not None:
-                problem = self._swing_collision(joint_angles, joint)
-            if problem is not None:
-                break
+        problem = (self.scene.pose_problem(joint_angles, self.options.spin_joints)
+                   or self._image_motion_problem(joint_angles))
         if problem is not None or self.collisions is None:
             return problem
+        for joint in self.options.spin_joints:
+            problem = None if self.scene.arm.spins_wrist(joint) else self._swing_collision(joint_angles, joint)
+            if problem is not None:
+                return problem
         problem = self._collision(joint_angles)
         if problem is not None:
             return problem

@@ -232,14 +232,12 @@ class SpinScene:
         t = self.camera_T_arm.translation()
         return self.camera.project(points_arm @ R.T + t)
 
-    def pose_problem(self, joint_angles, joint: str | None = None) -> str | None:
-        """Why this arm pose is unusable for the scene with a spin of ``joint`` (default the wrist), or None when
-        it is fine."""
+    def pose_problem(self, joint_angles, joints=()) -> str | None:
+        """Why this arm pose is unusable for the scene, or None when it is fine: the wrist's pose checks, and for each
+        of ``joints`` (spinning joints' names) other than the wrist, its swing's (:meth:`_swing_problem`)."""
         cfg = self.config
         if not self.arm.within_limits(joint_angles):
             return "outside joint limits"
-        if not self.arm.spins_wrist(joint):
-            return self._swing_problem(joint_angles, joint)
         axis, e1, e2 = self.basis(joint_angles)
         ray = axis.point - self.camera_centre
         depth = np.linalg.norm(ray)
@@ -259,14 +257,15 @@ class SpinScene:
         pixels = self.project(rims)
         if not np.all(self.camera.in_image(pixels, cfg.image_margin)):
             return "end effector leaves the image"
+        for joint in joints:
+            problem = None if self.arm.spins_wrist(joint) else self._swing_problem(joint_angles, joint)
+            if problem is not None:
+                return problem
         return None
 
     def _swing_problem(self, joint_angles, joint: str) -> str | None:
-        """:meth:`pose_problem` for a spin of another joint than the wrist: the wrist pose must be fine and the
-        features' whole swing about the joint's axis stay in view and above ``min_height``."""
-        problem = self.pose_problem(joint_angles)
-        if problem is not None:
-            return problem
+        """Why a spin of ``joint`` (not the wrist) at a pose that passes the wrist's checks is unusable: the
+        features' whole swing about the joint's axis must stay in view and above ``min_height``."""
         cfg = self.config
         axis = self.arm.wrist_axis(joint_angles, joint)
         ray = axis.point - self.camera_centre
@@ -294,7 +293,7 @@ class SpinScene:
         cos_sep = np.cos(np.radians(cfg.min_axis_separation_deg))
         for _ in range(cfg.max_pose_samples):
             q = self.arm.random_joint_angles(rng)
-            if any(self.pose_problem(q, joint) is not None for joint in cfg.spin_joints or (None,)):
+            if self.pose_problem(q, cfg.spin_joints) is not None:
                 continue
             a = self.arm.wrist_axis(q).direction
             if any(abs(a @ b) > cos_sep for b in directions):
@@ -416,11 +415,10 @@ def simulate(config: SceneConfig | None = None, seed: int | None = 0, *, arm: Ar
     if config.joint_angles is not None:
         poses = [arm.joint_angle_vector(q) for q in config.joint_angles]
         for k, q in enumerate(poses):
-            for joint in config.spin_joints or (None,):
-                problem = scene.pose_problem(q, joint)
-                if problem is not None:
-                    where = f"measurement {k}" if not config.spin_joints else f"arm pose {k}, spin of {joint}"
-                    raise SimulationError(f"{where}: the given arm pose is unusable ({problem})")
+            problem = scene.pose_problem(q, config.spin_joints)
+            if problem is not None:
+                where = f"measurement {k}" if not config.spin_joints else f"arm pose {k}"
+                raise SimulationError(f"{where}: the given arm pose is unusable ({problem})")
     else:
         poses = scene.sample_poses(rng)
     measurements, truths = [], []
