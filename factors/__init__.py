@@ -57,6 +57,7 @@ from .coaxial import CoaxialLineFactor, make_coaxial_line_factor
 from .coaxial_tracks import CoaxialTracks
 from .geometry import (
     axis_point_residuals,
+    cal3_s2,
     circle_coordinates,
     circle_points,
     image_line_from_rot3,
@@ -90,6 +91,7 @@ __all__ = [
     "SpinInit",
     "axis_offsets_residuals",
     "axis_point_residuals",
+    "cal3_s2",
     "chunk_segments",
     "circle_coordinates",
     "circle_point_residuals",

@@ -10,7 +10,12 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from .geometry import axis_point_residuals, image_line_from_rot3, line_distance_covariance
+from .geometry import (
+    axis_point_residuals,
+    image_line_from_rot3,
+    image_line_intrinsics_jacobian,
+    line_distance_covariance,
+)
 
 __all__ = ["axis_offsets_residuals", "line_distance_covariance",
            "make_axis_offsets_to_line_factor", "make_axis_offsets_to_line_variable_factor",
@@ -64,7 +69,13 @@ def make_axis_to_line_factor(noise, pose_key: int, test_points_arm, line, K) -> 
     return gtsam.CustomFactor(noise, [pose_key], error_func)
 
 
-def make_axis_to_line_variable_factor(noise, pose_key: int, line_key: int, test_points_arm, K) -> gtsam.CustomFactor:
+def _intrinsics_of(values: gtsam.Values, keys, index: int, K: np.ndarray) -> np.ndarray:
+    """The intrinsic matrix: the ``gtsam.Cal3_S2`` at ``keys[index]`` if the factor has that key, else ``K``."""
+    return values.atCal3_S2(keys[index]).K() if len(keys) > index else K
+
+
+def make_axis_to_line_variable_factor(noise, pose_key: int, line_key: int, test_points_arm, K,
+                                      intrinsics_key: int | None = None) -> gtsam.CustomFactor:
     """Distances of projected FK axis test points to the image of a Rot3 line variable.
 
     Args:
@@ -73,6 +84,9 @@ def make_axis_to_line_variable_factor(noise, pose_key: int, line_key: int, test_
         line_key: key of the measurement's ``gtsam.Rot3`` line variable.
         test_points_arm: (M, 3) points on the FK wrist axis, arm frame.
         K: (3, 3) intrinsic matrix.
+        intrinsics_key: key of a ``gtsam.Cal3_S2`` variable that replaces ``K`` (a third Jacobian, (M, 5): only
+            the focal lengths and skew change the distances, see
+            :func:`.geometry.image_line_intrinsics_jacobian`).
 
     Returns:
         ``gtsam.CustomFactor`` with Jacobians (M, 6) wrt the Pose3 tangent and (M, 3) wrt the Rot3 tangent.
@@ -84,14 +98,19 @@ def make_axis_to_line_variable_factor(noise, pose_key: int, line_key: int, test_
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         keys = this.keys()
         arm_T_camera = values.atPose3(keys[0])
-        line, J_line = image_line_from_rot3(K, values.atRot3(keys[1]))
-        e, H_pose, H_l = axis_point_residuals(K, arm_T_camera, points_arm, line)
+        K_now = _intrinsics_of(values, keys, 2, K)
+        line_rot = values.atRot3(keys[1])
+        line, J_line = image_line_from_rot3(K_now, line_rot)
+        e, H_pose, H_l = axis_point_residuals(K_now, arm_T_camera, points_arm, line)
         if H is not None:
             H[0] = H_pose
             H[1] = H_l @ J_line
+            if len(keys) > 2:
+                H[2] = image_line_intrinsics_jacobian(K_now, line_rot, e)
         return e
 
-    return gtsam.CustomFactor(noise, [pose_key, line_key], error_func)
+    keys = [pose_key, line_key] if intrinsics_key is None else [pose_key, line_key, intrinsics_key]
+    return gtsam.CustomFactor(noise, keys, error_func)
 
 
 def axis_offsets_residuals(K, arm_T_camera, axis_of, delta, line):
@@ -134,9 +153,10 @@ def make_axis_offsets_to_line_factor(noise, pose_key: int, offsets_key: int, axi
 
 
 def make_axis_offsets_to_line_variable_factor(noise, pose_key: int, line_key: int, offsets_key: int, axis_of,
-                                              K) -> gtsam.CustomFactor:
+                                              K, intrinsics_key: int | None = None) -> gtsam.CustomFactor:
     """Distances of projected FK axis test points to the image of a Rot3 line variable, the FK axis depending on
-    joint offsets (see :func:`make_axis_offsets_to_line_factor` for ``offsets_key`` and ``axis_of``).
+    joint offsets (see :func:`make_axis_offsets_to_line_factor` for ``offsets_key`` and ``axis_of``;
+    ``intrinsics_key`` as :func:`make_axis_to_line_variable_factor`'s, a fourth Jacobian).
 
     Returns:
         ``gtsam.CustomFactor`` with Jacobians (M, 6) wrt the Pose3 tangent, (M, 3) wrt the Rot3 tangent and (M, n)
@@ -147,11 +167,16 @@ def make_axis_offsets_to_line_variable_factor(noise, pose_key: int, line_key: in
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         keys = this.keys()
-        line, J_line = image_line_from_rot3(K, values.atRot3(keys[1]))
-        e, H_pose, H_l, H_offsets = axis_offsets_residuals(K, values.atPose3(keys[0]), axis_of,
+        K_now = _intrinsics_of(values, keys, 3, K)
+        line_rot = values.atRot3(keys[1])
+        line, J_line = image_line_from_rot3(K_now, line_rot)
+        e, H_pose, H_l, H_offsets = axis_offsets_residuals(K_now, values.atPose3(keys[0]), axis_of,
                                                        values.atVector(keys[2]), line)
         if H is not None:
             H[0], H[1], H[2] = H_pose, H_l @ J_line, H_offsets
+            if len(keys) > 3:
+                H[3] = image_line_intrinsics_jacobian(K_now, line_rot, e)
         return e
 
-    return gtsam.CustomFactor(noise, [pose_key, line_key, offsets_key], error_func)
+    keys = [pose_key, line_key, offsets_key] + ([] if intrinsics_key is None else [intrinsics_key])
+    return gtsam.CustomFactor(noise, keys, error_func)

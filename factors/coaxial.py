@@ -117,13 +117,15 @@ class CoaxialLineFactor:
                     max_evaluations, cache_size, tracks.n_points)
 
     def _setup(self, line_key: int, tracks, start, sigma_px: float, robust, tol: float, max_evaluations: int,
-               cache_size: int, dim: int) -> None:
+               cache_size: int, dim: int, intrinsics_key: int | None = None) -> None:
         """What every projected-out line factor holds (this and :class:`.rigid_line.RigidLineFactor`): its
         settings, the start of its first solve, the caches and anchors, the diagnostics, and the CustomFactor of
-        dimension ``dim``, bound to a twin (see the class docstring)."""
+        dimension ``dim``, bound to a twin (see the class docstring); with ``intrinsics_key`` the factor's second
+        key is a ``gtsam.Cal3_S2`` (only factors that implement :meth:`_jacobian_intrinsics`)."""
         if not np.isfinite(sigma_px) or sigma_px <= 0:
             raise ValueError(f"sigma_px must be a positive number of pixels, got {sigma_px!r}")
         self.line_key = line_key
+        self.intrinsics_key = intrinsics_key
         self.tracks = tracks
         self.sigma_px = float(sigma_px)
         self.counts = tracks.counts
@@ -138,6 +140,7 @@ class CoaxialLineFactor:
         self._home: _LineState | None = None
         self._cache_size = max(1, int(cache_size))
         self._last: _LineState | None = None
+        self._last_K: np.ndarray | None = None
         #: diagnostics: solves, the evaluations they took, and their work in passes over all tracks; errors refused
         #: (outside the trust region, see _refused)
         self.refused = 0
@@ -146,26 +149,53 @@ class CoaxialLineFactor:
         self.work = 0.0
         twin = object.__new__(type(self))  # same attributes, no factor slot: no cycle through C++ (see above)
         twin.__dict__ = self.__dict__
-        self.factor = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(dim), [line_key], twin._error_function)
+        keys = [line_key] if intrinsics_key is None else [line_key, intrinsics_key]
+        self.factor = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(dim), keys, twin._error_function)
 
     # ------------------------------------------------------------------------------------------------------------
 
     def _error_function(self, this, values, H):
         rot = values.atRot3(self.line_key)
-        if H is None and self._refused(rot):
+        K = self._intrinsics(values)
+        if H is None and self._refused(rot, K):
             self.refused += 1
             return np.full(this.dim(), REFUSED_RESIDUAL)
-        state = self._state(rot)
+        state = self._state(rot, K)
         if H is None:
             return self._residual(state, self._scales(state)[1])
-        key = state.R.tobytes()
+        key = self._key(state.R, K)
         self._pinned[key] = state
         self._pinned.move_to_end(key)
         if len(self._pinned) > PINNED_STATES:
             self._pinned.popitem(last=False)
         irls = self._scales(state)[0]
         H[0] = self._jacobian(state, irls)
+        if K is not None:
+            H[1] = self._jacobian_intrinsics(state, irls)
         return self._residual(state, irls)
+
+    def _intrinsics(self, values: gtsam.Values) -> np.ndarray | None:
+        """The intrinsic matrix of the factor's ``gtsam.Cal3_S2`` variable in ``values`` (None: fixed intrinsics)."""
+        if self.intrinsics_key is None:
+            return None
+        return np.ascontiguousarray(values.atCal3_S2(self.intrinsics_key).K())
+
+    @staticmethod
+    def _key(R: np.ndarray, K: np.ndarray | None) -> bytes:
+        """The cache key of a line (and intrinsic matrix)."""
+        return R.tobytes() if K is None else R.tobytes() + K.tobytes()
+
+    def _jacobian_intrinsics(self, state, scale: np.ndarray) -> np.ndarray:
+        raise NotImplementedError(f"{type(self).__name__} has fixed intrinsics")
+
+    def _at(self, x):
+        """The state at ``x`` (see the class docstring; with an intrinsics variable, a ``gtsam.Values`` gives both
+        and anything else the line at the intrinsics last evaluated)."""
+        if isinstance(x, gtsam.Values):
+            return self._state(self._rot(x), self._intrinsics(x))
+        if self._last is not None:
+            return self._state(self._rot(x), self._last_K)
+        return self._state(self._rot(x), None if self.intrinsics_key is None else self.K)
 
     def _rot(self, x) -> gtsam.Rot3:
         if x is None:
@@ -178,25 +208,25 @@ class CoaxialLineFactor:
             return x
         return gtsam.Rot3(np.asarray(x, dtype=float).reshape(3, 3))
 
-    def _state(self, rot: gtsam.Rot3) -> _LineState:
+    def _state(self, rot: gtsam.Rot3, K: np.ndarray | None = None) -> _LineState:
         R = np.ascontiguousarray(rot.matrix())
-        key = R.tobytes()
+        key = self._key(R, K)
         state = self._cache.get(key)
         if state is not None:
             self._cache.move_to_end(key)
         else:
             state = self._pinned.get(key)
         if state is not None:
-            self._last = state
+            self._last, self._last_K = state, K
             return state
-        state = self._solve(rot, R)
+        state = self._solve(rot, R) if K is None else self._solve(rot, R, K)
         self._cache[key] = state
         self._cache.move_to_end(key)
         if len(self._cache) > self._cache_size:
             self._cache.popitem(last=False)
         if self._home is None:
             self._home = state
-        self._last = state
+        self._last, self._last_K = state, K
         return state
 
     def _solve(self, rot: gtsam.Rot3, R: np.ndarray) -> _LineState:
@@ -260,7 +290,7 @@ class CoaxialLineFactor:
                 break  # LM's trials: from the point LM linearised at, whatever lies nearer
         return best, best_w, best_norm
 
-    def _refused(self, rot: gtsam.Rot3) -> bool:
+    def _refused(self, rot: gtsam.Rot3, K: np.ndarray | None = None) -> bool:
         """Whether GTSAM's error at ``rot`` is refused: a trust region for LM's trial steps.
 
         A line further than ``TRUST_RAD`` from every anchor (the last linearisation points and the first line
@@ -275,7 +305,7 @@ class CoaxialLineFactor:
         anchors = self._anchors()
         if not anchors:
             return False
-        key = np.ascontiguousarray(rot.matrix()).tobytes()
+        key = self._key(np.ascontiguousarray(rot.matrix()), K)
         if key in self._cache or key in self._pinned:
             return False
         return all(np.linalg.norm(state.rot.localCoordinates(rot)) > TRUST_RAD for state in anchors)
@@ -326,12 +356,12 @@ class CoaxialLineFactor:
 
     def circles(self, x=None) -> np.ndarray:
         """(m, 2) projected-out circles (d, r) at the line variable."""
-        ev = self._state(self._rot(x)).ev
+        ev = self._at(x).ev
         return np.column_stack([ev.d, ev.r])
 
     def track_sse(self, x=None) -> np.ndarray:
         """(m,) sum of squared residuals (px^2) of each track at its projected-out circle."""
-        return self._state(self._rot(x)).sse.copy()
+        return self._at(x).sse.copy()
 
     def track_rms(self, x=None) -> np.ndarray:
         """(m,) residual RMS (px) of each track (0 for an empty track)."""
@@ -345,24 +375,24 @@ class CoaxialLineFactor:
 
     def weights(self, x=None) -> np.ndarray:
         """(m,) robust weights of the tracks (the IRLS weights ``w_j``; ones without a robust kernel)."""
-        return (self._scales(self._state(self._rot(x)))[0] * self.sigma_px) ** 2
+        return (self._scales(self._at(x))[0] * self.sigma_px) ** 2
 
     def converged(self, x=None) -> np.ndarray:
         """(m,) whether each track's circle solve converged."""
-        return self._state(self._rot(x)).converged.copy()
+        return self._at(x).converged.copy()
 
     def residuals(self, x=None) -> np.ndarray:
         """(N,) signed pixel residuals (unweighted) of all tracks at their projected-out circles."""
-        return self.tracks._flat(self._state(self._rot(x)).ev.V[0]).copy()
+        return self.tracks._flat(self._at(x).ev.V[0]).copy()
 
     def phases(self, x=None) -> np.ndarray:
         """(N,) closest phases in [-pi, pi] at the projected-out circles."""
-        ev = self._state(self._rot(x)).ev
+        ev = self._at(x).ev
         return np.arctan2(self.tracks._flat(ev.s), self.tracks._flat(ev.c))
 
     def error(self, x=None) -> float:
         """The factor's error (GTSAM's): half the whitened chi-square, or the sum of the robust losses."""
-        state = self._state(self._rot(x))
+        state = self._at(x)
         scale = self._scales(state)[1]
         return float(0.5 * np.sum(state.sse * scale**2))
 
@@ -375,7 +405,7 @@ class CoaxialLineFactor:
         "meat" of a cluster-robust (sandwich) covariance. With white pixel noise of the assumed sigma its
         expectation is :meth:`information`.
         """
-        state = self._state(self._rot(x))
+        state = self._at(x)
         irls = self._scales(state)[0]
         Je = self._jacobian(state, irls) * self._residual(state, irls)[:, None]
         tracks = self.tracks
@@ -386,7 +416,7 @@ class CoaxialLineFactor:
     def track_information(self, x=None) -> np.ndarray:
         """(m, 3, 3) each track's ``J_j^T J_j`` (weighted, its circle projected out): its part of
         :meth:`information`, from the per-track sums (no N-sized work)."""
-        state = self._state(self._rot(x))
+        state = self._at(x)
         w = self._scales(state)[0] ** 2
         G = state.gram
         per_track = G[:, 3:6, 3:6] - np.einsum("jki,jkl->jil", G[:, 1:3, 3:6], state.M)

@@ -33,6 +33,12 @@ def skew(v: np.ndarray) -> np.ndarray:
     return out
 
 
+def cal3_s2(K) -> gtsam.Cal3_S2:
+    """The ``gtsam.Cal3_S2`` (``fx, fy, s, cx, cy``) of a (3, 3) intrinsic matrix."""
+    K = np.asarray(K, dtype=float)
+    return gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2])
+
+
 def _matrix(R) -> np.ndarray:
     """3x3 matrix of a ``gtsam.Rot3`` or of an array-like."""
     return np.asarray(R.matrix() if hasattr(R, "matrix") else R, dtype=float)
@@ -113,6 +119,28 @@ def image_line_from_rot3(K, R) -> tuple[np.ndarray, np.ndarray]:
     dm = K_inv_T @ np.column_stack([-R[:, 1], R[:, 0], np.zeros(3)])
     J = (np.eye(3) - np.outer(l, [l[0], l[1], 0.0])) @ dm / rho
     return l, J
+
+
+def image_line_intrinsics_jacobian(K, R, distances) -> np.ndarray:
+    """(M, 5) derivatives of the signed distances ``distances`` (M,) of fixed 3-D points' images to the image of the
+    line variable ``R`` (:func:`image_line_from_rot3`) wrt the intrinsics, in ``gtsam.Cal3_S2``'s tangent order
+    ``(fx, fy, s, cx, cy)``.
+
+    The distance of the image of a camera-frame point ``X`` is ``e = (c2 . X / X_z) / rho`` with ``rho = |m[:2]|``,
+    ``m = K^-T c2``: the numerator is the same for every ``K`` (the plane through the camera centre and the line),
+    so ``de = -e drho / rho``. With ``K^T m = c2``: ``m0 = c0/fx``, ``m1 = (c1 - s m0)/fy``; ``cx`` and ``cy`` only
+    move ``m2`` and do not change the distances.
+    """
+    R = _matrix(R)
+    K = np.asarray(K, dtype=float)
+    fx, s, fy = K[0, 0], K[0, 1], K[1, 1]
+    c = R[:, 2]
+    m0 = c[0] / fx
+    m1 = (c[1] - s * m0) / fy
+    rho2 = m0 * m0 + m1 * m1
+    dm0 = np.array([-m0 / fx, 0.0, 0.0, 0.0, 0.0])
+    dm1 = np.array([s * m0 / (fx * fy), -m1 / fy, -m0 / fy, 0.0, 0.0])
+    return -np.outer(np.asarray(distances, dtype=float), m0 * dm0 + m1 * dm1) / rho2
 
 
 def line_distances(line, pixels) -> np.ndarray:

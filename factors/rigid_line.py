@@ -34,6 +34,7 @@ import numpy as np
 
 from .coaxial import PREDICT_MAX_RAD, CoaxialLineFactor, _robust_terms
 from .coaxial_solve import CIRCLE_TOL
+from .geometry import cal3_s2
 from .rigid import _track_components
 
 __all__ = ["RigidLineFactor", "RigidTracks", "make_rigid_line_factor"]
@@ -133,7 +134,7 @@ class RigidTracks:
 class _Inner:
     """An evaluation of the rigid spin at one line and inner point: residuals and derivatives per pixel."""
 
-    __slots__ = ("x", "e", "a", "sse", "_G", "_v", "_H_R")
+    __slots__ = ("x", "e", "a", "sse", "_G", "_v", "_H_R", "_u", "_K")
 
     def __init__(self, tracks: RigidTracks, K: np.ndarray, R: np.ndarray, x: np.ndarray):
         m = tracks.n_tracks
@@ -153,7 +154,18 @@ class _Inner:
         # a: (3, 2, N) derivatives of (du, dv) wrt (d, r, phi) (phi: both phi0 and theta)
         self.a = np.stack([G[:, 1], G[:, 0] * s + G[:, 2] * c, G[:, 0] * rc - G[:, 2] * rs])
         self.sse = tracks.track_sums(np.einsum("kn,kn->n", self.e, self.e))
-        self._G, self._v, self._H_R = G, (v0, d, rc), None
+        self._G, self._v, self._H_R, self._u, self._K = G, (v0, d, rc), None, u, K
+
+    @property
+    def H_K(self) -> np.ndarray:
+        """(5, 2, N) derivatives wrt the intrinsics in ``gtsam.Cal3_S2``'s order ``(fx, fy, s, cx, cy)``: the pixel
+        is ``(fx x + s y + cx, fy y + cy)`` of the normalised point ``(x, y)``."""
+        (fx, s, cx), (_, fy, cy) = self._K[0], self._K[1]
+        y = (self._u[1] - cy) / fy
+        x = (self._u[0] - cx - s * y) / fx
+        zero, one = np.zeros_like(x), np.ones_like(x)
+        return np.stack([np.stack([x, zero]), np.stack([zero, y]), np.stack([y, zero]), np.stack([one, zero]),
+                         np.stack([zero, one])])
 
     @property
     def H_R(self) -> np.ndarray:
@@ -231,14 +243,15 @@ class _Normal:
 class _RigidState:
     """The inner solution at one line variable, and what the factor needs there."""
 
-    __slots__ = ("rot", "R", "ev", "converged", "evaluations", "normal", "X", "_J")
+    __slots__ = ("rot", "R", "K", "ev", "converged", "evaluations", "normal", "X", "_J")
 
-    def __init__(self, rot, R, ev: _Inner, converged: bool, evaluations: int, normal: _Normal, X: np.ndarray):
-        self.rot, self.R, self.ev = rot, R, ev
+    def __init__(self, rot, R, ev: _Inner, converged: bool, evaluations: int, normal: _Normal, X: np.ndarray,
+                 K: np.ndarray):
+        self.rot, self.R, self.K, self.ev = rot, R, K, ev
         self.converged, self.evaluations = converged, evaluations
         self.normal = normal  # the inner normal equations at ev, weighted by its IRLS weights
-        self.X = X  # (3m + F, 3) (J^T W J)^-1 J^T W H_R (at ev, by normal)
-        self._J = None  # (3, 2, N) P H_R
+        self.X = X  # (3m + F, 3) (J^T W J)^-1 J^T W H_R (at ev, by normal); with intrinsics (3m + F, 8): H_K too
+        self._J = None  # (3, 2, N) P H_R (with intrinsics (8, 2, N): P H_K too)
 
     @property
     def sse(self) -> np.ndarray:
@@ -262,7 +275,8 @@ class RigidLineFactor(CoaxialLineFactor):
     __slots__ = ()
 
     def __init__(self, line_key: int, tracks: RigidTracks, K, circles, phi0, theta, sigma_px: float = 1.0,
-                 robust=None, *, tol: float = CIRCLE_TOL, max_evaluations: int = 30, cache_size: int = 4):
+                 robust=None, *, tol: float = CIRCLE_TOL, max_evaluations: int = 30, cache_size: int = 4,
+                 intrinsics_key: int | None = None):
         circles = np.array(circles, dtype=float).reshape(-1, 2)
         phi0 = np.array(phi0, dtype=float).reshape(-1)
         theta = np.array(theta, dtype=float).reshape(-1)
@@ -275,7 +289,8 @@ class RigidLineFactor(CoaxialLineFactor):
         x0 = np.empty(3 * tracks.n_tracks + tracks.n_frames)
         x0[0:3 * tracks.n_tracks:3], x0[1:3 * tracks.n_tracks:3] = circles[:, 0], circles[:, 1]
         x0[2:3 * tracks.n_tracks:3], x0[3 * tracks.n_tracks:] = phi0, theta
-        self._setup(line_key, tracks, x0, sigma_px, robust, tol, max_evaluations, cache_size, 2 * tracks.n_points)
+        self._setup(line_key, tracks, x0, sigma_px, robust, tol, max_evaluations, cache_size, 2 * tracks.n_points,
+                    intrinsics_key)
 
     # ------------------------------------------------------------------------------------------------------------
 
@@ -284,18 +299,22 @@ class RigidLineFactor(CoaxialLineFactor):
             return np.ones(self.tracks.n_tracks)
         return _robust_terms(np.sqrt(np.maximum(sse, 0.0)) / self.sigma_px, self._huber_k, self._estimators)[0]
 
-    def _solve(self, rot: gtsam.Rot3, R: np.ndarray) -> _RigidState:
-        """The inner problem at ``rot`` by Gauss-Newton (IRLS), from its anchor's solution moved by its first-order
-        change, with steps shortened to the trust region ``MAX_CIRCLE_STEP`` and halved where the robust cost
-        rises."""
-        tracks, K = self.tracks, self.K
+    def _solve(self, rot: gtsam.Rot3, R: np.ndarray, K: np.ndarray | None = None) -> _RigidState:
+        """The inner problem at ``rot`` (and the intrinsic matrix ``K``, default the factor's) by Gauss-Newton
+        (IRLS), from its anchor's solution moved by its first-order change, with steps shortened to the trust region
+        ``MAX_CIRCLE_STEP`` and halved where the robust cost rises."""
+        tracks = self.tracks
+        K = self.K if K is None else K
+        intrinsics = self.intrinsics_key is not None
         anchor, w, norm = self._anchor(rot)
         if anchor is None:
             x = self._start.copy()
         else:
             x = anchor.ev.x.copy()
             if norm <= PREDICT_MAX_RAD:
-                change = -anchor.X @ w
+                if intrinsics:  # the intrinsics' change too (Cal3_S2's tangent: fx, fy, s, cx, cy)
+                    w = np.concatenate([w, cal3_s2(K).vector() - cal3_s2(anchor.K).vector()])
+                change = -anchor.X[:, :len(w)] @ w
                 if np.all(np.isfinite(change)) and self._circle_change(x, change) <= MAX_CIRCLE_STEP:
                     x += change
         ev = _Inner(tracks, K, R, x)
@@ -305,7 +324,8 @@ class RigidLineFactor(CoaxialLineFactor):
             normal = _Normal(tracks, ev, self._irls(ev.sse)[tracks.track] / self.sigma_px**2)
             # the line's derivatives ride along (one factorisation): the projection the Jacobian needs if this is
             # the last evaluation
-            xt, xf, gt, gf = normal.project(np.concatenate([ev.e[None], ev.H_R]), gradients=True)
+            columns = [ev.e[None], ev.H_R, ev.H_K] if intrinsics else [ev.e[None], ev.H_R]
+            xt, xf, gt, gf = normal.project(np.concatenate(columns), gradients=True)
             projected = (xt[:, 1:], xf[:, 1:])
             decrement = float(gt[:, 0] @ xt[:, 0] + gf[:, 0] @ xf[:, 0])  # g^T (J^T W J)^-1 g, whitened
             if decrement <= self.tol * max(cost, 1e-300) or decrement < 1e-20 * tracks.n_points:
@@ -325,7 +345,7 @@ class RigidLineFactor(CoaxialLineFactor):
             if not trial_cost <= cost:
                 break
             x, ev, cost = x + t * step, trial, trial_cost
-        state = _RigidState(rot, R, ev, converged, evaluations, normal, np.concatenate(projected))
+        state = _RigidState(rot, R, ev, converged, evaluations, normal, np.concatenate(projected), K)
         self.solves += 1
         self.evaluations += evaluations
         self.work += evaluations
@@ -352,22 +372,29 @@ class RigidLineFactor(CoaxialLineFactor):
 
     def _projected(self, state: _RigidState) -> np.ndarray:
         """(3, 2, N) ``P H_R`` (unweighted rows; the projection ``state.X``, made with the state's last inner step,
-        weighted by the IRLS weights of the state's residuals)."""
+        weighted by the IRLS weights of the state's residuals); with an intrinsics variable (8, 2, N): ``P H_K``
+        follows."""
         if state._J is None:
             tracks, ev = self.tracks, state.ev
-            m = tracks.n_tracks
+            m, q = tracks.n_tracks, state.X.shape[1]
             xt, xf = state.X[:3 * m], state.X[3 * m:]
             # J X per pixel: sum over (d, r, phi0) of a * X_track, plus a_phi * X_theta
-            Xt = xt.reshape(m, 3, 3)[tracks.track]  # (N, param, line)
-            Xf = xf[tracks.frame]  # (N, line)
+            Xt = xt.reshape(m, 3, q)[tracks.track]  # (N, param, column)
+            Xf = xf[tracks.frame]  # (N, column)
             JX = np.einsum("asn,nal->lsn", ev.a, Xt) + ev.a[2][None] * Xf.T[:, None, :]
-            state._J = ev.H_R - JX
+            H = ev.H_R if q == 3 else np.concatenate([ev.H_R, ev.H_K])
+            state._J = H - JX
         return state._J
 
     def _jacobian(self, state: _RigidState, scale: np.ndarray) -> np.ndarray:
         """(2N, 3) ``P H_R``, rows scaled."""
-        J = self._projected(state) * self._per_row(scale)[None, None]
+        J = self._projected(state)[:3] * self._per_row(scale)[None, None]
         return J.transpose(2, 1, 0).reshape(-1, 3)
+
+    def _jacobian_intrinsics(self, state: _RigidState, scale: np.ndarray) -> np.ndarray:
+        """(2N, 5) ``P H_K`` (``gtsam.Cal3_S2``'s tangent), rows scaled."""
+        J = self._projected(state)[3:] * self._per_row(scale)[None, None]
+        return J.transpose(2, 1, 0).reshape(-1, 5)
 
     # ------------------------------------------------------------------------------------------------------------
     # inspection
@@ -379,7 +406,7 @@ class RigidLineFactor(CoaxialLineFactor):
         return 3 * self.tracks.n_tracks - len(self.tracks.components) + self.tracks.n_frames
 
     def _inner(self, x=None) -> np.ndarray:
-        return self._state(self._rot(x)).ev.x
+        return self._at(x).ev.x
 
     def circles(self, x=None) -> np.ndarray:
         """(m, 2) projected-out circles (d, r) at the line variable."""
@@ -403,11 +430,11 @@ class RigidLineFactor(CoaxialLineFactor):
 
     def converged(self, x=None) -> np.ndarray:
         """(m,) whether the inner solve converged (one solve for all tracks)."""
-        return np.full(self.tracks.n_tracks, self._state(self._rot(x)).converged)
+        return np.full(self.tracks.n_tracks, self._at(x).converged)
 
     def residuals(self, x=None) -> np.ndarray:
         """(N, 2) pixel residuals (unweighted) of all tracks at the projected-out spin."""
-        return self._state(self._rot(x)).ev.e.T.copy()
+        return self._at(x).ev.e.T.copy()
 
     def phases(self, x=None) -> np.ndarray:
         """(N,) phases ``theta_f + phi0_j`` of the pixels, wrapped to [-pi, pi)."""
@@ -417,17 +444,17 @@ class RigidLineFactor(CoaxialLineFactor):
 
     def track_scores(self, x=None) -> np.ndarray:
         """(m, 3) each track's part ``J_j^T e_j`` of the gradient at the line variable (whitened, robust-weighted)."""
-        state = self._state(self._rot(x))
+        state = self._at(x)
         irls = self._scales(state)[0]
         row = self._per_row(irls)
-        Je = np.einsum("lsn,sn->ln", self._projected(state), state.ev.e) * row * row
+        Je = np.einsum("lsn,sn->ln", self._projected(state)[:3], state.ev.e) * row * row
         return self.tracks.track_sums(Je).T
 
     def track_information(self, x=None) -> np.ndarray:
         """(m, 3, 3) each track's ``J_j^T J_j`` (weighted, the spin projected out)."""
-        state = self._state(self._rot(x))
+        state = self._at(x)
         row = self._per_row(self._scales(state)[0])
-        J = self._projected(state) * row
+        J = self._projected(state)[:3] * row
         m = self.tracks.n_tracks
         out = np.empty((m, 3, 3))
         for i in range(3):
@@ -437,7 +464,8 @@ class RigidLineFactor(CoaxialLineFactor):
 
 
 def make_rigid_line_factor(line_key: int, tracks, K, circles, phi0, theta, *, sigma_px: float = 1.0,
-                           robust=None, tol: float = CIRCLE_TOL, max_evaluations: int = 30) -> RigidLineFactor:
+                           robust=None, tol: float = CIRCLE_TOL, max_evaluations: int = 30,
+                           intrinsics_key: int | None = None) -> RigidLineFactor:
     """One rigid-spin variable-projection factor for all framed tracks of one measurement, keyed on its line variable.
 
     Args:
@@ -449,6 +477,10 @@ def make_rigid_line_factor(line_key: int, tracks, K, circles, phi0, theta, *, si
         sigma_px: pixel noise per image coordinate.
         robust: as :func:`.coaxial.make_coaxial_line_factor` (per track, on its whole whitened norm).
         tol, max_evaluations: the inner solve's relative decrement tolerance and evaluation budget.
+        intrinsics_key: key of a ``gtsam.Cal3_S2`` variable: the intrinsics are then that variable (``K`` is only
+            the start of the first solve) and the factor has a second Jacobian, (2N, 5) wrt its tangent
+            ``(fx, fy, s, cx, cy)``. The ``tracks``' pixels stay as given (undistorted with the camera's own
+            intrinsics).
 
     Returns:
         :class:`RigidLineFactor`; add ``.factor`` to the graph.
@@ -456,4 +488,4 @@ def make_rigid_line_factor(line_key: int, tracks, K, circles, phi0, theta, *, si
     if not isinstance(tracks, RigidTracks):
         tracks = RigidTracks(tracks)
     return RigidLineFactor(line_key, tracks, K, circles, phi0, theta, sigma_px, robust, tol=tol,
-                           max_evaluations=max_evaluations)
+                           max_evaluations=max_evaluations, intrinsics_key=intrinsics_key)

@@ -128,6 +128,12 @@ class Camera:
         dist = "none" if self.dist is None else np.array2string(self.dist, precision=4)
         return f"Camera({self.width}x{self.height}, fx={fx:g}, fy={fy:g}, cx={cx:g}, cy={cy:g}, dist={dist})"
 
+    @property
+    def intrinsics(self) -> dict[str, float]:
+        """``fx, fy, cx, cy`` (px)."""
+        K = self.K
+        return {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2])}
+
     def with_intrinsics_changed(self, focal_factor: float = 1.0, cx_px: float = 0.0, cy_px: float = 0.0) -> Camera:
         """This camera with fx and fy multiplied by ``focal_factor`` and the principal point moved by ``cx_px``,
         ``cy_px`` (the distortion and the image size kept): what a camera file a little off looks like."""

@@ -40,6 +40,9 @@ from .words import summary
 SCENES = ("reference", "single-crossing")
 #: ``gtsam_rotid.estimate.Method`` values (kept literal so that ``--help`` does not import the estimator).
 METHODS = ("joint", "weighted", "paper")
+#: ``calibration.options.INTRINSICS`` and ``DEFAULT_INTRINSICS_SIGMA`` (literal for the same reason).
+INTRINSICS = ("fx", "fy", "cx", "cy")
+DEFAULT_INTRINSICS_SIGMA = (0.05, 20.0)
 TRUTH_FILE = "truth.json"
 DATASET_FILE = "dataset.json"
 RESULT_FILE = "result.json"
@@ -132,9 +135,11 @@ def cmd_calibrate(args) -> int:
     from .calibration import CalibrationOptions
 
     offsets = None if args.joint_offsets is None else (args.joint_offsets or True)  # no names: every joint
+    intrinsics = () if args.refine_intrinsics is None else (tuple(args.refine_intrinsics) or True)
     result = _calibrate_timed(dataset, args.method, CalibrationOptions(
         joint_sigma_deg=args.joint_sigma_deg, axis_floor_px=args.axis_floor_px, joint_offsets=offsets,
-        joint_offset_sigma_deg=args.joint_offset_sigma_deg))
+        joint_offset_sigma_deg=args.joint_offset_sigma_deg, refine_intrinsics=intrinsics,
+        intrinsics_sigma=tuple(args.intrinsics_sigma)))
     print(summary(result))
     if truth is not None:
         _print_lines(error_vs_truth_lines(result, truth.arm_T_camera))
@@ -636,6 +641,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "arm as the camera pose does) (joint method)")
     p.add_argument("--joint-offset-sigma-deg", type=float, default=1.0, metavar="DEG",
                    help="prior 1 sigma of each joint offset in degrees (default 1)")
+    p.add_argument("--refine-intrinsics", nargs="*", default=None, metavar="NAME", choices=list(INTRINSICS),
+                   help="refine these camera intrinsics (fx, fy, cx, cy) with the pose, from the circles' shapes; no "
+                        "names: all four (joint method, rigid spin: tracks with frame indices)")
+    p.add_argument("--intrinsics-sigma", type=float, nargs=2, default=list(DEFAULT_INTRINSICS_SIGMA),
+                   metavar=("FOCAL_FRACTION", "PX"),
+                   help="prior 1 sigma of the refined intrinsics about the camera file's: focal length as a "
+                        "fraction of it, principal point in px (default %(default)s)")
     p.add_argument("-o", "--output", metavar="RESULT_JSON", help="write the result as JSON to this file")
     p.add_argument("--overwrite", action="store_true", help="replace an existing result file")
     p.set_defaults(func=cmd_calibrate)

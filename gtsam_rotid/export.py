@@ -76,6 +76,8 @@ class Format(StrEnum):
     LAUNCH = "launch"
     #: the joint offsets a calibration refined (``calibrate --joint-offsets``), YAML
     JOINT_OFFSETS = "joint_offsets"
+    #: the camera with the intrinsics a calibration refined (``calibrate --refine-intrinsics``), ROS camera_info YAML
+    CAMERA = "camera"
 
 
 class CameraFrame(StrEnum):
@@ -431,6 +433,8 @@ def export_result(result, to: str | Format, *, parent_frame: str | None = None, 
                             + ". Export it anyway with --force (in Python: force=True): the file then says so")
     if _format(to) is Format.JOINT_OFFSETS:
         return joint_offsets_yaml(result, tuple(problems))
+    if _format(to) is Format.CAMERA:
+        return camera_info_yaml(result, tuple(problems))
     transform = Transform.from_result(result, parent_frame=parent_frame, child_frame=child_frame,
                                       camera_frame=camera_frame, warnings=tuple(problems), driver=driver)
     return transform.to_text(to, joint_name)
@@ -472,6 +476,41 @@ def joint_offsets_yaml(result, warnings: tuple[str, ...] = ()) -> str:
     if warnings:
         lines.append("warnings:")
         lines.extend(f"  - {_yaml_scalar(w)}" for w in warnings)
+    return "\n".join(lines) + "\n"
+
+
+def camera_info_yaml(result, warnings: tuple[str, ...] = ()) -> str:
+    """The camera with the intrinsics ``result`` refined, as a ROS ``camera_info`` YAML (``camera_calibration_parsers``
+    reads it, and so does ``gtsam-rotid``'s ``--camera``), the refined intrinsics' 1 sigma and covariance in comments.
+    The distortion is the camera file's (not refined). Raises InputError when the result refined none."""
+    camera = getattr(result, "camera", None)
+    if camera is None or not getattr(result, "refined_intrinsics", ()):
+        raise InputError("this result refined no intrinsics (calibrate with --refine-intrinsics, in Python "
+                         "CalibrationOptions(refine_intrinsics=True))")
+    K = np.asarray(camera.K, dtype=float)
+    dist = np.zeros(5) if camera.dist is None else np.asarray(camera.dist, dtype=float).reshape(-1)
+    P = np.hstack([K, np.zeros((3, 1))])
+
+    def matrix(name: str, rows: int, cols: int, data) -> list[str]:
+        return [f"{name}:", f"  rows: {rows}", f"  cols: {cols}",
+                "  data: [" + ", ".join(_num(v) for v in np.asarray(data, dtype=float).reshape(-1)) + "]"]
+
+    sigma, value = result.intrinsics_sigma, result.intrinsics
+    lines = ["# gtsam_rotid: the camera with its intrinsics refined with arm_T_camera (the distortion is the camera "
+             "file's)",
+             "# refined (1 sigma, px): " + ", ".join(f"{n} {value[n]:.3f} +- {sigma.get(n, float('nan')):.3f}"
+                                                      for n in result.refined_intrinsics)]
+    if getattr(result, "intrinsics_covariance", None) is not None:
+        lines.append(f"# covariance (px^2, {', '.join(result.refined_intrinsics)}): "
+                     + "; ".join(", ".join(_num(v) for v in row) for row in np.asarray(result.intrinsics_covariance)))
+    lines.extend(f"# WARNING: {w}" for w in warnings)
+    lines += [f"image_width: {int(camera.width)}", f"image_height: {int(camera.height)}",
+              f"camera_name: {_yaml_scalar((getattr(result, 'robot', {}) or {}).get('name', 'camera') + '_camera')}",
+              *matrix("camera_matrix", 3, 3, K),
+              "distortion_model: plumb_bob" if len(dist) <= 5 else "distortion_model: rational_polynomial",
+              *matrix("distortion_coefficients", 1, len(dist), dist),
+              *matrix("rectification_matrix", 3, 3, np.eye(3)),
+              *matrix("projection_matrix", 3, 4, P)]
     return "\n".join(lines) + "\n"
 
 

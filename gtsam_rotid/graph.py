@@ -36,6 +36,7 @@ from .factors import (
     FKAxis,
     RigidLineFactor,
     RigidTracks,
+    cal3_s2,
     initial_spin,
     make_axis_offsets_to_line_variable_factor,
     make_axis_to_line_variable_factor,
@@ -262,13 +263,19 @@ class RotIdGraph:
             measurements. The first joint's offset turns the whole arm as the pose does: named, its prior holds it
             (as it holds any combination the poses do not determine).
         offsets_key: key of that variable.
+        intrinsics_key: refine the camera's intrinsics: the circle factors and ties then read them from a
+            ``gtsam.Cal3_S2`` variable at this key (insert it with :meth:`add_intrinsics_prior` before the
+            measurements; a user's graph may share it with its own projection factors). Needs the ``"projected"``
+            model with the rigid spin and tracks with frame indices (the free phase fits each point's phase
+            anywhere on its ellipse and leaves the intrinsics nearly free). The tracks' pixels are undistorted with
+            the camera's own intrinsics (distortion is not refined).
     """
 
     def __init__(self, arm: Arm, camera: Camera, *, pose_key: int = gtsam.symbol("T", 0), line_symbol: str = "l",
                  circle_symbol: str = "c", track_sigma_px: float = 1.0, tie_sigma_px: float = 1e-3,
                  min_track_points: int = MIN_TRACK_POINTS, min_track_extent_px: float = MIN_TRACK_EXTENT_PX,
                  robust=None, model: str | Model = Model.LINE, spin_model: str | SpinModel = SpinModel.FREE,
-                 joint_offsets=None, offsets_key: int = gtsam.symbol("o", 0)):
+                 joint_offsets=None, offsets_key: int = gtsam.symbol("o", 0), intrinsics_key: int | None = None):
         if line_symbol == circle_symbol:
             raise InputError("line_symbol and circle_symbol must differ")
         try:
@@ -294,6 +301,10 @@ class RotIdGraph:
         self.min_track_extent_px = float(min_track_extent_px)
         self.robust = robust
         self.offsets_key = offsets_key
+        self.intrinsics_key = intrinsics_key
+        if intrinsics_key is not None and (self.model is not Model.PROJECTED or self.spin_model is not SpinModel.RIGID):
+            raise InputError("refining the intrinsics needs model='projected' and spin_model='rigid' (got "
+                             f"{self.model.value!r}, {self.spin_model.value!r})")
         self.offset_joints: list[int] = []
         if joint_offsets is not None and joint_offsets is not False:
             if self.model is Model.POSE:
@@ -326,6 +337,23 @@ class RotIdGraph:
         values.insert(self.offsets_key, np.radians(initial))
         graph.add(gtsam.PriorFactorVector(self.offsets_key, np.radians(mean),
                                           gtsam.noiseModel.Diagonal.Sigmas(np.radians(sigma))))
+
+    def add_intrinsics_prior(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, sigmas,
+                             mean: gtsam.Cal3_S2 | None = None, initial: gtsam.Cal3_S2 | None = None) -> None:
+        """Insert the intrinsics variable (at ``initial``, default the prior's mean) with a Gaussian prior of mean
+        ``mean`` (default the camera's ``K``) and ``sigmas`` (5: ``fx, fy, s, cx, cy`` in px; a tiny sigma holds
+        one fixed)."""
+        if self.intrinsics_key is None:
+            raise InputError("this graph does not refine the intrinsics (RotIdGraph(intrinsics_key=...))")
+        sigmas = np.asarray(sigmas, dtype=float).reshape(-1)
+        if sigmas.shape != (5,) or not np.all(np.isfinite(sigmas) & (sigmas > 0)):
+            raise InputError("intrinsics sigmas must be 5 positive pixels (fx, fy, s, cx, cy), got "
+                             f"{sigmas.tolist()}")
+        if values.exists(self.intrinsics_key):
+            raise InputError(f"key {gtsam.DefaultKeyFormatter(self.intrinsics_key)} already exists in values")
+        mean = cal3_s2(self.camera.K) if mean is None else mean
+        values.insert(self.intrinsics_key, mean if initial is None else initial)
+        graph.add(gtsam.PriorFactorCal3_S2(self.intrinsics_key, mean, gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
 
     def axis_of(self, joint_angles, spin_joint: str | None = None):
         """``delta -> (test points (2, 3), their derivatives (2, 3, n))`` of the FK axis of ``spin_joint`` (default
@@ -391,6 +419,8 @@ class RotIdGraph:
         prepared = self.prepare(measurement, k) if prepared is None else prepared
         if tie and self.offset_joints and not values.exists(self.offsets_key):
             raise InputError("insert the joint offsets first (RotIdGraph.add_offsets_prior)")
+        if self.intrinsics_key is not None and not values.exists(self.intrinsics_key):
+            raise InputError("insert the intrinsics first (RotIdGraph.add_intrinsics_prior)")
         if tie and self.offset_joints:
             axis = self.arm.wrist_axis_offset_derivatives(measurement.joint_angles, self.offset_joints,
                                                           values.atVector(self.offsets_key),
@@ -442,10 +472,11 @@ class RotIdGraph:
         if tie and not bound and self.offset_joints:
             axis_of = self.axis_of(measurement.joint_angles, measurement.spin_joint)
             graph.add(make_axis_offsets_to_line_variable_factor(tie_noise, self.pose_key, line_key, self.offsets_key,
-                                                                axis_of, K))
+                                                                axis_of, K, self.intrinsics_key))
             keys.tie_factor = graph.size() - 1
         elif tie and not bound:
-            graph.add(make_axis_to_line_variable_factor(tie_noise, self.pose_key, line_key, axis_test_points(axis), K))
+            graph.add(make_axis_to_line_variable_factor(tie_noise, self.pose_key, line_key, axis_test_points(axis), K,
+                                                        self.intrinsics_key))
             keys.tie_factor = graph.size() - 1
         return keys
 
@@ -467,6 +498,9 @@ class RotIdGraph:
         ideal = [prepared.usable[j].ideal for j in tracks]
         frames = [prepared.usable[j].frames for j in tracks]
         circles = np.array(start_circles)
+        if self.intrinsics_key is not None and any(f is None for f in frames):
+            raise InputError("refining the intrinsics needs every track's frame indices (the rigid spin); a track "
+                             "of this measurement has none")
         if self.spin_model is SpinModel.FREE or any(f is None for f in frames):
             return make_coaxial_line_factor(line_key, ideal, self.camera.K, circles,
                                             sigma_px=float(np.median(sigmas)), robust=self.robust)
@@ -480,7 +514,7 @@ class RotIdGraph:
             robust = lambda n, per_residuals=self.robust: per_residuals(2 * n)  # noqa: E731  (2 residuals a point)
         return make_rigid_line_factor(line_key, rigid, self.camera.K, circles, spin.phi0,
                                       spin.theta[0][rigid.frame_ids - first], sigma_px=float(np.median(sigmas)),
-                                      robust=robust)
+                                      robust=robust, intrinsics_key=self.intrinsics_key)
 
     def _refined_circles(self, factors, circles: gtsam.Values, keys: MeasurementKeys, line_key, line_cam,
                          arm_T_camera) -> gtsam.Values:

@@ -51,6 +51,7 @@ from .words import (
     kinematics_words,
     observability_words,
     outlier_words,
+    refined_intrinsics_words,
     tracking_words,
     untrusted_words,
     verdict,
@@ -138,6 +139,12 @@ class CalibrationReport:
     joint_offsets_deg: dict | None = None
     joint_offsets_sigma_deg: dict = field(default_factory=dict)
     joint_offset_prior_deg: float = 0.0
+    #: the intrinsics refined with the pose (name -> px), their 1σ (px), the camera file's values and the prior
+    #: (focal fraction, principal point px); {} / None: the camera as given
+    intrinsics: dict = field(default_factory=dict)
+    intrinsics_sigma: dict = field(default_factory=dict)
+    given_intrinsics: dict = field(default_factory=dict)
+    intrinsics_prior: tuple | None = None
     #: why a determined calibration's covariance is still not trusted (``result.untrusted``'s kinds)
     untrusted: list = field(default_factory=list)
     #: one line: usable and how well, or why not and what to do (:func:`gtsam_rotid.words.verdict`)
@@ -200,6 +207,8 @@ class CalibrationReport:
                 "frame", kinematics_words(self.joint_sigma_deg, self.joint_offsets_deg is not None),
                 *joint_offsets_words(self.joint_offsets_deg, self.joint_offsets_sigma_deg, self.joint_offset_prior_deg,
                                      all(m.spin_joint is None for m in self.measurements)),
+                *refined_intrinsics_words(self.intrinsics, self.intrinsics_sigma, self.given_intrinsics,
+                                          self.intrinsics_prior),
                 tracking_words(self.axis_floor_px)]
 
     def _uncertainty_lines(self) -> list[str]:
@@ -330,6 +339,10 @@ class CalibrationReport:
             else {k: f(v) for k, v in self.joint_offsets_deg.items()},
             "joint_offsets_sigma_deg": {k: f(v) for k, v in self.joint_offsets_sigma_deg.items()},
             "joint_offset_prior_deg": f(self.joint_offset_prior_deg),
+            "intrinsics": {k: f(v) for k, v in self.intrinsics.items()},
+            "intrinsics_sigma": {k: f(v) for k, v in self.intrinsics_sigma.items()},
+            "given_intrinsics": {k: f(v) for k, v in self.given_intrinsics.items()},
+            "intrinsics_prior": None if self.intrinsics_prior is None else [f(v) for v in self.intrinsics_prior],
             "untrusted": list(self.untrusted),
             "axis_consistency": None if self.axis_consistency is None
             else {k: (f(v) if isinstance(v, float) else v) for k, v in self.axis_consistency.to_dict().items()},
@@ -553,6 +566,10 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         else {k: float(np.degrees(v)) for k, v in result.joint_offsets.items()},
         joint_offsets_sigma_deg=dict(getattr(result, "joint_offsets_sigma_deg", {})),
         joint_offset_prior_deg=float(getattr(result, "joint_offset_sigma_deg", 0.0)),
+        intrinsics=dict(getattr(result, "intrinsics", {})),
+        intrinsics_sigma=dict(getattr(result, "intrinsics_sigma", {})),
+        given_intrinsics=dict(getattr(result, "given_intrinsics", {})),
+        intrinsics_prior=getattr(result, "intrinsics_prior_sigma", None),
     )
 
 

@@ -76,6 +76,8 @@ def summary(result: CalibrationResult) -> str:
         None if result.joint_offsets is None else {k: float(np.degrees(v)) for k, v in result.joint_offsets.items()},
         result.joint_offsets_sigma_deg, result.joint_offset_sigma_deg,
         all(m.spin_joint is None for m in result.measurements)))
+    lines.extend("  " + line for line in refined_intrinsics_words(
+        result.intrinsics, result.intrinsics_sigma, result.given_intrinsics, result.intrinsics_prior_sigma))
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
         why = outlier_words(m, "intrinsics" in result.untrusted, kinematics_suspected(result.untrusted))
@@ -397,6 +399,27 @@ def joint_offsets_words(offsets_deg: dict[str, float] | None, sigma_deg: dict[st
     if wrist_only:
         lines.append("  refining offsets costs precision at the same poses: spin the joint before the wrist too at "
                      "every pose (Measurement.spin_joint, track --spin-joints) to win it back")
+    return lines
+
+
+def refined_intrinsics_words(intrinsics: dict[str, float], sigma: dict[str, float], given: dict[str, float],
+                             prior: tuple | None) -> list[str]:
+    """The refined intrinsics (px) with their 1 sigma and their change from the camera file's (``given``); [] when
+    none was refined. ``prior``: (focal fraction, principal point px) of the prior."""
+    if not intrinsics:
+        return []
+    head = "intrinsics refined with the pose"
+    if prior is not None:
+        head += (f" (prior 1 sigma {100.0 * prior[0]:g} % focal, {prior[1]:g} px principal point, about the camera "
+                 "file's)")
+    lines = [head + ", in the covariance:"]
+    for name, value in intrinsics.items():
+        s = sigma.get(name, float("nan"))
+        change = value - given[name] if name in given else float("nan")
+        relative = f", {100.0 * change / given[name]:+.2f} %" if name in ("fx", "fy") and name in given else ""
+        lines.append(f"  {name}: {value:.2f} px +- {s:.2f} px (1 sigma; camera file {change:+.2f} px{relative})")
+    lines.append("  refining intrinsics costs precision along the camera's depth (a focal length and the distance "
+                 "trade off): add arm poses at other distances from the camera to win it back")
     return lines
 
 

@@ -119,6 +119,14 @@ def test_cli_methods_are_the_estimators():
     assert set(cli.METHODS) == {m.value for m in Method}
 
 
+def test_cli_intrinsics_are_the_options():
+    from gtsam_rotid.calibration import options
+
+    assert cli.INTRINSICS == options.INTRINSICS
+    assert cli.DEFAULT_INTRINSICS_SIGMA == options.DEFAULT_INTRINSICS_SIGMA
+    assert options.CalibrationOptions().intrinsics_sigma == options.DEFAULT_INTRINSICS_SIGMA
+
+
 @pytest.mark.parametrize("method", ["joint", "paper"])
 def test_calibrate_noise_free_recovers_truth(noise_free_dataset, method, tmp_path):
     out = tmp_path / "result.json"
@@ -132,6 +140,24 @@ def test_calibrate_noise_free_recovers_truth(noise_free_dataset, method, tmp_pat
     assert loaded.converged
     assert rotation < 1e-6
     assert translation < 1e-6
+
+
+def test_calibrate_refines_intrinsics_and_exports_the_camera(noise_free_dataset, tmp_path):
+    """Noise-free pixels: the refined fx and cx are the simulator's camera; the camera export reads back."""
+    from gtsam_rotid.camerafiles import load_camera
+    from gtsam_rotid.dataset import Dataset
+
+    out = tmp_path / "result.json"
+    result = run("calibrate", str(noise_free_dataset), "--refine-intrinsics", "fx", "cx", "--intrinsics-sigma",
+                 "0.02", "10", "-o", str(out))
+    assert "intrinsics refined with the pose (prior 1 sigma 2 % focal, 10 px principal point" in result.stdout
+    loaded, rotation, translation = error_to_truth(out, noise_free_dataset / "truth.json")
+    assert loaded.refined_intrinsics == ("fx", "cx") and rotation < 1e-6 and translation < 1e-6
+    camera = Dataset.load(noise_free_dataset).camera
+    run("export", str(out), "--to", "camera", "-o", str(tmp_path / "camera.yaml"))
+    np.testing.assert_allclose(load_camera(tmp_path / "camera.yaml").K, camera.K, rtol=0, atol=1e-4)
+    refused = run("calibrate", str(noise_free_dataset), "--refine-intrinsics", "k1", check=False)
+    assert refused.returncode != 0 and "invalid choice: 'k1'" in refused.stderr
 
 
 def test_calibrate_refuses_to_overwrite_and_keeps_the_old_file(noise_free_dataset, tmp_path):

@@ -11,8 +11,9 @@ from typing import NamedTuple
 import gtsam
 import numpy as np
 
+from ..camera import Camera
 from ..errors import RotIdError
-from ..factors import RigidLineFactor
+from ..factors import RigidLineFactor, cal3_s2
 from ..graph import (
     Model,
     chi2_quantile,
@@ -27,7 +28,7 @@ from .evidence import measurement_reports
 from .lm import _builder, _graph_dof, _lm, _turned
 from .offsets import determined_offsets
 from .opinion import _second_opinion
-from .options import CalibrationError, Method
+from .options import INTRINSICS, CalibrationError, Method
 from .result import CalibrationResult
 from .stage1 import _circles, _noise_variance, _Stage1, _track_correlation, _track_stats
 from .stage2 import (
@@ -44,6 +45,8 @@ from .stage2 import (
 )
 from .tuning import (
     DISTINCT_Z,
+    HELD_INTRINSIC_PX,
+    INTRINSICS_KEY,
     MIN_STRONG,
     POSE_KEY,
     RESTART_LEAVE_OUT,
@@ -191,8 +194,10 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     and their pixel noise to start (see :func:`_joint`)."""
     pose, iterations, used, chi2, stage1 = fit.pose, fit.iterations, fit.used, fit.chi2, fit.stage1
     offsets = setup.offsets
+    intrinsics = _IntrinsicsPrior.of(camera, setup, options)
     builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model,
-                       spin_model=options.spin_model, joint_offsets=None if offsets is None else offsets.names(arm))
+                       spin_model=options.spin_model, joint_offsets=None if offsets is None else offsets.names(arm),
+                       intrinsics_key=None if intrinsics is None else INTRINSICS_KEY)
     rest = None if offsets is None else np.zeros(len(offsets.joints))  # the offsets beyond offsets.start (rad)
     sigmas = {k: float(np.sqrt(stage1[k].sigma2)) for k in used}
     circles = {k: None if builder.model is Model.POSE else dict(stage1[k].circles) for k in used}
@@ -200,7 +205,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     converged = True
     for _round in range(3):
         graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas, circles,
-                                           lines, rest=rest)
+                                           lines, rest=rest, intrinsics=intrinsics)
         # A rigid spin whose inner solve does not converge about its start line is started again about the FK axis
         # seen from the pose where that fits it better. Stage 1's free phases can fit thin ellipses (minor semi-axes
         # of 2-4 px at 1.2 px noise) about a line whose tilt is far off (14 degrees on a Panda pose), where no rigid
@@ -211,13 +216,13 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                  and not np.all(keys[k].coaxial.converged(values))]
         if unfit:
             _, fk_values, fk_keys = _joint_graph(builder, camera, measurements, setup, stage1, unfit, pose, sigmas,
-                                                 circles, lines, fk_start=unfit, rest=rest)
+                                                 circles, lines, fk_start=unfit, rest=rest, intrinsics=intrinsics)
             better = [k for k in unfit if fk_keys[k].coaxial.error(fk_values) < keys[k].coaxial.error(values)]
             for k in better:
                 lines[k] = circles[k] = None
             if better:
                 graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas,
-                                                   circles, lines, rest=rest)
+                                                   circles, lines, rest=rest, intrinsics=intrinsics)
         start_pose = pose
         result, it, error, converged = _lm(
             graph, values, options.max_iterations, anchor=True, watch_tolerance=WATCH_POSE,
@@ -226,6 +231,8 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         pose = result.atPose3(POSE_KEY)
         if offsets is not None:
             rest = np.asarray(result.atVector(builder.offsets_key), dtype=float)
+        if intrinsics is not None:
+            intrinsics = intrinsics._replace(now=result.atCal3_S2(INTRINSICS_KEY))
         new_sigmas = {k: float(np.sqrt(_joint_variance(graph, keys[k], result, options))) for k in used}
         failed = [setup.index[k] if setup.index else k for k in used if not np.isfinite(new_sigmas[k])]
         if failed:
@@ -238,6 +245,13 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         if stable:
             break
     info = pose_information(graph, result, POSE_KEY)
+    if intrinsics is not None:  # everything after the fit sees the refined camera (the others exactly as given)
+        K = np.array(intrinsics.given.K, dtype=float)
+        refined = intrinsics.now.K()
+        for name, (i, j) in _K_ENTRIES.items():
+            if name in options.refine_intrinsics:
+                K[i, j] = refined[i, j]
+        camera = Camera(K, camera.width, camera.height, camera.dist)
     tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
     reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, chi2, tied)
     variances = {k: sigmas[k] ** 2 for k in used}
@@ -254,6 +268,12 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     if covariance is not None and correlated:  # errors shared along a track: the cluster-robust covariance
         robust = sandwich_marginal(graph, result, POSE_KEY, 6, correlated)
         covariance = covariance if robust is None else robust
+    intrinsics_covariance = None
+    if intrinsics is not None and covariance is not None:
+        full = sandwich_marginal(graph, result, INTRINSICS_KEY, 5, correlated)
+        if full is not None:
+            chosen = intrinsics.indices
+            intrinsics_covariance = full[np.ix_(chosen, chosen)]
     solved = _Solved(pose, covariance, info, Method.JOINT, converged, iterations, error)
     projected = sum(keys[k].coaxial.inner_dof for k in used if keys[k].coaxial is not None)
     offsets_covariance, cross, determined = None, None, 0
@@ -265,6 +285,14 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     out = _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
                   consistency=_axis_consistency(rows, setup, options, fitted=determined),
                   prior=_prior_floor_covariance(rows, setup))
+    if intrinsics is not None:
+        c = out.axis_consistency
+        if intrinsics_covariance is not None and c is not None and not c.consistent:
+            intrinsics_covariance = intrinsics_covariance * max(c.scale, 1.0)  # the axes' scatter scales them too
+        given = intrinsics.given.intrinsics
+        out = replace(out, refined_intrinsics=options.refine_intrinsics, camera=camera,
+                      intrinsics_covariance=intrinsics_covariance, intrinsics_prior_sigma=options.intrinsics_sigma,
+                      given_intrinsics={n: given[n] for n in options.refine_intrinsics})
     if offsets is not None:
         c = out.axis_consistency
         if offsets_covariance is not None and c is not None and not c.consistent:
@@ -295,18 +323,52 @@ def _outside(alternatives, result: CalibrationResult) -> list:
             if (d := result.arm_T_camera.localCoordinates(a.arm_T_camera)) @ information @ d > limit]
 
 
+#: Where each of ``INTRINSICS`` sits in the intrinsic matrix.
+_K_ENTRIES = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}
+
+
+class _IntrinsicsPrior(NamedTuple):
+    """The intrinsics the joint fit refines: the prior (mean: the camera file's, ``gtsam.Cal3_S2``), its sigmas (5,
+    the ones not refined held), the refined ones' indices in Cal3_S2's tangent, the current value and the camera
+    given."""
+
+    mean: gtsam.Cal3_S2
+    sigmas: np.ndarray
+    indices: list[int]
+    now: gtsam.Cal3_S2
+    given: Camera
+
+    @classmethod
+    def of(cls, camera: Camera, setup, options) -> _IntrinsicsPrior | None:
+        """The prior about ``setup.given_camera`` (else ``camera``), starting at ``camera``; None without
+        refinement."""
+        names = options.refine_intrinsics
+        if not names:
+            return None
+        given = camera if setup.given_camera is None else setup.given_camera
+        K = given.K
+        mean = cal3_s2(K)
+        focal, principal = options.intrinsics_sigma
+        free = {"fx": focal * K[0, 0], "fy": focal * K[1, 1], "cx": principal, "cy": principal}
+        order = ("fx", "fy", "s", "cx", "cy")  # Cal3_S2's tangent
+        sigmas = np.array([free[n] if n in names else HELD_INTRINSIC_PX for n in order])
+        return cls(mean, sigmas, [order.index(n) for n in INTRINSICS if n in names], cal3_s2(camera.K), given)
+
+
 def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas, circles, lines, fk_start=(),
-                 rest=None):
+                 rest=None, intrinsics: _IntrinsicsPrior | None = None):
     """The joint graph of measurements ``ks`` at ``pose`` (each at its pixel sigma): those in ``fk_start`` started
     about the FK axis seen from it (their circles from their tracks' rays), the others from ``lines`` and ``circles``
     (stage 1's or the last round's). With ``setup.offsets``, the offsets beyond those the readings were shifted by
-    are a variable starting at ``rest`` (rad) under the prior of the total offsets. Returns (graph, values, keys by
-    measurement)."""
+    are a variable starting at ``rest`` (rad) under the prior of the total offsets; with ``intrinsics`` the camera's
+    intrinsics are a variable too (at ``intrinsics.now``). Returns (graph, values, keys by measurement)."""
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(POSE_KEY, pose)
     if setup.offsets is not None:
         builder.add_offsets_prior(graph, values, np.degrees(setup.offsets.sigma), mean_deg=-np.degrees(
             setup.offsets.start), initial_deg=np.degrees(rest))
+    if intrinsics is not None:
+        builder.add_intrinsics_prior(graph, values, intrinsics.sigmas, intrinsics.mean, intrinsics.now)
     keys = {k: builder.add_measurement(graph, values, k, measurements[k], track_sigmas=dict.fromkeys(
                 setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
                 prepared=setup.prepared[k], initial_circles=None if k in fk_start else circles[k],
@@ -331,16 +393,21 @@ def _joint_variance(graph, keys, values, options) -> float:
 def common_chi2(arm, camera, measurements, setup, results: list[CalibrationResult],
                  options) -> tuple[np.ndarray, list[gtsam.Pose3]]:
     """Chi-square and pose of each result re-solved (from its pose) on one joint graph: the measurements and tracks
-    that none of ``results`` rejected, each measurement at the smallest of their pixel sigmas."""
+    that none of ``results`` rejected, each measurement at the smallest of their pixel sigmas (with refined
+    intrinsics, from each result's camera under the same prior; the chi-square includes the prior's term)."""
     used = [k for k in range(len(measurements)) if all(r.measurements[k].used for r in results)]
     sigmas = {k: max(min(r.measurements[k].residual_rms_px for r in results), options.min_sigma_px) for k in used}
     skip = {k: set().union(*(r.measurements[k].rejected_tracks for r in results)) for k in used}
+    intrinsics = _IntrinsicsPrior.of(camera, setup, options)
     builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model,
-                       spin_model=options.spin_model)
+                       spin_model=options.spin_model, intrinsics_key=None if intrinsics is None else INTRINSICS_KEY)
     chi2, poses = [], []
     for r in results:
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         values.insert(POSE_KEY, r.arm_T_camera)
+        if intrinsics is not None:  # each from its own refined camera, under the one prior
+            builder.add_intrinsics_prior(graph, values, intrinsics.sigmas, intrinsics.mean,
+                                         cal3_s2((camera if r.camera is None else r.camera).K))
         try:
             for k in used:
                 builder.add_measurement(graph, values, k, measurements[k], skip_tracks=skip[k],

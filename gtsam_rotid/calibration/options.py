@@ -18,6 +18,10 @@ from ..graph import (
 )
 
 MIN_MEASUREMENTS = 3
+#: The intrinsics ``CalibrationOptions.refine_intrinsics`` may name (``gtsam.Cal3_S2``'s, less the skew).
+INTRINSICS = ("fx", "fy", "cx", "cy")
+#: The default prior 1 sigma of refined intrinsics: (focal length fraction, principal point px).
+DEFAULT_INTRINSICS_SIGMA = (0.05, 20.0)
 #: Fewest tracks (all measurements) from which stage 1 estimates how much their noise levels differ.
 MIN_TRACKS_FOR_SPREAD = 8
 
@@ -110,6 +114,14 @@ class CalibrationOptions:
     joint_offsets: bool | tuple | list | None = None
     #: the offsets' Gaussian prior, 1 sigma (deg): how far the robot's zero positions may be off
     joint_offset_sigma_deg: float = 1.0
+    #: joint: refine these of the camera's intrinsics with the pose (names from ``INTRINSICS``; ``True``: all four)
+    #: from the circles' shapes and the ties, under a prior centred on the camera file's values
+    #: (``intrinsics_sigma``); the others (and the skew) stay as given. Needs the rigid spin (tracks with frame
+    #: indices). The result's ``camera`` is the refined camera, ``intrinsics_covariance`` its covariance.
+    refine_intrinsics: bool | tuple | list = ()
+    #: the intrinsics' Gaussian prior, 1 sigma: (focal length as a fraction of it, principal point in px): how far
+    #: the camera file may be off
+    intrinsics_sigma: tuple = DEFAULT_INTRINSICS_SIGMA
 
     def __post_init__(self):
         # a misspelt choice ("rigd") must not silently run the default
@@ -152,6 +164,26 @@ class CalibrationOptions:
                 self.joint_offset_sigma_deg) or self.joint_offset_sigma_deg <= 0:
             raise InputError(f"CalibrationOptions.joint_offset_sigma_deg must be a positive number of degrees, got "
                              f"{self.joint_offset_sigma_deg!r}")
+        if self.refine_intrinsics is True:
+            self.refine_intrinsics = INTRINSICS
+        elif self.refine_intrinsics is False or self.refine_intrinsics is None:
+            self.refine_intrinsics = ()
+        if isinstance(self.refine_intrinsics, str):
+            self.refine_intrinsics = tuple(n.strip() for n in self.refine_intrinsics.split(",") if n.strip())
+        if not isinstance(self.refine_intrinsics, tuple | list) or not all(
+                name in INTRINSICS for name in self.refine_intrinsics):
+            raise InputError(f"CalibrationOptions.refine_intrinsics must be True or names among {INTRINSICS}, got "
+                             f"{self.refine_intrinsics!r}")
+        self.refine_intrinsics = tuple(n for n in INTRINSICS if n in self.refine_intrinsics)
+        sigma = np.asarray(self.intrinsics_sigma, dtype=float).reshape(-1)
+        if sigma.shape != (2,) or not np.all(np.isfinite(sigma) & (sigma > 0)):
+            raise InputError("CalibrationOptions.intrinsics_sigma must be (focal fraction, principal point px), both "
+                             f"positive, got {self.intrinsics_sigma!r}")
+        self.intrinsics_sigma = (float(sigma[0]), float(sigma[1]))
+        if self.refine_intrinsics and self.spin_model is not SpinModel.RIGID:
+            raise InputError("CalibrationOptions.refine_intrinsics needs spin_model='rigid'")
+        if self.refine_intrinsics and self.joint_model is not Model.PROJECTED:
+            raise InputError("CalibrationOptions.refine_intrinsics needs joint_model='projected'")
         if not (np.isfinite(self.joint_sigma_deg) and self.joint_sigma_deg >= 0.0):
             raise InputError(f"CalibrationOptions.joint_sigma_deg must be a finite value >= 0 (deg), got "
                              f"{self.joint_sigma_deg}")

@@ -12,6 +12,7 @@ from enum import StrEnum
 import gtsam
 import numpy as np
 
+from ..camera import Camera
 from ..errors import InputError
 from ..files import write_json
 from ..uncertainty import (
@@ -226,6 +227,33 @@ class CalibrationResult:
     #: per refined joint, its URDF ``<origin>`` turned by the offset about its axis (``xyz`` m, ``rpy`` rad, in the
     #: parent link's frame): with it the reading is the joint's angle
     joint_offsets_origins: dict | None = None
+    #: the intrinsics refined with the pose (``CalibrationOptions.refine_intrinsics``), in ``INTRINSICS`` order;
+    #: () : the camera was taken as given
+    refined_intrinsics: tuple = ()
+    #: the camera with those intrinsics refined (None: as given)
+    camera: Camera | None = None
+    #: their covariance (px², in ``refined_intrinsics``' order; scaled with the pose's when the axes' scatter scaled
+    #: it)
+    intrinsics_covariance: np.ndarray | None = None
+    #: their prior 1 sigma (focal fraction, principal point px), centred on the camera file's values
+    intrinsics_prior_sigma: tuple | None = None
+    #: the camera file's values of the refined intrinsics (name -> px), the prior's mean
+    given_intrinsics: dict = field(default_factory=dict)
+
+    @property
+    def intrinsics(self) -> dict[str, float]:
+        """The refined intrinsics: name -> value (px); {} when the camera was taken as given."""
+        if self.camera is None:
+            return {}
+        every = self.camera.intrinsics
+        return {name: every[name] for name in self.refined_intrinsics}
+
+    @property
+    def intrinsics_sigma(self) -> dict[str, float]:
+        """1 sigma (px) of each refined intrinsic; {} without refinement or covariance."""
+        if not self.refined_intrinsics or self.intrinsics_covariance is None:
+            return {}
+        return dict(zip(self.refined_intrinsics, np.sqrt(np.diag(self.intrinsics_covariance)).tolist(), strict=True))
 
     @property
     def ambiguous(self) -> bool:
@@ -301,6 +329,13 @@ class CalibrationResult:
             "pose_offsets_covariance": None if self.pose_offsets_covariance is None
             else np.asarray(self.pose_offsets_covariance).tolist(),
             "joint_offsets_origins": self.joint_offsets_origins,
+            "refined_intrinsics": list(self.refined_intrinsics),
+            "camera": None if self.camera is None else self.camera.to_dict(),
+            "intrinsics_covariance": None if self.intrinsics_covariance is None
+            else np.asarray(self.intrinsics_covariance).tolist(),
+            "intrinsics_prior_sigma": None if self.intrinsics_prior_sigma is None
+            else list(self.intrinsics_prior_sigma),
+            "given_intrinsics": self.given_intrinsics,
         }
 
     @classmethod
@@ -336,6 +371,13 @@ class CalibrationResult:
             joint_offsets_origins=None if data.get("joint_offsets_origins") is None
             else {str(k): {"xyz": [float(x) for x in v["xyz"]], "rpy": [float(x) for x in v["rpy"]]}
                   for k, v in data["joint_offsets_origins"].items()},
+            refined_intrinsics=tuple(str(n) for n in data.get("refined_intrinsics") or ()),
+            camera=None if data.get("camera") is None else Camera.from_dict(data["camera"]),
+            intrinsics_covariance=None if data.get("intrinsics_covariance") is None
+            else np.array(data["intrinsics_covariance"], dtype=float),
+            intrinsics_prior_sigma=None if data.get("intrinsics_prior_sigma") is None
+            else tuple(float(x) for x in data["intrinsics_prior_sigma"]),
+            given_intrinsics={str(k): float(v) for k, v in (data.get("given_intrinsics") or {}).items()},
         )
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:

@@ -24,6 +24,8 @@ from .setup import _Setup, arc_span_deg
 from .stage2 import _check_scale, _paper, _refined_stage1
 from .tuning import (
     INITIAL_TOLERANCE,
+    INTRINSICS_PASSES,
+    INTRINSICS_SETTLED,
     LONG_ARC_CONSISTENCY_P,
     MAX_CONSISTENCY_SCALE,
     MAX_RELATIVE_SIGMA,
@@ -75,7 +77,16 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
         raise InputError(f"need at least {MIN_MEASUREMENTS} measurements (arm poses) with at least 2 usable tracks "
                          f"each, got {len(kept)} of {len(measurements)}" + (f" ({bad})" if bad else "")
                          + "; spin the wrist longer or give the hand more texture")
+    if options.refine_intrinsics and method is not Method.JOINT:
+        raise InputError(f"intrinsics are refined by the joint method only, not {method.value!r}")
     result, setup = _calibrate(arm, camera, [measurements[k] for k in kept], method, options, kept)
+    started = camera
+    for _ in range(INTRINSICS_PASSES - 1):  # again from the refined camera: its stages, starts and outlier tests
+        if result.camera is None or _intrinsics_settled(result, started):
+            break
+        started = result.camera
+        result, setup = _calibrate(arm, started, [measurements[k] for k in kept], method, options, kept,
+                                   given_camera=camera)
     reports = [replace(r, index=kept[r.index]) for r in result.measurements]
     for k, p in enumerate(prepared):
         if k in kept:
@@ -158,13 +169,25 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
     return out
 
 
-def _calibrate(arm, camera, measurements, method, options, index) -> tuple[CalibrationResult, _Setup]:
+def _intrinsics_settled(result: CalibrationResult, started: Camera) -> bool:
+    """Whether the refined intrinsics moved from those the pass ``result`` came from started (``started``) by less
+    than ``INTRINSICS_SETTLED`` of their 1 sigma (a pass from them would change nothing that matters)."""
+    sigma = result.intrinsics_sigma
+    before = started.intrinsics
+    return bool(sigma) and all(abs(value - before[name]) <= INTRINSICS_SETTLED * sigma[name]
+                               for name, value in result.intrinsics.items())
+
+
+def _calibrate(arm, camera, measurements, method, options, index,
+               given_camera: Camera | None = None) -> tuple[CalibrationResult, _Setup]:
+    """One calibration from ``camera``; with refined intrinsics ``given_camera`` is the camera as given (the
+    prior's mean) when ``camera`` is an earlier pass' refinement."""
     offsets = None
     if options.joint_offsets is not None:  # the readings shifted by the offsets the image axes give, then refined
         measurements, offsets = _offsets_start(arm, camera, measurements, method, options, index)
     starts, setup, anchors = _initial(arm, camera, measurements, options, index, INITIAL_TOLERANCE)
     setup = replace(setup, offsets=offsets, thin_check=method is Method.WEIGHTED
-                    or (method is Method.JOINT and options.spin_model == "free"))
+                    or (method is Method.JOINT and options.spin_model == "free"), given_camera=given_camera)
     # Short arcs (each track's smooth drift, which a short arc turns into a wrong circle and which neither the
     # per-track scores nor the jackknife see) lower the level at which the axes' scatter scales the covariance: the
     # test has 2 n - 6 dof, little power with six poses (18 rendered corner-tracked scenes: at 0.01 three of nine
@@ -220,10 +243,11 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
     """The result with its axes' test extended by :func:`modelcheck.intrinsics_check` and
     :func:`modelcheck.kinematics_check` (every measurement's axis, each at the pixel noise its report gives);
     unchanged where the axes are not tested (the paper's method, fewer than four measurements used) or a check cannot
-    run."""
+    run. With refined intrinsics the checks see the refined camera."""
     c = result.axis_consistency
     if c is None or not result.observability.is_observable:
         return result
+    camera = camera if result.camera is None else result.camera  # (refined intrinsics: the camera the fit found)
     sigma2 = {r.index: float(r.residual_rms_px) ** 2 for r in result.measurements
               if np.isfinite(r.residual_rms_px) and r.residual_rms_px > 0.0}
     try:

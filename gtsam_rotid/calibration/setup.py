@@ -51,6 +51,9 @@ class _Setup:
     thin_check: bool = False
     #: per measurement, the joint that spun (``Measurement.spin_joint``; None: the wrist joint)
     spin_joints: list[str | None] = field(default_factory=list)
+    #: with refined intrinsics, the camera as given (the prior's mean; the calibration may run from a camera refined
+    #: by an earlier pass); None: the camera the stages see
+    given_camera: Camera | None = None
 
     def spin_joint(self, k: int) -> str | None:
         return self.spin_joints[k] if self.spin_joints else None

@@ -9,6 +9,15 @@ import gtsam
 # helpers
 
 POSE_KEY = gtsam.symbol("T", 0)
+#: The refined intrinsics' ``gtsam.Cal3_S2`` (CalibrationOptions.refine_intrinsics).
+INTRINSICS_KEY = gtsam.symbol("k", 0)
+#: Passes of a calibration with refined intrinsics: each after the first starts from the camera the last refined (its
+#: stage 1, starts and outlier tests see it: from a camera 3 % off, a good measurement was left out as wrong) ...
+INTRINSICS_PASSES = 3
+#: ... until the refined intrinsics move by less than this many of their 1 sigma.
+INTRINSICS_SETTLED = 0.2
+#: Prior 1 sigma (px) of the intrinsics not refined (and the skew) when the others are: held where they are.
+HELD_INTRINSIC_PX = 1e-6
 #: Sigma (rad and m) of the weak prior that holds the pose at its start, in the joint graph, along
 #: directions the data leave undetermined (information 1 against >= 1e7 for a determined direction at
 #: pixel noise: no measurable pull otherwise). Stage 2 needs none: its LM damps isotropically.

@@ -117,6 +117,8 @@ def tangent_dim(value) -> int:
         return 6
     if isinstance(value, gtsam.Rot3):
         return 3
+    if isinstance(value, gtsam.Cal3_S2):
+        return 5
     return len(value)
 
 

@@ -165,3 +165,31 @@ def test_offsets_factors_jacobians_match_numerical(trial, scene):
     offsets = make_axis_offsets_to_line_factor(noise, T(0), O(0), axis_of, line, scene.K)
     values = values_with([(T(0), pose), (O(0), np.zeros(n))])
     np.testing.assert_allclose(offsets.unwhitenedError(values), exact.unwhitenedError(values), atol=1e-12)
+
+
+@pytest.mark.parametrize("trial", range(3))
+def test_intrinsics_jacobians_match_numerical(trial, scene):
+    """The tie factors with the intrinsics as a Cal3_S2 variable (skew too) against gtsam's numerical derivative, and
+    their values at the camera's own intrinsics are the fixed-intrinsics factors'."""
+    from gtsam.symbol_shorthand import K, O
+
+    from gtsam_rotid.factors import cal3_s2, make_axis_offsets_to_line_variable_factor
+
+    rng = np.random.default_rng(400 + trial)
+    line_cam, _ = scene.unit_circles()
+    line = line_cam.retract(rng.normal(scale=0.1, size=3))
+    pose = random_pose_near(scene.arm_T_camera, rng)
+    noise = gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
+    intrinsics = cal3_s2(scene.K).retract(np.array([15.0, -8.0, 1.5, 6.0, -4.0]) * rng.uniform(0.5, 1.5))
+    factor = make_axis_to_line_variable_factor(noise, T(0), L(4), axis_test_points(scene), scene.K, K(0))
+    assert_jacobians_match(factor, [(T(0), pose), (L(4), line), (K(0), intrinsics)])
+    fixed = make_axis_to_line_variable_factor(noise, T(0), L(4), axis_test_points(scene), scene.K)
+    at_camera = values_with([(T(0), pose), (L(4), line), (K(0), cal3_s2(scene.K))])
+    np.testing.assert_allclose(factor.unwhitenedError(at_camera), fixed.unwhitenedError(at_camera), atol=1e-12)
+
+    axis_of, arm_T_camera, n = kinova_axis_of(rng)
+    delta = np.radians(rng.normal(scale=0.5, size=n))
+    near = arm_T_camera.retract(np.concatenate([rng.normal(scale=0.01, size=3), rng.normal(scale=0.01, size=3)]))
+    offsets = make_axis_offsets_to_line_variable_factor(noise, T(0), L(0), O(0), axis_of, scene.K, K(0))
+    assert_jacobians_match(offsets, [(T(0), near), (L(0), gtsam.Rot3.Expmap(rng.normal(scale=0.3, size=3))),
+                                     (O(0), delta), (K(0), intrinsics)])

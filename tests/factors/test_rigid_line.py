@@ -271,3 +271,45 @@ def test_input_checks(measurement):
         make_rigid_line_factor(L(0), tracks, m.K, m.circles[:1], [0.0, 1.0], np.zeros(len(frames)))
     with pytest.raises(ValueError, match="sigma_px"):
         make_rigid_line_factor(L(0), tracks, m.K, m.circles[:1], [0.0], np.zeros(len(frames)), sigma_px=0.0)
+
+
+def test_intrinsics_variable(measurement):
+    """With the intrinsics a Cal3_S2 variable: noise-free pixels give zero residual at the true line and camera, and
+    both Jacobians (line; fx, fy, s, cx, cy) are there the exact derivatives; with noise, at the camera's own
+    intrinsics, the factor is the fixed-intrinsics one."""
+    from gtsam.symbol_shorthand import K
+    from gtsam.utils.numerical_derivative import numericalDerivative21, numericalDerivative22
+
+    from gtsam_rotid.factors import cal3_s2
+
+    m = measurement
+    truth = cal3_s2(m.K)
+
+    def values_at(line, intrinsics):
+        values = line_values(line)
+        values.insert(K(0), intrinsics)
+        return values
+
+    def with_intrinsics(pixels, scale=1.0):
+        tracks, phi0, theta = start(m, pixels)
+        return make_rigid_line_factor(L(0), tracks, m.K, m.circles * scale, phi0, theta, sigma_px=SIGMA, tol=1e-14,
+                                      intrinsics_key=K(0))
+
+    factor = with_intrinsics(m.exact, 1.01)
+    values = values_at(m.line, truth)
+    assert factor.factor.keys() == [L(0), K(0)]
+    assert np.abs(factor.residuals(values)).max() < 1e-8
+    A, _ = factor.factor.linearize(values).jacobian()
+    error = lambda line, intrinsics: factor.factor.unwhitenedError(values_at(line, intrinsics))  # noqa: E731
+    J_line = numericalDerivative21(error, m.line, truth, 1e-6)
+    J_intrinsics = numericalDerivative22(error, m.line, truth, 1e-4)
+    np.testing.assert_allclose(A[:, :3], J_line, rtol=0, atol=1e-6 * np.abs(J_line).max())
+    np.testing.assert_allclose(A[:, 3:], J_intrinsics, rtol=0, atol=1e-6 * np.abs(J_intrinsics).max())
+    # a camera 2 % and 6 px off: the residuals grow (the pixels see the difference), the solve still converges
+    wrong = truth.retract(np.array([0.02 * m.K[0, 0], 0.02 * m.K[1, 1], 0.0, 6.0, -6.0]))
+    assert np.abs(factor.residuals(values_at(m.line, wrong))).max() > 0.1
+    assert np.all(factor.converged(values_at(m.line, wrong)))
+
+    noisy, fixed = with_intrinsics(m.noisy), factor_for(m, m.noisy)
+    np.testing.assert_allclose(noisy.factor.unwhitenedError(values), fixed.factor.unwhitenedError(line_values(m.line)),
+                               atol=1e-9)

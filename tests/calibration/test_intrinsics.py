@@ -1,0 +1,96 @@
+"""Intrinsics refined with the pose (CalibrationOptions.refine_intrinsics) against the camera the simulator used,
+which the estimator never sees: it is given a camera whose focal length and principal point are off."""
+
+import numpy as np
+import pytest
+
+from gtsam_rotid import Dataset, InputError, simulate
+from gtsam_rotid.calibration import CalibrationOptions
+from gtsam_rotid.calibration.result import CalibrationResult
+from gtsam_rotid.camerafiles import load_camera
+from gtsam_rotid.errors import RotIdError
+from gtsam_rotid.estimate import calibrate
+from gtsam_rotid.export import export_result
+from gtsam_rotid.report import make_report
+from gtsam_rotid.words import summary
+
+NAMES = ("fx", "fy", "cx", "cy")
+CHI2_999_6 = 22.46  # the 99.9 % points of the chi-square for 6 and 4 dof
+CHI2_999_4 = 18.47
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return simulate.reference_scene(seed=0, duration=20.0)
+
+
+def with_camera(dataset, focal=1.0, cx=0.0):
+    return Dataset(dataset.arm, dataset.camera.with_intrinsics_changed(focal, cx), list(dataset))
+
+
+def chi2_of_error(result, truth):
+    e = result.error_to(truth.arm_T_camera)
+    return float(e @ np.linalg.solve(result.covariance, e))
+
+
+def intrinsics_chi2(result, camera) -> float:
+    miss = np.array([result.intrinsics[n] - camera.intrinsics[n] for n in result.refined_intrinsics])
+    return float(miss @ np.linalg.solve(result.intrinsics_covariance, miss))
+
+
+def test_a_wrong_camera_refined_with_the_pose_holds_its_covariance(scene, tmp_path):
+    dataset, truth = scene
+    given = with_camera(dataset, 1.03, 10.0)
+    try:  # what is at stake: the camera as given gives no confident number (here: another pose fits as well)
+        exact = calibrate(given)
+        assert not exact.covariance_usable and chi2_of_error(exact, truth) > CHI2_999_6
+    except RotIdError:
+        pass
+    result = calibrate(given, options=CalibrationOptions(refine_intrinsics=True))
+    assert result.covariance_usable, (result.untrusted, result.ambiguous)
+    assert chi2_of_error(result, truth) < CHI2_999_6
+    assert result.refined_intrinsics == NAMES
+    assert intrinsics_chi2(result, dataset.camera) < CHI2_999_4
+    assert all(1.0 < s < 20.0 for s in result.intrinsics_sigma.values())  # the data's, well inside the prior
+    assert result.given_intrinsics == {n: given.camera.intrinsics[n] for n in NAMES}
+    assert all(m.used for m in result.measurements)  # none left out for the camera's error
+    words = summary(result)
+    assert "intrinsics refined with the pose" in words
+    assert f"fx: {result.intrinsics['fx']:.2f} px +- {result.intrinsics_sigma['fx']:.2f} px" in words
+    assert "intrinsics" not in result.untrusted
+
+    result.save(tmp_path / "r.json")
+    loaded = CalibrationResult.load(tmp_path / "r.json")
+    assert loaded.intrinsics == result.intrinsics and loaded.refined_intrinsics == NAMES
+    np.testing.assert_array_equal(loaded.intrinsics_covariance, result.intrinsics_covariance)
+    assert make_report(loaded).to_dict()["intrinsics"]["cx"] == pytest.approx(result.intrinsics["cx"])
+    (tmp_path / "camera.yaml").write_text(export_result(loaded, "camera"))
+    camera = load_camera(tmp_path / "camera.yaml")
+    np.testing.assert_allclose(camera.K, result.camera.K, rtol=1e-10)
+    assert (camera.width, camera.height) == (dataset.camera.width, dataset.camera.height)
+
+
+def test_the_true_camera_refined_stays_within_its_covariance_of_itself(scene):
+    dataset, truth = scene
+    result = calibrate(dataset, options=CalibrationOptions(refine_intrinsics=("fx", "cx")))
+    assert result.refined_intrinsics == ("fx", "cx")
+    assert intrinsics_chi2(result, dataset.camera) < 13.82  # 99.9 %, 2 dof
+    assert result.camera.K[1, 1] == dataset.camera.K[1, 1] and result.camera.K[1, 2] == dataset.camera.K[1, 2]
+    assert chi2_of_error(result, truth) < CHI2_999_6
+    exact = calibrate(dataset)  # refining costs precision (the focal length and the depth trade off)
+    assert np.max(result.sigma_mm_arm) > np.max(exact.sigma_mm_arm)
+
+
+def test_intrinsics_options_name_what_is_wrong(scene):
+    dataset, _ = scene
+    with pytest.raises(InputError, match="refined no intrinsics"):
+        export_result(calibrate(dataset), "camera")
+    with pytest.raises(InputError, match="joint method only"):
+        calibrate(dataset, method="weighted", options=CalibrationOptions(refine_intrinsics=True))
+    with pytest.raises(InputError, match="refine_intrinsics must be True or names among"):
+        CalibrationOptions(refine_intrinsics=("fx", "k1"))
+    with pytest.raises(InputError, match="needs spin_model='rigid'"):
+        CalibrationOptions(refine_intrinsics=True, spin_model="free")
+    with pytest.raises(InputError, match="intrinsics_sigma must be"):
+        CalibrationOptions(refine_intrinsics=True, intrinsics_sigma=(0.05, -1.0))
+    assert CalibrationOptions(refine_intrinsics="fx, cy").refine_intrinsics == ("fx", "cy")
