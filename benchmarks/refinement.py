@@ -15,10 +15,14 @@ trials; the RMSE per axis of the refined pose over two Cramér–Rao bounds at t
 averaged over the trials): that of the exact-model problem (no offsets to find: the target is 1.2x) and that of the
 problem with the offsets free under their prior (what refining costs at these poses); the offsets' RMSE and bound;
 time per calibration. ``--two-spins``: at every pose the joint before the wrist spins too (two measurements per
-pose, ``Measurement.spin_joint``).
+pose, ``Measurement.spin_joint``). ``--focal-percent P --cx-px C``: the camera file given to both calibrations has
+its focal lengths P % and its principal point C px off the simulator's camera (``--offset-deg 0``: no offsets), and
+the refined calibration refines the intrinsics too (``refine_intrinsics=True``, with the offsets if there are
+some): their NEES (4 dof) and RMSE against their bound are printed as well, the bounds then with the intrinsics free
+under their prior.
 
-Run: ``python benchmarks/refinement.py [--robots kinova,ur5] [--trials 30] [--duration 12] [--two-spins]``;
-``--quick`` (one robot, 3 trials) checks that it runs.
+Run: ``python benchmarks/refinement.py [--robots kinova,ur5] [--trials 30] [--duration 12] [--two-spins]
+[--focal-percent 3 --cx-px 10]``; ``--quick`` (one robot, 3 trials) checks that it runs.
 """
 
 from __future__ import annotations
@@ -52,10 +56,12 @@ def _scene(robot: str, seed: int, duration: float, two_spins: bool = False):
                                 **PLACEMENTS[robot]), seed=seed, arm=arm)
 
 
-def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    """(pose bound 6x6, offsets bound) of the rigid-spin problem with the offsets free under their prior, at the
+def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float, intrinsics_sigma=None
+                  ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(pose bound 6x6, offsets bound, intrinsics bound (4x4: fx, fy, cx, cy)) of the rigid-spin problem with the
+    offsets (if ``joints``) and the intrinsics (if ``intrinsics_sigma``, the prior) free under their priors, at the
     truth: the estimators' graph on noise-free pixels of the same tracks, with the readings' FK plus the offsets
-    (``benchmarks/accuracy.py``'s ``crlb_rigid`` with the offsets variable)."""
+    (``benchmarks/accuracy.py``'s ``crlb_rigid`` with those variables)."""
     from accuracy import add_noise_free
 
     from gtsam_rotid.graph import RotIdGraph
@@ -63,18 +69,35 @@ def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float) -
 
     pose = truth.arm_T_camera
     names = [dataset.arm.joint_names[j] for j in joints]
+    key = gtsam.symbol("k", 0)
     builder = RotIdGraph(dataset.arm, dataset.camera, track_sigma_px=math.sqrt(NOISE_VAR), model="projected",
-                         spin_model="rigid", joint_offsets=names)
+                         spin_model="rigid", joint_offsets=names or None,
+                         intrinsics_key=None if intrinsics_sigma is None else key)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(builder.pose_key, pose)
-    builder.add_offsets_prior(graph, values, prior_deg, initial_deg=np.degrees(offsets))
+    keys, dims = [builder.pose_key], [6]
+    if names:
+        builder.add_offsets_prior(graph, values, prior_deg, initial_deg=np.degrees(offsets))
+        keys.append(builder.offsets_key)
+        dims.append(len(joints))
+    if intrinsics_sigma is not None:
+        K = dataset.camera.K
+        builder.add_intrinsics_prior(graph, values, [intrinsics_sigma[0] * K[0, 0], intrinsics_sigma[0] * K[1, 1],
+                                                     1e-6, intrinsics_sigma[1], intrinsics_sigma[1]])
+        keys.append(key)
+        dims.append(5)
     add_noise_free(builder, graph, values, dataset.camera, list(readings), truth)
-    both = joint_marginal_covariance(graph, values, [builder.pose_key, builder.offsets_key], 6 + len(joints))
-    return both[:6, :6], both[6:, 6:]
+    both = joint_marginal_covariance(graph, values, keys, sum(dims))
+    offsets_bound = both[6:6 + len(joints), 6:6 + len(joints)] if names else None
+    intrinsics_bound = None
+    if intrinsics_sigma is not None:
+        chosen = 6 + len(joints) + np.array([0, 1, 3, 4])  # Cal3_S2's fx, fy, (s), cx, cy
+        intrinsics_bound = both[np.ix_(chosen, chosen)]
+    return both[:6, :6], offsets_bound, intrinsics_bound
 
 
-def trial(robot: str, seed: int, duration: float, offset_deg: float, prior_deg: float, two_spins: bool = False
-          ) -> dict:
+def trial(robot: str, seed: int, duration: float, offset_deg: float, prior_deg: float, two_spins: bool = False,
+          focal_percent: float = 0.0, cx_px: float = 0.0) -> dict:
     from accuracy import crlb_rigid
 
     from gtsam_rotid.calibration import CalibrationOptions
@@ -89,16 +112,23 @@ def trial(robot: str, seed: int, duration: float, offset_deg: float, prior_deg: 
     offsets = np.radians(offset_deg) * rng.choice([-1.0, 1.0], size=len(joints))
     shift = np.zeros(arm.dof)
     shift[joints] = offsets
-    readings = Dataset(arm, dataset.camera, [Measurement(dataset.joint_angles(k) - shift, m.tracks,
-                                                         spin_joint=m.spin_joint) for k, m in enumerate(dataset)])
+    intrinsics = bool(focal_percent or cx_px)
+    given = dataset.camera.with_intrinsics_changed(1.0 + focal_percent / 100.0, cx_px) if intrinsics else dataset.camera
+    readings = Dataset(arm, given, [Measurement(dataset.joint_angles(k) - shift, m.tracks,
+                                                spin_joint=m.spin_joint) for k, m in enumerate(dataset)])
+    if offset_deg == 0.0:
+        joints, offsets = [], np.zeros(0)
     out = {"seed": seed, "bound_exact": crlb_rigid(dataset, truth, NOISE_VAR)}
     if two_spins:  # the exact-model bound of the wrist's spins alone (the poses' spins as usually recorded)
         wrist = [k for k, m in enumerate(dataset) if m.spin_joint == arm.wrist_joint]
         out["bound_wrist"] = crlb_rigid(Dataset(arm, dataset.camera, [dataset[k] for k in wrist]),
                                         replace(truth, measurements=[truth.measurements[k] for k in wrist]),
                                         NOISE_VAR)
-    out["bound_offsets"], out["bound_offsets_joint"] = _offset_bound(dataset, truth, readings, joints, offsets,
-                                                                     prior_deg)
+    options = CalibrationOptions(joint_offsets=True if joints else None, joint_offset_sigma_deg=prior_deg,
+                                 refine_intrinsics=intrinsics)
+    out["bound_offsets"], out["bound_offsets_joint"], out["bound_intrinsics"] = _offset_bound(
+        dataset, truth, Dataset(arm, dataset.camera, list(readings)), joints, offsets, prior_deg,
+        options.intrinsics_sigma if intrinsics else None)
     start = time.perf_counter()
     try:
         exact = calibrate(readings)
@@ -109,16 +139,23 @@ def trial(robot: str, seed: int, duration: float, offset_deg: float, prior_deg: 
         out["exact"] = {"refused": str(error)[:120]}
     start = time.perf_counter()
     try:
-        result = calibrate(readings, options=CalibrationOptions(joint_offsets=True, joint_offset_sigma_deg=prior_deg))
+        result = calibrate(readings, options=options)
     except RotIdError as error:
         out["refined"] = {"refused": str(error)[:200]}
         return out
     e = result.error_to(truth.arm_T_camera)
-    miss = np.array(list(result.joint_offsets.values())) - offsets
     out["refined"] = {"usable": result.covariance_usable, "untrusted": sorted(result.untrusted), "error": e,
-                      "chi2": float(e @ np.linalg.solve(result.covariance, e)), "offsets_miss": miss,
-                      "offsets_chi2": float(miss @ np.linalg.solve(result.joint_offsets_covariance, miss)),
+                      "chi2": float(e @ np.linalg.solve(result.covariance, e)),
                       "seconds": time.perf_counter() - start, "n_offsets": len(joints)}
+    if joints:
+        miss = np.array(list(result.joint_offsets.values())) - offsets
+        out["refined"].update(offsets_miss=miss,
+                              offsets_chi2=float(miss @ np.linalg.solve(result.joint_offsets_covariance, miss)))
+    if intrinsics:
+        true = dataset.camera.intrinsics
+        miss = np.array([result.intrinsics[n] - true[n] for n in result.refined_intrinsics])
+        out["refined"].update(intrinsics_miss=miss,
+                              intrinsics_chi2=float(miss @ np.linalg.solve(result.intrinsics_covariance, miss)))
     return out
 
 
@@ -134,7 +171,8 @@ def report(robot: str, results: list[dict]) -> None:
     exact_refused = sum(1 for r in results if "refused" in r["exact"])
     refined = [r["refined"] for r in results if "refused" not in r["refined"]]
     usable = [r for r in refined if r["usable"]]
-    print(f"\n{robot}: {n} trials; offsets on {results[0]['refined'].get('n_offsets', '?')} joints")
+    print(f"\n{robot}: {n} trials; offsets on {results[0]['refined'].get('n_offsets', '?')} joints"
+          + ("; intrinsics refined" if results[0].get("bound_intrinsics") is not None else ""))
     print(f"  kinematics as given: flagged {flagged - exact_refused} + refused {exact_refused} of {n} "
           f"(target: all)")
     for r in results:
@@ -147,11 +185,15 @@ def report(robot: str, results: list[dict]) -> None:
         return
     nees = float(np.mean([r["chi2"] for r in usable]))
     lo, hi = _interval(len(usable), 6)
-    dof = usable[0]["offsets_miss"].size
-    nees_o = float(np.mean([r["offsets_chi2"] for r in usable]))
-    lo_o, hi_o = _interval(len(usable), dof)
-    print(f"  NEES pose {nees:.2f} (95 % interval [{lo:.2f}, {hi:.2f}]); offsets {nees_o:.2f} ({dof} dof, "
-          f"[{lo_o:.2f}, {hi_o:.2f}]); worst pose chi2 {max(r['chi2'] for r in usable):.1f}")
+    line = f"  NEES pose {nees:.2f} (95 % interval [{lo:.2f}, {hi:.2f}])"
+    for what, label in (("offsets", "offsets"), ("intrinsics", "intrinsics")):
+        if f"{what}_miss" not in usable[0]:
+            continue
+        dof = usable[0][f"{what}_miss"].size
+        lo_o, hi_o = _interval(len(usable), dof)
+        line += (f"; {label} {np.mean([r[f'{what}_chi2'] for r in usable]):.2f} ({dof} dof, [{lo_o:.2f}, "
+                 f"{hi_o:.2f}])")
+    print(line + f"; worst pose chi2 {max(r['chi2'] for r in usable):.1f}")
     errors = np.array([r["error"] for r in usable]) * UNITS
     rmse = np.sqrt(np.mean(errors**2, axis=0))
     exact_bound = np.sqrt(np.diag(np.mean([r["bound_exact"] for r in results], axis=0))) * UNITS
@@ -166,12 +208,18 @@ def report(robot: str, results: list[dict]) -> None:
         print(f"  {'bound, exact, wrist spins':28}" + "".join(f"{v:9.4f}" for v in wrist_bound))
         print(f"  {'RMSE / that bound':28}" + "".join(f"{v:9.2f}" for v in rmse / wrist_bound)
               + "   (target <= 1.2, with the second spins)")
-    print(f"  {'bound, offsets free':28}" + "".join(f"{v:9.4f}" for v in free_bound))
-    print(f"  {'RMSE / offsets-free bound':28}" + "".join(f"{v:9.2f}" for v in rmse / free_bound))
-    miss = np.degrees(np.array([r["offsets_miss"] for r in usable]))
-    bound_o = np.degrees(np.sqrt(np.diag(np.mean([r["bound_offsets_joint"] for r in results], axis=0))))
-    print(f"  offsets RMSE (deg): {' '.join(f'{v:.3f}' for v in np.sqrt(np.mean(miss**2, axis=0)))}; bound "
-          f"{' '.join(f'{v:.3f}' for v in bound_o)}")
+    print(f"  {'bound, refined ones free':28}" + "".join(f"{v:9.4f}" for v in free_bound))
+    print(f"  {'RMSE / that bound':28}" + "".join(f"{v:9.2f}" for v in rmse / free_bound))
+    if "offsets_miss" in usable[0]:
+        miss = np.degrees(np.array([r["offsets_miss"] for r in usable]))
+        bound_o = np.degrees(np.sqrt(np.diag(np.mean([r["bound_offsets_joint"] for r in results], axis=0))))
+        print(f"  offsets RMSE (deg): {' '.join(f'{v:.3f}' for v in np.sqrt(np.mean(miss**2, axis=0)))}; bound "
+              f"{' '.join(f'{v:.3f}' for v in bound_o)}")
+    if "intrinsics_miss" in usable[0]:
+        miss = np.array([r["intrinsics_miss"] for r in usable])
+        bound_i = np.sqrt(np.diag(np.mean([r["bound_intrinsics"] for r in results], axis=0)))
+        print(f"  intrinsics RMSE (px, fx fy cx cy): {' '.join(f'{v:.2f}' for v in np.sqrt(np.mean(miss**2, axis=0)))}"
+              f"; bound {' '.join(f'{v:.2f}' for v in bound_i)}")
     print(f"  seconds per refined calibration: median {np.median([r['seconds'] for r in usable]):.1f}")
 
 
@@ -184,6 +232,9 @@ def main(argv=None) -> int:
     parser.add_argument("--prior-deg", type=float, default=1.0)
     parser.add_argument("--two-spins", action="store_true",
                         help="at every pose the joint before the wrist spins too (two measurements per pose)")
+    parser.add_argument("--focal-percent", type=float, default=0.0,
+                        help="the camera file's focal lengths off by this %% (then the intrinsics are refined too)")
+    parser.add_argument("--cx-px", type=float, default=0.0, help="the camera file's cx off by this (px)")
     parser.add_argument("--quick", action="store_true", help="one robot, 3 trials")
     args = parser.parse_args(argv)
     robots = args.robots.split(",")
@@ -191,11 +242,13 @@ def main(argv=None) -> int:
         robots, args.trials = robots[:1], 3
     print(f"joint offsets of {args.offset_deg} deg (random signs) on every joint between the first and the spinning "
           f"one; {args.trials} trials per robot, {args.duration:g} s spins, pixel noise {NOISE_VAR} px^2, prior "
-          f"{args.prior_deg} deg" + ("; the joint before the wrist spins too at every pose" if args.two_spins else ""))
+          f"{args.prior_deg} deg" + ("; the joint before the wrist spins too at every pose" if args.two_spins else "")
+          + (f"; camera file focal {args.focal_percent:+g} %, cx {args.cx_px:+g} px (intrinsics refined)"
+             if args.focal_percent or args.cx_px else ""))
     for robot in robots:
         start = time.perf_counter()
-        results = [trial(robot, seed, args.duration, args.offset_deg, args.prior_deg, args.two_spins)
-                   for seed in range(args.trials)]
+        results = [trial(robot, seed, args.duration, args.offset_deg, args.prior_deg, args.two_spins,
+                         args.focal_percent, args.cx_px) for seed in range(args.trials)]
         report(robot, results)
         print(f"  ({time.perf_counter() - start:.0f} s)")
     return 0

@@ -100,6 +100,8 @@ def _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
     opinion = _opinion(arm, camera, measurements, setup, options)
     fit = _robust_weighted(camera, setup, stage1, init_pose, options, anchor, opinion)
     result = _joint_fit(arm, camera, measurements, setup, fit, options)
+    if setup.camera_pass:  # (only the refined camera is wanted: the next pass starts from it)
+        return Fitted(result, fit.stage1)
     c = result.axis_consistency
     weak = fit.evidence.weak
     weak_used = [k for k in fit.used if k in weak]

@@ -79,14 +79,16 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
                          + "; spin the wrist longer or give the hand more texture")
     if options.refine_intrinsics and method is not Method.JOINT:
         raise InputError(f"intrinsics are refined by the joint method only, not {method.value!r}")
-    result, setup = _calibrate(arm, camera, [measurements[k] for k in kept], method, options, kept)
+    used = [measurements[k] for k in kept]
+    # with refined intrinsics a first pass refines the camera only (the joint fit from the best start); the full
+    # calibration then runs from it (its stages, starts and outlier tests see it), again while it moves
+    result, setup = _calibrate(arm, camera, used, method, options, kept, camera_pass=bool(options.refine_intrinsics))
     started = camera
-    for _ in range(INTRINSICS_PASSES - 1):  # again from the refined camera: its stages, starts and outlier tests
-        if result.camera is None or _intrinsics_settled(result, started):
+    for _ in range(INTRINSICS_PASSES - 1):
+        if result.camera is None or (_intrinsics_settled(result, started) and not setup.camera_pass):
             break
         started = result.camera
-        result, setup = _calibrate(arm, started, [measurements[k] for k in kept], method, options, kept,
-                                   given_camera=camera)
+        result, setup = _calibrate(arm, started, used, method, options, kept, given_camera=camera)
     reports = [replace(r, index=kept[r.index]) for r in result.measurements]
     for k, p in enumerate(prepared):
         if k in kept:
@@ -178,16 +180,18 @@ def _intrinsics_settled(result: CalibrationResult, started: Camera) -> bool:
                                for name, value in result.intrinsics.items())
 
 
-def _calibrate(arm, camera, measurements, method, options, index,
-               given_camera: Camera | None = None) -> tuple[CalibrationResult, _Setup]:
+def _calibrate(arm, camera, measurements, method, options, index, given_camera: Camera | None = None,
+               camera_pass: bool = False) -> tuple[CalibrationResult, _Setup]:
     """One calibration from ``camera``; with refined intrinsics ``given_camera`` is the camera as given (the
-    prior's mean) when ``camera`` is an earlier pass' refinement."""
+    prior's mean) when ``camera`` is an earlier pass' refinement, and ``camera_pass`` asks only for the refined
+    camera (:attr:`_Setup.camera_pass`)."""
     offsets = None
     if options.joint_offsets is not None:  # the readings shifted by the offsets the image axes give, then refined
         measurements, offsets = _offsets_start(arm, camera, measurements, method, options, index)
     starts, setup, anchors = _initial(arm, camera, measurements, options, index, INITIAL_TOLERANCE)
     setup = replace(setup, offsets=offsets, thin_check=method is Method.WEIGHTED
-                    or (method is Method.JOINT and options.spin_model == "free"), given_camera=given_camera)
+                    or (method is Method.JOINT and options.spin_model == "free"), given_camera=given_camera,
+                    camera_pass=camera_pass)
     # Short arcs (each track's smooth drift, which a short arc turns into a wrong circle and which neither the
     # per-track scores nor the jackknife see) lower the level at which the axes' scatter scales the covariance: the
     # test has 2 n - 6 dof, little power with six poses (18 rendered corner-tracked scenes: at 0.01 three of nine

@@ -54,6 +54,8 @@ class _Setup:
     #: with refined intrinsics, the camera as given (the prior's mean; the calibration may run from a camera refined
     #: by an earlier pass); None: the camera the stages see
     given_camera: Camera | None = None
+    #: a first pass that only refines the camera for the next (the joint fit from the first start, no restarts)
+    camera_pass: bool = False
 
     def spin_joint(self, k: int) -> str | None:
         return self.spin_joints[k] if self.spin_joints else None
