@@ -6,7 +6,8 @@ file as given and through cameras whose focal length (fx and fy together) or pri
 pose's shoulder reading 1 degree off (a wrong joint reading: it must not be blamed on the camera), and with joint
 offsets (zero-position errors common to every pose: each joint before the wrist read 0.5 degree off, signs drawn per
 seed; issue 17 wants them flagged without refinement). Printed per case: how many seeds are flagged ``intrinsics``,
-``kinematics``, ``camera_or_measurement`` and ``kinematics_or_measurement`` (with the measurement named: the wrong
+``intrinsics_shapes`` (the tracks' shapes ask for another camera), ``kinematics``, ``camera_or_measurement`` and
+``kinematics_or_measurement`` (with the measurement named: the wrong
 shoulder reading is on measurement 2), how many still call their covariance usable, the median true error (worst
 axis, mm and deg) and the median chi-square of the error under the reported covariance, and the median intrinsics
 change the check reads where it flags (refused calibrations are counted apart). With ``--panda`` the Panda scenes of
@@ -67,6 +68,7 @@ def run(dataset: Dataset, truth) -> dict:
     e = result.error_to(truth.arm_T_camera)
     check = (result.axis_consistency.intrinsics or {}) if result.axis_consistency is not None else {}
     return {"flagged": "intrinsics" in result.untrusted, "kinematics": "kinematics" in result.untrusted,
+            "shapes": "intrinsics_shapes" in result.untrusted,
             "measurement": result.untrusted.get("camera_or_measurement"),
             "km": result.untrusted.get("kinematics_or_measurement"),
             "usable": result.covariance_usable,
@@ -92,17 +94,18 @@ def main(argv=None) -> int:
             rows[name].append(run(case_dataset(dataset, *case, seed=seed), truth))
         print(f"seed {seed} done ({time.perf_counter() - started:.0f} s)", flush=True)
     print(f"\nreference scene, {args.seeds} seeds, {args.duration:g} s spins\n")
-    print("| case | flagged intrinsics | flagged kinematics | flagged camera or measurement (which) | flagged "
-          "kinematics or measurement (which) | covariance usable | error mm / deg (median) | χ² of the error (median) "
-          "| reading where flagged: focal %, cx px, cy px (median) |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| case | flagged intrinsics | flagged intrinsics_shapes | flagged kinematics | flagged camera or "
+          "measurement (which) | flagged kinematics or measurement (which) | covariance usable | error mm / deg "
+          "(median) | χ² of the error (median) | reading where flagged: focal %, cx px, cy px (median) |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for name, results in rows.items():
         done = [r for r in results if "refused" not in r]
         flagged = [r for r in done if r["flagged"]]
         reading = (np.median([r["reading"] for r in flagged], axis=0) if flagged else None)
         named = [r["measurement"][0] for r in done if r["measurement"]]
         km = [r["km"][0] for r in done if r["km"]]
-        print(f"| {name} | {len(flagged)} of {len(done)} | {sum(r['kinematics'] for r in done)} of {len(done)} | "
+        print(f"| {name} | {len(flagged)} of {len(done)} | {sum(r['shapes'] for r in done)} of {len(done)} | "
+              f"{sum(r['kinematics'] for r in done)} of {len(done)} | "
               f"{len(named)} of {len(done)}" + (f" ({', '.join(str(k) for k in named)})" if named else "") + " | "
               f"{len(km)} of {len(done)}" + (f" ({', '.join(str(k) for k in km)})" if km else "") + " | "
               f"{sum(r['usable'] for r in done)} of {len(done)} | "
@@ -118,7 +121,8 @@ def main(argv=None) -> int:
         results = [run(*simulate.simulate(config, seed=seed)) for seed in range(args.panda)]
         done = [r for r in results if "refused" not in r]
         print(f"\nPanda placement, exact intrinsics, {args.panda} seeds: {sum(r['flagged'] for r in done)} of "
-              f"{len(done)} flagged intrinsics, {sum(r['kinematics'] for r in done)} kinematics, "
+              f"{len(done)} flagged intrinsics, {sum(r['shapes'] for r in done)} intrinsics_shapes, "
+              f"{sum(r['kinematics'] for r in done)} kinematics, "
               f"{sum(bool(r['measurement']) for r in done)} camera or measurement, "
               f"{sum(bool(r['km']) for r in done)} kinematics or measurement; "
               f"{sum(r['usable'] for r in done)} usable")

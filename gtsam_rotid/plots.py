@@ -40,7 +40,7 @@ from .files import check_outputs, staged
 from .fits import TrackFit, fit_tracks  # noqa: F401 (re-export: plots draw what the calibration layer fits)
 from .geometry import ros_covariance
 from .report import CHI2_95_3DOF, Z95
-from .words import kinematics_suspected, outlier_words
+from .words import intrinsics_suspected, kinematics_suspected, outlier_words
 
 #: 95 % point of the χ² distribution with 2 dof (2-D confidence ellipses).
 CHI2_95_2DOF = 5.991464547107979
@@ -106,7 +106,7 @@ def _measurement_title(result, k: int, what: str, fit: TrackFit, digits: int) ->
     title = f"measurement {k}: {what}"
     if report is not None:
         untrusted = result.untrusted or {}
-        why = outlier_words(report, "intrinsics" in untrusted, kinematics_suspected(untrusted))
+        why = outlier_words(report, intrinsics_suspected(untrusted), kinematics_suspected(untrusted))
         title += (f", residual RMS {report.residual_rms_px:.{digits}f} px, weight {report.weight:.2f}"
                   + (f", OUTLIER ({why})" if report.outlier else ""))
     if fit.problem:

@@ -46,6 +46,8 @@ from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  
 from .words import (
     ambiguity_words,
     axis_consistency_sentence,
+    intrinsics_assumed_words,
+    intrinsics_suspected,
     joint_offsets_words,
     kinematics_suspected,
     kinematics_words,
@@ -145,6 +147,8 @@ class CalibrationReport:
     intrinsics_sigma: dict = field(default_factory=dict)
     given_intrinsics: dict = field(default_factory=dict)
     intrinsics_prior: tuple | None = None
+    #: intrinsics as given: what the tracks' shapes say of them (``result.intrinsics_shapes``); None: not checked
+    intrinsics_shapes: dict | None = None
     #: why a determined calibration's covariance is still not trusted (``result.untrusted``'s kinds)
     untrusted: list = field(default_factory=list)
     #: one line: usable and how well, or why not and what to do (:func:`gtsam_rotid.words.verdict`)
@@ -193,7 +197,7 @@ class CalibrationReport:
     def _measurement_rows(self) -> list[tuple[str, ...]]:
         rows = []
         for m in self.measurements:
-            why = outlier_words(m, "intrinsics" in self.untrusted, kinematics_suspected(self.untrusted))
+            why = outlier_words(m, intrinsics_suspected(self.untrusted), kinematics_suspected(self.untrusted))
             status = "OUTLIER: " + why if m.outlier else "ok"
             rows.append((str(m.index), str(m.n_tracks), str(m.n_points), f"{m.residual_rms_px:.3f}",
                          f"{m.weight:.2f}", str(len(m.rejected_tracks)), status))
@@ -209,6 +213,7 @@ class CalibrationReport:
                                      all(m.spin_joint is None for m in self.measurements)),
                 *refined_intrinsics_words(self.intrinsics, self.intrinsics_sigma, self.given_intrinsics,
                                           self.intrinsics_prior),
+                *filter(None, [intrinsics_assumed_words(self.intrinsics_shapes)]),
                 tracking_words(self.axis_floor_px)]
 
     def _uncertainty_lines(self) -> list[str]:
@@ -343,6 +348,7 @@ class CalibrationReport:
             "intrinsics_sigma": {k: f(v) for k, v in self.intrinsics_sigma.items()},
             "given_intrinsics": {k: f(v) for k, v in self.given_intrinsics.items()},
             "intrinsics_prior": None if self.intrinsics_prior is None else [f(v) for v in self.intrinsics_prior],
+            "intrinsics_shapes": self.intrinsics_shapes,
             "untrusted": list(self.untrusted),
             "axis_consistency": None if self.axis_consistency is None
             else {k: (f(v) if isinstance(v, float) else v) for k, v in self.axis_consistency.to_dict().items()},
@@ -360,7 +366,7 @@ class CalibrationReport:
             "measurements": [
                 {"index": m.index, "n_tracks": m.n_tracks, "n_points": m.n_points,
                  "residual_rms_px": f(m.residual_rms_px), "weight": f(m.weight), "outlier": bool(m.outlier),
-                 "outlier_reason": outlier_words(m, "intrinsics" in self.untrusted,
+                 "outlier_reason": outlier_words(m, intrinsics_suspected(self.untrusted),
                                                  kinematics_suspected(self.untrusted)),
                  "arc_span_deg": None if getattr(m, "arc_span_deg", None) is None else f(m.arc_span_deg),
                  "weak": bool(getattr(m, "weak", False)),
@@ -570,6 +576,7 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         intrinsics_sigma=dict(getattr(result, "intrinsics_sigma", {})),
         given_intrinsics=dict(getattr(result, "given_intrinsics", {})),
         intrinsics_prior=getattr(result, "intrinsics_prior_sigma", None),
+        intrinsics_shapes=getattr(result, "intrinsics_shapes", None),
     )
 
 

@@ -78,9 +78,12 @@ def summary(result: CalibrationResult) -> str:
         all(m.spin_joint is None for m in result.measurements)))
     lines.extend("  " + line for line in refined_intrinsics_words(
         result.intrinsics, result.intrinsics_sigma, result.given_intrinsics, result.intrinsics_prior_sigma))
+    assumed = intrinsics_assumed_words(result.intrinsics_shapes)
+    if assumed is not None:
+        lines.append("  " + assumed)
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
-        why = outlier_words(m, "intrinsics" in result.untrusted, kinematics_suspected(result.untrusted))
+        why = outlier_words(m, intrinsics_suspected(result.untrusted), kinematics_suspected(result.untrusted))
         flag = f"  OUTLIER ({why})" if m.outlier else ""
         n_rejected = len(m.rejected_tracks)
         lines.append(f"  measurement {m.index}: {m.n_tracks} tracks, {m.n_points} points, residual RMS "
@@ -163,6 +166,11 @@ def evidence_words(m: MeasurementReport) -> str:
     return f"{m.n_tracks} track{'' if m.n_tracks == 1 else 's'}, {m.n_points} points{arc}"
 
 
+def intrinsics_suspected(untrusted) -> bool:
+    """The result suspects the camera's intrinsics (``untrusted["intrinsics"]`` or ``["intrinsics_shapes"]``)."""
+    return "intrinsics" in untrusted or "intrinsics_shapes" in untrusted
+
+
 def kinematics_suspected(untrusted) -> bool:
     """The result suspects joint offsets (``untrusted["kinematics"]``, or ``["kinematics_or_measurement"]``)."""
     return "kinematics" in untrusted or "kinematics_or_measurement" in untrusted
@@ -238,6 +246,8 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
                        "intrinsics, joint angles or kinematics, a moved camera, or tracks that are not on the hand)")
         elif kind == "intrinsics":
             out.append(intrinsics_words(result))
+        elif kind == "intrinsics_shapes":
+            out.append(intrinsics_shapes_words(result.intrinsics_shapes))
         elif kind == "kinematics":
             out.append(joint_offset_words(result))
         elif kind == "camera_or_measurement":
@@ -284,6 +294,32 @@ def intrinsics_words(result: CalibrationResult) -> str:
             "axis together and leave an estimate wrong by far more than its covariance says, so it is not trusted. "
             "Check the intrinsics first (is the camera file this camera's, at this resolution? recalibrate them)"
             + then)
+
+
+def intrinsics_shapes_words(shapes: dict | None) -> str:
+    """Why a result whose tracks' shapes ask for other intrinsics is not trusted (``result.intrinsics_shapes``)."""
+    advice = ("Calibrate again with the intrinsics refined (calibrate --refine-intrinsics; CalibrationOptions("
+              "refine_intrinsics=True)), or check the camera file (is it this camera's, at this resolution?)")
+    if not shapes:
+        return "the tracks' shapes ask for other intrinsics than the camera file's. " + advice
+    change = (f"focal length {shapes['focal_percent']:+.2g} % (1 sigma {shapes['focal_percent_sigma']:.2g} %), "
+              + ", ".join(f"{name} {shapes['change'][name]:+.3g} px (1 sigma {shapes['sigma'][name]:.2g})"
+                          for name in ("cx", "cy")))
+    return (f"the tracks' shapes ask for other intrinsics than the camera file's (χ² = {shapes['chi2']:.3g} for "
+            f"{shapes['dof']} dof, P = {shapes['p_value']:.2g}): {change}, a first-order reading. The pose absorbs "
+            f"much of a wrong camera (here {shapes['mm_per_focal_percent']:.2g} mm per 1 % of focal length and "
+            f"{shapes['mm_per_centre_px']:.2g} mm per px of principal point), so the estimate would be wrong by far "
+            "more than its covariance says. " + advice)
+
+
+def intrinsics_assumed_words(shapes: dict | None) -> str | None:
+    """What a calibration with the intrinsics as given assumes of them, in numbers (None where not known)."""
+    if not shapes:
+        return None
+    return (f"intrinsics: the camera file's taken as exact; their errors are not in this covariance (the pose moves "
+            f"{shapes['mm_per_focal_percent']:.2g} mm and {shapes['deg_per_focal_percent']:.2g}° per 1 % of focal "
+            f"length, {shapes['mm_per_centre_px']:.2g} mm and {shapes['deg_per_centre_px']:.2g}° per px of principal "
+            "point; refine them with CalibrationOptions.refine_intrinsics / --refine-intrinsics)")
 
 
 def kinematics_or_measurement_words(result: CalibrationResult, ks: list[int]) -> str:

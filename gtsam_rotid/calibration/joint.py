@@ -20,12 +20,14 @@ from ..graph import (
     track_huber,
 )
 from ..uncertainty import (
+    chi2_sf,
     joint_marginal_covariance,
     pose_information,
     sandwich_marginal,
 )
 from .evidence import measurement_reports
 from .lm import _builder, _graph_dof, _lm, _turned
+from .modelcheck import MIN_CENTRE_PX, MIN_FOCAL_PERCENT
 from .offsets import determined_offsets
 from .opinion import _second_opinion
 from .options import INTRINSICS, CalibrationError, Method
@@ -53,6 +55,7 @@ from .tuning import (
     RESTART_P,
     RESTART_SAME_M,
     SAME_ANGLE_DEG,
+    SHAPES_Z,
     WATCH_POSE,
 )
 
@@ -276,6 +279,10 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         if full is not None:
             chosen = intrinsics.indices
             intrinsics_covariance = full[np.ix_(chosen, chosen)]
+    shapes = None
+    if intrinsics is None and covariance is not None:
+        shapes = _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result, keys, sigmas, correlated,
+                                    options, rest)
     solved = _Solved(pose, covariance, info, Method.JOINT, converged, iterations, error)
     projected = sum(keys[k].coaxial.inner_dof for k in used if keys[k].coaxial is not None)
     offsets_covariance, cross, determined = None, None, 0
@@ -283,10 +290,16 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         both = joint_marginal_covariance(graph, result, [POSE_KEY, builder.offsets_key], 6 + len(offsets.joints))
         if both is not None:  # (None: indeterminate; the offsets then count as undetermined)
             offsets_covariance, cross = both[6:, 6:], both[:6, 6:]
+            robust = sandwich_marginal(graph, result, builder.offsets_key, len(offsets.joints), correlated) \
+                if correlated else None
+            if robust is not None:  # cluster-robust, as the pose's
+                offsets_covariance = robust
         determined = determined_offsets(offsets_covariance, offsets.sigma)
     out = _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
                   consistency=_axis_consistency(rows, setup, options, fitted=determined),
                   prior=_prior_floor_covariance(rows, setup))
+    if shapes is not None:
+        out = replace(out, intrinsics_shapes=shapes)
     if intrinsics is not None:
         c = out.axis_consistency
         if intrinsics_covariance is not None and c is not None and not c.consistent:
@@ -310,6 +323,71 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                       joint_offsets_covariance=offsets_covariance, pose_offsets_covariance=cross,
                       joint_offset_sigma_deg=float(np.degrees(offsets.sigma[0])))
     return replace(out, alternatives=_outside(fit.alternatives, out))
+
+
+def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: gtsam.Values, keys, sigmas,
+                       correlated, options, rest) -> dict | None:
+    """What the tracks' shapes say of the camera as given, at the joint estimate ``result`` (fixed intrinsics): the
+    same graph with the intrinsics free under their prior (``options.intrinsics_sigma`` about the camera's),
+    linearised at the estimate. Its Gauss-Newton step's intrinsics (``change``, px) and their cluster-robust 1 sigma
+    there, restricted to one focal length (``fx`` and ``fy`` in proportion: ``focal_percent`` and its sigma), ``cx``
+    and ``cy`` (``change`` and ``sigma`` per name, px), its Wald ``chi2`` (``dof`` 3) and ``p_value``; ``flagged``
+    where it lies beyond the ``SHAPES_Z`` point and the change is one that matters (at least ``MIN_FOCAL_PERCENT`` of
+    the focal length or ``MIN_CENTRE_PX`` of the principal point); and what the pose assumes (``mm_per_focal_percent``,
+    ``deg_per_focal_percent``: the pose's change, given the data, with both focal lengths 1 % larger;
+    ``mm_per_centre_px``, ``deg_per_centre_px``: the larger of cx's and cy's per px). None where it cannot be made
+    (free-phase measurements: the intrinsics need the rigid spin; or a singular system)."""
+    if not all(isinstance(keys[k].coaxial, RigidLineFactor) for k in used):
+        return None
+    free = replace(options, refine_intrinsics=INTRINSICS)
+    prior = _IntrinsicsPrior.of(camera, setup, free)
+    offsets = setup.offsets
+    builder = _builder(arm, camera, free, robust=track_huber, model=free.joint_model, spin_model=free.spin_model,
+                       joint_offsets=None if offsets is None else offsets.names(arm), intrinsics_key=INTRINSICS_KEY)
+    circles = {k: dict(zip(keys[k].tracks, _circles(keys[k], result), strict=True)) for k in used}
+    lines = {k: result.atRot3(keys[k].line_key) for k in used}
+    try:
+        graph, values, _ = _joint_graph(builder, camera, measurements, setup, stage1, used, result.atPose3(POSE_KEY),
+                                        sigmas, circles, lines, rest=rest, intrinsics=prior)
+        step = np.asarray(graph.linearize(values).optimize().at(INTRINSICS_KEY))
+        covariance = sandwich_marginal(graph, values, INTRINSICS_KEY, 5, correlated)
+        both = joint_marginal_covariance(graph, values, [POSE_KEY, INTRINSICS_KEY], 11)
+    except (RuntimeError, RotIdError):
+        return None
+    if covariance is None or both is None:
+        return None
+    chosen = prior.indices  # fx, fy, cx, cy in Cal3_S2's tangent
+    change, covariance = step[chosen], covariance[np.ix_(chosen, chosen)]
+    K = camera.K
+    # tested along one focal length (fx and fy in proportion), cx and cy: the aspect ratio, which the ellipses'
+    # shapes pin far more tightly than the focal length, is left out (on a rendered text-covered Jaco2 scene a 0.15 %
+    # difference between fx and fy, 0.05 sigma of either, made a 4-dof chi-square of 16.6)
+    A = np.array([[K[0, 0], 0.0, 0.0], [K[1, 1], 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    try:
+        W = np.linalg.solve(covariance, A)
+        information = A.T @ W
+        restricted = np.linalg.solve(information, W.T @ change)  # (focal fraction, cx, cy)
+        chi2 = float(restricted @ information @ restricted)
+        # the pose's change given the data per change of the intrinsics (the prior on them does not enter)
+        response = both[:6, 6:][:, chosen] @ np.linalg.inv(both[6:, 6:][np.ix_(chosen, chosen)])
+        sigma = np.sqrt(np.diag(np.linalg.inv(information)))
+    except np.linalg.LinAlgError:
+        return None
+    if not np.isfinite(chi2) or not np.all(np.isfinite(response)):
+        return None
+    change = A @ restricted
+    focal = response @ np.array([0.01 * K[0, 0], 0.01 * K[1, 1], 0.0, 0.0])
+    centre = [response[:, 2], response[:, 3]]
+    size = 100.0 * abs(restricted[0]) >= MIN_FOCAL_PERCENT or max(abs(restricted[1:])) >= MIN_CENTRE_PX
+    return {"chi2": chi2, "dof": 3, "p_value": float(chi2_sf(chi2, 3)),
+            "flagged": bool(chi2 > chi2_quantile(3, SHAPES_Z) and size),
+            "change": dict(zip(INTRINSICS, change.tolist(), strict=True)),
+            "sigma": dict(zip(INTRINSICS, [sigma[0] * K[0, 0], sigma[0] * K[1, 1], sigma[1], sigma[2]], strict=True)),
+            "focal_percent": 100.0 * float(restricted[0]), "focal_percent_sigma": 100.0 * float(sigma[0]),
+            "mm_per_focal_percent": 1000.0 * float(np.linalg.norm(focal[3:])),
+            "deg_per_focal_percent": float(np.degrees(np.linalg.norm(focal[:3]))),
+            "mm_per_centre_px": 1000.0 * max(float(np.linalg.norm(c[3:])) for c in centre),
+            "deg_per_centre_px": float(np.degrees(max(float(np.linalg.norm(c[:3])) for c in centre)))}
 
 
 def _outside(alternatives, result: CalibrationResult) -> list:

@@ -239,6 +239,10 @@ class CalibrationResult:
     intrinsics_prior_sigma: tuple | None = None
     #: the camera file's values of the refined intrinsics (name -> px), the prior's mean
     given_intrinsics: dict = field(default_factory=dict)
+    #: joint, intrinsics as given: what the tracks' shapes say of them (the intrinsics' Gauss-Newton change from the
+    #: estimate with them free, ``change`` and ``sigma`` per name in px, its Wald ``chi2`` for ``dof``, ``p_value``);
+    #: None: not checked
+    intrinsics_shapes: dict | None = None
 
     @property
     def intrinsics(self) -> dict[str, float]:
@@ -336,6 +340,7 @@ class CalibrationResult:
             "intrinsics_prior_sigma": None if self.intrinsics_prior_sigma is None
             else list(self.intrinsics_prior_sigma),
             "given_intrinsics": self.given_intrinsics,
+            "intrinsics_shapes": self.intrinsics_shapes,
         }
 
     @classmethod
@@ -378,6 +383,7 @@ class CalibrationResult:
             intrinsics_prior_sigma=None if data.get("intrinsics_prior_sigma") is None
             else tuple(float(x) for x in data["intrinsics_prior_sigma"]),
             given_intrinsics={str(k): float(v) for k, v in (data.get("given_intrinsics") or {}).items()},
+            intrinsics_shapes=data.get("intrinsics_shapes"),
         )
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
@@ -401,6 +407,8 @@ UNTRUSTED_KINDS = {
                   "measurement does",
     "camera_or_measurement": "changed intrinsics explain the axes' disagreement, and so does one wrong measurement "
                              "(still used, or left out where the camera's explanation puts the camera elsewhere)",
+    "intrinsics_shapes": "the tracks' shapes ask for other intrinsics than the camera file's, by more than their "
+                         "uncertainty and than a calibrated camera is off",
     "kinematics_or_measurement": "offsets of the joints' zero positions explain the axes' disagreement, and so does "
                                  "one wrong measurement: the two put the camera apart beyond its covariance",
 }

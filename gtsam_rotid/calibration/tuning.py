@@ -17,6 +17,10 @@ INTRINSICS_KEY = gtsam.symbol("k", 0)
 INTRINSICS_PASSES = 3
 #: ... until the refined intrinsics move by less than this many of their 1 sigma.
 INTRINSICS_SETTLED = 0.2
+#: The joint fit with the intrinsics as given: their change that the tracks' shapes ask for (the intrinsics freed at
+#: the estimate) beyond this normal z's chi-square point (3.09: 99.9 %) flags the camera (``untrusted
+#: ["intrinsics_shapes"]``).
+SHAPES_Z = 3.09
 #: Prior 1 sigma (px) of the intrinsics not refined (and the skew) when the others are: held where they are.
 HELD_INTRINSIC_PX = 1e-6
 #: Sigma (rad and m) of the weak prior that holds the pose at its start, in the joint graph, along

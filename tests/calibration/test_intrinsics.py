@@ -15,8 +15,9 @@ from gtsam_rotid.report import make_report
 from gtsam_rotid.words import summary
 
 NAMES = ("fx", "fy", "cx", "cy")
-CHI2_999_6 = 22.46  # the 99.9 % points of the chi-square for 6 and 4 dof
+CHI2_999_6 = 22.46  # the 99.9 % points of the chi-square for 6, 4 and 3 dof
 CHI2_999_4 = 18.47
+CHI2_999_3 = 16.27
 
 
 @pytest.fixture(scope="module")
@@ -94,3 +95,23 @@ def test_intrinsics_options_name_what_is_wrong(scene):
     with pytest.raises(InputError, match="intrinsics_sigma must be"):
         CalibrationOptions(refine_intrinsics=True, intrinsics_sigma=(0.05, -1.0))
     assert CalibrationOptions(refine_intrinsics="fx, cy").refine_intrinsics == ("fx", "cy")
+
+
+def test_a_wrong_camera_that_the_tracks_shapes_refute_is_flagged_and_the_true_one_is_not():
+    """Focal length 2 % short: the axes still agree with one pose (17 mm off at chi-square 470 without this check),
+    but the tracks' shapes ask for the focal length back; with the true camera they do not."""
+    dataset, truth = simulate.reference_scene(seed=2, duration=20.0)
+    exact = calibrate(dataset)
+    shapes = exact.intrinsics_shapes
+    assert exact.covariance_usable and shapes is not None and not shapes["flagged"]
+    assert shapes["chi2"] < CHI2_999_3 and shapes["dof"] == 3
+    assert 1.0 < shapes["mm_per_focal_percent"] < 50.0  # the pose moves with the focal length (depth)
+    assert "intrinsics: the camera file's taken as exact" in summary(exact)
+    wrong = calibrate(with_camera(dataset, 0.98))
+    assert chi2_of_error(wrong, truth) > CHI2_999_6  # what is at stake
+    assert not wrong.covariance_usable and "intrinsics_shapes" in wrong.untrusted
+    change = wrong.intrinsics_shapes["change"]
+    assert change["fx"] > 0.01 * 0.98 * dataset.camera.K[0, 0]  # back towards the true focal length
+    words = summary(wrong)
+    assert "the tracks' shapes ask for other intrinsics" in words and "--refine-intrinsics" in words
+    assert CalibrationResult.from_dict(wrong.to_dict()).untrusted == wrong.untrusted
