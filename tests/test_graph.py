@@ -231,3 +231,44 @@ def test_joint_offsets_in_a_users_graph():
     assert solved[False] > 100.0 and solved[True] < 22.5  # the 99.9 % point for 6 dof
     with pytest.raises(InputError, match="use model 'line' or 'projected'"):
         RotIdGraph(readings.arm, readings.camera, model="pose", joint_offsets=True)
+
+
+def test_intrinsics_in_a_users_graph():
+    """A camera file 2 % long in focal length and 8 px off in cx: the fixed-intrinsics graph is confidently wrong;
+    with the intrinsics a Cal3_S2 variable (a prior as wide as a camera file could be off) the pose and the focal
+    length and principal point come back within their covariance. The free phase and the line model are refused."""
+    from gtsam.symbol_shorthand import K
+
+    from gtsam_rotid.calibration import initial_pose
+    from gtsam_rotid.dataset import Dataset
+
+    dataset, truth = simulate.reference_scene(seed=3, duration=20.0)
+    given = Dataset(dataset.arm, dataset.camera.with_intrinsics_changed(1.02, 8.0), list(dataset))
+    start = initial_pose(given.arm, given.camera, list(given))
+    for model, spin in (("line", "free"), ("projected", "free"), ("line", "rigid")):
+        with pytest.raises(InputError, match="refining the intrinsics needs model='projected' and spin_model"):
+            RotIdGraph(given.arm, given.camera, model=model, spin_model=spin, intrinsics_key=K(0))
+    solved = {}
+    for key in (None, K(0)):
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        values.insert(X(0), start)
+        builder = RotIdGraph(given.arm, given.camera, pose_key=X(0), model="projected", spin_model="rigid",
+                             intrinsics_key=key)
+        if key is not None:
+            with pytest.raises(InputError, match="insert the intrinsics first"):
+                builder.add_measurement(graph, values, 0, given[0])
+            fx, fy = given.camera.K[0, 0], given.camera.K[1, 1]
+            builder.add_intrinsics_prior(graph, values, [0.05 * fx, 0.05 * fy, 1e-6, 20.0, 20.0])
+        for k, m in enumerate(given):
+            builder.add_measurement(graph, values, k, m)
+        result = lm(graph, values, diagonal_damping=False)
+        marginals = gtsam.Marginals(graph, result)
+        error = truth.arm_T_camera.localCoordinates(result.atPose3(X(0)))
+        solved[key is not None] = error @ np.linalg.solve(marginals.marginalCovariance(X(0)), error)
+        if key is not None:
+            true = dataset.camera.K
+            miss = (result.atCal3_S2(key).vector() - np.array([true[0, 0], true[1, 1], 0.0, true[0, 2], true[1, 2]]))
+            chosen = [0, 1, 3, 4]
+            covariance = marginals.marginalCovariance(key)[np.ix_(chosen, chosen)]
+            assert miss[chosen] @ np.linalg.solve(covariance, miss[chosen]) < 18.47  # the 99.9 % point for 4 dof
+    assert solved[False] > 100.0 and solved[True] < 22.5  # the 99.9 % point for 6 dof
