@@ -22,7 +22,8 @@ some): their NEES (4 dof) and RMSE against their bound are printed as well, the 
 under their prior.
 
 Run: ``python benchmarks/refinement.py [--robots kinova,ur5] [--trials 30] [--duration 12] [--two-spins]
-[--focal-percent 3 --cx-px 10]``; ``--quick`` (one robot, 3 trials) checks that it runs.
+[--focal-percent 3 --cx-px 10] [--poses 12]``; ``--quick`` (one robot, 3 trials) checks that it runs. ``--poses N``
+(more than six): the targets' reference is the exact-model bound of the first six poses' wrist spins.
 """
 
 from __future__ import annotations
@@ -40,11 +41,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 AXES = ("rx", "ry", "rz", "tx", "ty", "tz")
+#: Arm poses of the usual recording: the targets' reference is the exact-model bound of their wrist spins.
+USUAL_POSES = 6
 UNITS = np.array([math.degrees(1.0)] * 3 + [1000.0] * 3)
 NOISE_VAR = 1.5
 
 
-def _scene(robot: str, seed: int, duration: float, two_spins: bool = False):
+def _scene(robot: str, seed: int, duration: float, two_spins: bool = False, poses: int = 6):
     from ambient import PLACEMENTS
 
     from gtsam_rotid.arm import Arm
@@ -53,7 +56,7 @@ def _scene(robot: str, seed: int, duration: float, two_spins: bool = False):
     arm = Arm.from_robot(robot)
     spins = tuple(arm.joint_names[arm.wrist_index - 1:arm.wrist_index + 1]) if two_spins else ()
     return simulate(SceneConfig(robot=robot, duration=duration, noise_var=NOISE_VAR, spin_joints=spins,
-                                **PLACEMENTS[robot]), seed=seed, arm=arm)
+                                n_measurements=poses, **PLACEMENTS[robot]), seed=seed, arm=arm)
 
 
 def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float, intrinsics_sigma=None
@@ -97,7 +100,7 @@ def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float, i
 
 
 def trial(robot: str, seed: int, duration: float, offset_deg: float, prior_deg: float, two_spins: bool = False,
-          focal_percent: float = 0.0, cx_px: float = 0.0) -> dict:
+          focal_percent: float = 0.0, cx_px: float = 0.0, poses: int = 6) -> dict:
     from accuracy import crlb_rigid
 
     from gtsam_rotid.calibration import CalibrationOptions
@@ -105,7 +108,7 @@ def trial(robot: str, seed: int, duration: float, offset_deg: float, prior_deg: 
     from gtsam_rotid.errors import RotIdError
     from gtsam_rotid.estimate import calibrate
 
-    dataset, truth = _scene(robot, seed, duration, two_spins)
+    dataset, truth = _scene(robot, seed, duration, two_spins, poses)
     arm = dataset.arm
     joints = arm.offset_joints(True)
     rng = np.random.default_rng(10_000 + seed)
@@ -119,8 +122,9 @@ def trial(robot: str, seed: int, duration: float, offset_deg: float, prior_deg: 
     if offset_deg == 0.0:
         joints, offsets = [], np.zeros(0)
     out = {"seed": seed, "bound_exact": crlb_rigid(dataset, truth, NOISE_VAR)}
-    if two_spins:  # the exact-model bound of the wrist's spins alone (the poses' spins as usually recorded)
-        wrist = [k for k, m in enumerate(dataset) if m.spin_joint == arm.wrist_joint]
+    if two_spins or poses > USUAL_POSES:  # the exact-model bound of the usual recording: the wrist spins of six poses
+        # (one wrist spin per pose, in pose order: the first six poses')
+        wrist = [k for k, m in enumerate(dataset) if m.spin_joint in (None, arm.wrist_joint)][:USUAL_POSES]
         out["bound_wrist"] = crlb_rigid(Dataset(arm, dataset.camera, [dataset[k] for k in wrist]),
                                         replace(truth, measurements=[truth.measurements[k] for k in wrist]),
                                         NOISE_VAR)
@@ -205,9 +209,9 @@ def report(robot: str, results: list[dict]) -> None:
           + "   (target <= 1.2, with more poses)")
     if "bound_wrist" in results[0]:  # the target's reference: the exact model at the same poses, wrist spins only
         wrist_bound = np.sqrt(np.diag(np.mean([r["bound_wrist"] for r in results], axis=0))) * UNITS
-        print(f"  {'bound, exact, wrist spins':28}" + "".join(f"{v:9.4f}" for v in wrist_bound))
+        print(f"  {'bound, exact, 6 wrist spins':28}" + "".join(f"{v:9.4f}" for v in wrist_bound))
         print(f"  {'RMSE / that bound':28}" + "".join(f"{v:9.2f}" for v in rmse / wrist_bound)
-              + "   (target <= 1.2, with the second spins)")
+              + "   (target <= 1.2, with the second spins or more poses)")
     print(f"  {'bound, refined ones free':28}" + "".join(f"{v:9.4f}" for v in free_bound))
     print(f"  {'RMSE / that bound':28}" + "".join(f"{v:9.2f}" for v in rmse / free_bound))
     if "offsets_miss" in usable[0]:
@@ -235,6 +239,8 @@ def main(argv=None) -> int:
     parser.add_argument("--focal-percent", type=float, default=0.0,
                         help="the camera file's focal lengths off by this %% (then the intrinsics are refined too)")
     parser.add_argument("--cx-px", type=float, default=0.0, help="the camera file's cx off by this (px)")
+    parser.add_argument("--poses", type=int, default=USUAL_POSES,
+                        help="arm poses per trial (more than 6: the reference bound is that of the first six)")
     parser.add_argument("--quick", action="store_true", help="one robot, 3 trials")
     args = parser.parse_args(argv)
     robots = args.robots.split(",")
@@ -242,13 +248,14 @@ def main(argv=None) -> int:
         robots, args.trials = robots[:1], 3
     print(f"joint offsets of {args.offset_deg} deg (random signs) on every joint between the first and the spinning "
           f"one; {args.trials} trials per robot, {args.duration:g} s spins, pixel noise {NOISE_VAR} px^2, prior "
-          f"{args.prior_deg} deg" + ("; the joint before the wrist spins too at every pose" if args.two_spins else "")
+          f"{args.prior_deg} deg; {args.poses} arm poses"
+          + ("; the joint before the wrist spins too at every pose" if args.two_spins else "")
           + (f"; camera file focal {args.focal_percent:+g} %, cx {args.cx_px:+g} px (intrinsics refined)"
              if args.focal_percent or args.cx_px else ""))
     for robot in robots:
         start = time.perf_counter()
         results = [trial(robot, seed, args.duration, args.offset_deg, args.prior_deg, args.two_spins,
-                         args.focal_percent, args.cx_px) for seed in range(args.trials)]
+                         args.focal_percent, args.cx_px, args.poses) for seed in range(args.trials)]
         report(robot, results)
         print(f"  ({time.perf_counter() - start:.0f} s)")
     return 0

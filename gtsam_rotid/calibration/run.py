@@ -252,15 +252,17 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
     """The result with its axes' test extended by :func:`modelcheck.intrinsics_check` and
     :func:`modelcheck.kinematics_check` (every measurement's axis, each at the pixel noise its report gives);
     unchanged where the axes are not tested (the paper's method, fewer than four measurements used) or a check cannot
-    run. With refined intrinsics the checks see the refined camera."""
+    run. With refined intrinsics the offsets' check sees the refined camera and the intrinsics' check is not made."""
     c = result.axis_consistency
     if c is None or not result.observability.is_observable:
         return result
     camera = camera if result.camera is None else result.camera  # (refined intrinsics: the camera the fit found)
     sigma2 = {r.index: float(r.residual_rms_px) ** 2 for r in result.measurements
               if np.isfinite(r.residual_rms_px) and r.residual_rms_px > 0.0}
-    try:
-        intrinsics = intrinsics_check(camera, setup, stage1, result.arm_T_camera, sigma2, result.covariance)
+    intrinsics = None
+    try:  # (refined intrinsics are in the covariance: the axes' coarser reading of them has nothing to add)
+        if result.camera is None:
+            intrinsics = intrinsics_check(camera, setup, stage1, result.arm_T_camera, sigma2, result.covariance)
     except (np.linalg.LinAlgError, ValueError):
         intrinsics = None
     try:
