@@ -13,9 +13,10 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import RotIdError
-from ..factors import RigidLineFactor, cal3_s2
+from ..factors import RigidLineFactor, cal3_s2, image_line_from_rot3
 from ..graph import (
     Model,
+    axis_test_points,
     chi2_quantile,
     track_huber,
 )
@@ -298,8 +299,9 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     out = _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
                   consistency=_axis_consistency(rows, setup, options, fitted=determined),
                   prior=_prior_floor_covariance(rows, setup))
-    if shapes is not None:
-        out = replace(out, intrinsics_shapes=shapes)
+    if shapes is not None:  # (judged at the axes' scale that a camera change leaves by run._checked_model)
+        c = out.axis_consistency
+        out = replace(out, intrinsics_shapes=_judged(shapes, 1.0 if c is None or c.consistent else max(c.scale, 1.0)))
     if intrinsics is not None:
         c = out.axis_consistency
         if intrinsics_covariance is not None and c is not None and not c.consistent:
@@ -330,10 +332,10 @@ def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: g
     """What the tracks' shapes say of the camera as given, at the joint estimate ``result`` (fixed intrinsics): the
     same graph with the intrinsics free under their prior (``options.intrinsics_sigma`` about the camera's),
     linearised at the estimate. Its Gauss-Newton step's intrinsics (``change``, px) and their cluster-robust 1 sigma
-    there, restricted to one focal length (``fx`` and ``fy`` in proportion: ``focal_percent`` and its sigma), ``cx``
-    and ``cy`` (``change`` and ``sigma`` per name, px), its Wald ``chi2`` (``dof`` 3) and ``p_value``; ``flagged``
-    where it lies beyond the ``SHAPES_Z`` point and the change is one that matters (at least ``MIN_FOCAL_PERCENT`` of
-    the focal length or ``MIN_CENTRE_PX`` of the principal point); and what the pose assumes (``mm_per_focal_percent``,
+    there (with the image axes' prior floor, :func:`_floor_meat`), restricted to one focal length (``fx`` and ``fy``
+    in proportion: ``focal_percent`` and its sigma), ``cx`` and ``cy`` (``change`` and ``sigma`` per name, px), its
+    Wald ``chi2`` (``dof`` 3) and ``p_value`` (``flagged`` and the scale by :func:`_judged`); and what the pose
+    assumes (``mm_per_focal_percent``,
     ``deg_per_focal_percent``: the pose's change, given the data, with both focal lengths 1 % larger;
     ``mm_per_centre_px``, ``deg_per_centre_px``: the larger of cx's and cy's per px). None where it cannot be made
     (free-phase measurements: the intrinsics need the rigid spin; or a singular system)."""
@@ -346,11 +348,17 @@ def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: g
                        joint_offsets=None if offsets is None else offsets.names(arm), intrinsics_key=INTRINSICS_KEY)
     circles = {k: dict(zip(keys[k].tracks, _circles(keys[k], result), strict=True)) for k in used}
     lines = {k: result.atRot3(keys[k].line_key) for k in used}
+    pose = result.atPose3(POSE_KEY)
+    extra = dict(correlated)
+    if setup.floor_covariance is not None:  # the image axes' prior floor: an error each measurement's tracks share
+        for k in used:
+            meat = _floor_meat(camera, setup, keys[k], result, pose, setup.axes[k])
+            extra[keys[k].line_key] = extra.get(keys[k].line_key, np.zeros((3, 3))) + meat
     try:
-        graph, values, _ = _joint_graph(builder, camera, measurements, setup, stage1, used, result.atPose3(POSE_KEY),
-                                        sigmas, circles, lines, rest=rest, intrinsics=prior)
+        graph, values, _ = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas, circles,
+                                        lines, rest=rest, intrinsics=prior)
         step = np.asarray(graph.linearize(values).optimize().at(INTRINSICS_KEY))
-        covariance = sandwich_marginal(graph, values, INTRINSICS_KEY, 5, correlated)
+        covariance = sandwich_marginal(graph, values, INTRINSICS_KEY, 5, extra)
         both = joint_marginal_covariance(graph, values, [POSE_KEY, INTRINSICS_KEY], 11)
     except (RuntimeError, RotIdError):
         return None
@@ -378,9 +386,7 @@ def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: g
     change = A @ restricted
     focal = response @ np.array([0.01 * K[0, 0], 0.01 * K[1, 1], 0.0, 0.0])
     centre = [response[:, 2], response[:, 3]]
-    size = 100.0 * abs(restricted[0]) >= MIN_FOCAL_PERCENT or max(abs(restricted[1:])) >= MIN_CENTRE_PX
-    return {"chi2": chi2, "dof": 3, "p_value": float(chi2_sf(chi2, 3)),
-            "flagged": bool(chi2 > chi2_quantile(3, SHAPES_Z) and size),
+    return {"chi2": chi2, "dof": 3, "p_value": float(chi2_sf(chi2, 3)), "flagged": False, "scale": 1.0,
             "change": dict(zip(INTRINSICS, change.tolist(), strict=True)),
             "sigma": dict(zip(INTRINSICS, [sigma[0] * K[0, 0], sigma[0] * K[1, 1], sigma[1], sigma[2]], strict=True)),
             "focal_percent": 100.0 * float(restricted[0]), "focal_percent_sigma": 100.0 * float(sigma[0]),
@@ -388,6 +394,42 @@ def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: g
             "deg_per_focal_percent": float(np.degrees(np.linalg.norm(focal[:3]))),
             "mm_per_centre_px": 1000.0 * max(float(np.linalg.norm(c[3:])) for c in centre),
             "deg_per_centre_px": float(np.degrees(max(float(np.linalg.norm(c[:3])) for c in centre)))}
+
+
+def _judged(shapes: dict, scale: float) -> dict:
+    """:func:`_intrinsics_shapes`' reading with its covariance scaled by ``scale`` instead of its own ``scale`` (the
+    axes' scatter that a camera change does not explain, see ``run._checked_model``: errors that a measurement's
+    tracks share, which the shapes' covariance does not count, move the intrinsics' reading too: four measurements
+    each shifted by 4 px had asked for another camera), and ``flagged``: beyond the ``SHAPES_Z`` point and a change
+    that matters (``MIN_FOCAL_PERCENT``, ``MIN_CENTRE_PX``)."""
+    ratio = scale / shapes["scale"]
+    out = dict(shapes, scale=scale, chi2=shapes["chi2"] / ratio,
+               sigma={k: v * np.sqrt(ratio) for k, v in shapes["sigma"].items()},
+               focal_percent_sigma=shapes["focal_percent_sigma"] * np.sqrt(ratio))
+    out["p_value"] = float(chi2_sf(out["chi2"], out["dof"]))
+    size = (abs(out["focal_percent"]) >= MIN_FOCAL_PERCENT
+            or max(abs(out["change"]["cx"]), abs(out["change"]["cy"])) >= MIN_CENTRE_PX)
+    out["flagged"] = bool(out["chi2"] > chi2_quantile(out["dof"], SHAPES_Z) and size)
+    return out
+
+
+def _floor_meat(camera, setup, keys, values: gtsam.Values, pose: gtsam.Pose3, axis) -> np.ndarray:
+    """(3, 3) what the image axes' prior floor (:attr:`_Setup.floor_covariance` ``F``, on the test points'
+    distances) adds to the meat of a measurement's line variable in the joint graph: a shift ``b`` of its image axis
+    is what its tracks say of a line moved by the least (in its own information ``H``) that moves the test points'
+    distances by ``b``, whose score is ``A^T L b`` (``A`` the distances' Jacobian by the line, ``L = (A H^-1
+    A^T)^-1`` their information): ``A^T L F L A``."""
+    factor = keys.coaxial
+    H = factor.track_information(values).sum(axis=0)
+    line, J_line = image_line_from_rot3(camera.K, values.atRot3(keys.line_key))
+    pixels = camera.project(np.array([pose.transformTo(p) for p in axis_test_points(axis)]), distort=False)
+    A = np.column_stack([pixels, np.ones(len(pixels))]) @ J_line
+    try:
+        L = np.linalg.inv(A @ np.linalg.solve(H, A.T))
+    except np.linalg.LinAlgError:
+        return np.zeros((3, 3))
+    meat = A.T @ L @ setup.floor_covariance @ L @ A
+    return 0.5 * (meat + meat.T) if np.all(np.isfinite(meat)) else np.zeros((3, 3))
 
 
 def _outside(alternatives, result: CalibrationResult) -> list:

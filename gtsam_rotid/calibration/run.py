@@ -14,7 +14,7 @@ from ..dataset import Dataset, Measurement
 from ..errors import InputError
 from .choice import choose_start
 from .initial import _initial, axis_miss_rms, poor_start
-from .joint import Fitted, _joint, _weighted
+from .joint import Fitted, _joint, _judged, _weighted
 from .lm import _builder
 from .modelcheck import intrinsics_check, kinematics_check
 from .offsets import MAX_OFFSET_SIGMAS, OffsetsPrior, offsets_from_axes, shifted
@@ -271,7 +271,15 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
                                       result.covariance)
     except (np.linalg.LinAlgError, ValueError):
         kinematics = None
-    return replace(result, axis_consistency=replace(c, intrinsics=intrinsics, kinematics=kinematics))
+    shapes = result.intrinsics_shapes
+    if shapes is not None:
+        # the shapes' reading at the axes' scatter that a camera change leaves: a wrong camera makes the axes
+        # disagree too (focal -2 %: scale 10), and that scale would hide it
+        explained = intrinsics is not None and intrinsics.get("p_value") is not None and intrinsics["dof"] > 0 \
+            and intrinsics["p_value"] >= LONG_ARC_CONSISTENCY_P
+        shapes = _judged(shapes, 1.0 if c.consistent or explained else max(c.scale, 1.0))
+    return replace(result, axis_consistency=replace(c, intrinsics=intrinsics, kinematics=kinematics),
+                   intrinsics_shapes=shapes)
 
 
 def _close_enough(camera, setup: _Setup, runs, anchors, options) -> tuple[list, list]:
