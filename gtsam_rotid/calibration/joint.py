@@ -275,8 +275,9 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         robust = sandwich_marginal(graph, result, POSE_KEY, 6, correlated)
         covariance = covariance if robust is None else robust
     intrinsics_covariance = None
-    if intrinsics is not None and covariance is not None:
-        full = sandwich_marginal(graph, result, INTRINSICS_KEY, 5, correlated)
+    if intrinsics is not None and covariance is not None:  # (the image axes' prior floor moves them too)
+        full = sandwich_marginal(graph, result, INTRINSICS_KEY, 5,
+                                 _with_floor(correlated, camera, setup, keys, used, result))
         if full is not None:
             chosen = intrinsics.indices
             intrinsics_covariance = full[np.ix_(chosen, chosen)]
@@ -349,11 +350,7 @@ def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: g
     circles = {k: dict(zip(keys[k].tracks, _circles(keys[k], result), strict=True)) for k in used}
     lines = {k: result.atRot3(keys[k].line_key) for k in used}
     pose = result.atPose3(POSE_KEY)
-    extra = dict(correlated)
-    if setup.floor_covariance is not None:  # the image axes' prior floor: an error each measurement's tracks share
-        for k in used:
-            meat = _floor_meat(camera, setup, keys[k], result, pose, setup.axes[k])
-            extra[keys[k].line_key] = extra.get(keys[k].line_key, np.zeros((3, 3))) + meat
+    extra = _with_floor(correlated, camera, setup, keys, used, result)
     try:
         graph, values, _ = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas, circles,
                                         lines, rest=rest, intrinsics=prior)
@@ -411,6 +408,19 @@ def _judged(shapes: dict, scale: float) -> dict:
             or max(abs(out["change"]["cx"]), abs(out["change"]["cy"])) >= MIN_CENTRE_PX)
     out["flagged"] = bool(out["chi2"] > chi2_quantile(out["dof"], SHAPES_Z) and size)
     return out
+
+
+def _with_floor(correlated: dict, camera, setup, keys, used, values: gtsam.Values) -> dict:
+    """The lines' extra meat ``correlated`` (line key -> 3x3) plus the image axes' prior floor's
+    (:func:`_floor_meat`), where the setup has a floor."""
+    extra = dict(correlated)
+    if setup.floor_covariance is None:
+        return extra
+    pose = values.atPose3(POSE_KEY)
+    for k in used:
+        meat = _floor_meat(camera, setup, keys[k], values, pose, setup.axes[k])
+        extra[keys[k].line_key] = extra.get(keys[k].line_key, np.zeros((3, 3))) + meat
+    return extra
 
 
 def _floor_meat(camera, setup, keys, values: gtsam.Values, pose: gtsam.Pose3, axis) -> np.ndarray:
