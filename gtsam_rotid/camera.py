@@ -14,6 +14,8 @@ import numpy as np
 
 from .errors import CameraError
 
+#: Where each of the intrinsics ``fx, fy, cx, cy`` sits in ``K``.
+_K_ENTRIES = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-14)
 
 
@@ -131,8 +133,15 @@ class Camera:
     @property
     def intrinsics(self) -> dict[str, float]:
         """``fx, fy, cx, cy`` (px)."""
-        K = self.K
-        return {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2])}
+        return {name: float(self.K[entry]) for name, entry in _K_ENTRIES.items()}
+
+    def with_intrinsics(self, values: dict[str, float]) -> Camera:
+        """This camera with the intrinsics named in ``values`` (``fx``, ``fy``, ``cx``, ``cy``; px) replaced (the
+        others, the skew, the distortion and the image size kept)."""
+        K = np.array(self.K, dtype=float)
+        for name, value in values.items():
+            K[_K_ENTRIES[name]] = value
+        return Camera(K, self.width, self.height, self.dist)
 
     def with_intrinsics_changed(self, focal_factor: float = 1.0, cx_px: float = 0.0, cy_px: float = 0.0) -> Camera:
         """This camera with fx and fy multiplied by ``focal_factor`` and the principal point moved by ``cx_px``,

@@ -22,6 +22,17 @@ def lm(graph, values, diagonal_damping=True):
     return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
 
 
+def solve_measurements(builder, graph, values, dataset, truth):
+    """Every measurement of ``dataset`` added to the graph, LM (isotropic damping), and the result, its Marginals
+    and the chi-square of the pose's error against the truth under its marginal covariance."""
+    for k, m in enumerate(dataset):
+        builder.add_measurement(graph, values, k, m)
+    result = lm(graph, values, diagonal_damping=False)
+    marginals = gtsam.Marginals(graph, result)
+    error = truth.arm_T_camera.localCoordinates(result.atPose3(X(0)))
+    return result, marginals, float(error @ np.linalg.solve(marginals.marginalCovariance(X(0)), error))
+
+
 def user_graph(pose_start, cad_pose, cad_sigmas):
     """A user's graph: their own pose variable X(0) with a CAD prior, and an unrelated landmark L(0)."""
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -215,12 +226,7 @@ def test_joint_offsets_in_a_users_graph():
             with pytest.raises(InputError, match="insert the joint offsets first"):
                 builder.add_measurement(graph, values, 0, readings[0])
             builder.add_offsets_prior(graph, values, sigma_deg=1.0)
-        for k, m in enumerate(readings):
-            builder.add_measurement(graph, values, k, m)
-        result = lm(graph, values, diagonal_damping=False)
-        marginals = gtsam.Marginals(graph, result)
-        error = truth.arm_T_camera.localCoordinates(result.atPose3(X(0)))
-        solved[joints is not None] = error @ np.linalg.solve(marginals.marginalCovariance(X(0)), error)
+        result, marginals, solved[joints is not None] = solve_measurements(builder, graph, values, readings, truth)
         if joints:
             assert builder.offset_names == every
             estimate, covariance = result.atVector(builder.offsets_key), marginals.marginalCovariance(O(0))
@@ -259,12 +265,7 @@ def test_intrinsics_in_a_users_graph():
                 builder.add_measurement(graph, values, 0, given[0])
             fx, fy = given.camera.K[0, 0], given.camera.K[1, 1]
             builder.add_intrinsics_prior(graph, values, [0.05 * fx, 0.05 * fy, 1e-6, 20.0, 20.0])
-        for k, m in enumerate(given):
-            builder.add_measurement(graph, values, k, m)
-        result = lm(graph, values, diagonal_damping=False)
-        marginals = gtsam.Marginals(graph, result)
-        error = truth.arm_T_camera.localCoordinates(result.atPose3(X(0)))
-        solved[key is not None] = error @ np.linalg.solve(marginals.marginalCovariance(X(0)), error)
+        result, marginals, solved[key is not None] = solve_measurements(builder, graph, values, given, truth)
         if key is not None:
             true = dataset.camera.K
             miss = (result.atCal3_S2(key).vector() - np.array([true[0, 0], true[1, 1], 0.0, true[0, 2], true[1, 2]]))

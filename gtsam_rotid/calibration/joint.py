@@ -13,7 +13,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import RotIdError
-from ..factors import RigidLineFactor, cal3_s2, image_line_from_rot3
+from ..factors import RigidLineFactor, axis_point_residuals, cal3_s2, image_line_from_rot3
 from ..graph import (
     Model,
     axis_test_points,
@@ -252,12 +252,8 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
             break
     info = pose_information(graph, result, POSE_KEY)
     if intrinsics is not None:  # everything after the fit sees the refined camera (the others exactly as given)
-        K = np.array(intrinsics.given.K, dtype=float)
-        refined = intrinsics.now.K()
-        for name, (i, j) in _K_ENTRIES.items():
-            if name in options.refine_intrinsics:
-                K[i, j] = refined[i, j]
-        camera = Camera(K, camera.width, camera.height, camera.dist)
+        refined = Camera(intrinsics.now.K(), camera.width, camera.height).intrinsics
+        camera = intrinsics.given.with_intrinsics({n: refined[n] for n in options.refine_intrinsics})
     tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
     reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, chi2, tied)
     variances = {k: sigmas[k] ** 2 for k in used}
@@ -283,8 +279,8 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
             intrinsics_covariance = full[np.ix_(chosen, chosen)]
     shapes = None
     if intrinsics is None and covariance is not None:
-        shapes = _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result, keys, sigmas, correlated,
-                                    options, rest)
+        shapes = _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result, keys, sigmas, circles,
+                                    lines, correlated, options, rest)
     solved = _Solved(pose, covariance, info, Method.JOINT, converged, iterations, error)
     projected = sum(keys[k].coaxial.inner_dof for k in used if keys[k].coaxial is not None)
     offsets_covariance, cross, determined = None, None, 0
@@ -328,18 +324,18 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     return replace(out, alternatives=_outside(fit.alternatives, out))
 
 
-def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: gtsam.Values, keys, sigmas,
-                       correlated, options, rest) -> dict | None:
+def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: gtsam.Values, keys, sigmas, circles,
+                       lines, correlated, options, rest) -> dict | None:
     """What the tracks' shapes say of the camera as given, at the joint estimate ``result`` (fixed intrinsics): the
     same graph with the intrinsics free under their prior (``options.intrinsics_sigma`` about the camera's),
-    linearised at the estimate. Its Gauss-Newton step's intrinsics (``change``, px) and their cluster-robust 1 sigma
-    there (with the image axes' prior floor, :func:`_floor_meat`), restricted to one focal length (``fx`` and ``fy``
-    in proportion: ``focal_percent`` and its sigma), ``cx`` and ``cy`` (``change`` and ``sigma`` per name, px), its
-    Wald ``chi2`` (``dof`` 3) and ``p_value`` (``flagged`` and the scale by :func:`_judged`); and what the pose
-    assumes (``mm_per_focal_percent``,
-    ``deg_per_focal_percent``: the pose's change, given the data, with both focal lengths 1 % larger;
-    ``mm_per_centre_px``, ``deg_per_centre_px``: the larger of cx's and cy's per px). None where it cannot be made
-    (free-phase measurements: the intrinsics need the rigid spin; or a singular system)."""
+    linearised at the estimate (its ``circles`` and ``lines`` there). Its Gauss-Newton step's intrinsics
+    (``change``, px) and their cluster-robust 1 sigma there (with the image axes' prior floor, :func:`_floor_meat`),
+    restricted to one focal length (``fx`` and ``fy`` in proportion: ``focal_percent`` and its sigma), ``cx`` and
+    ``cy`` (``change`` and ``sigma`` per name, px), its Wald ``chi2`` (``dof`` 3) and ``p_value`` (``flagged`` and
+    the scale by :func:`_judged`); and what the pose assumes (``mm_per_focal_percent``, ``deg_per_focal_percent``:
+    the pose's change, given the data, with both focal lengths 1 % larger; ``mm_per_centre_px``,
+    ``deg_per_centre_px``: the larger of cx's and cy's per px). None where it cannot be made (free-phase
+    measurements: the intrinsics need the rigid spin; or a singular system)."""
     if not all(isinstance(keys[k].coaxial, RigidLineFactor) for k in used):
         return None
     free = replace(options, refine_intrinsics=INTRINSICS)
@@ -347,8 +343,6 @@ def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: g
     offsets = setup.offsets
     builder = _builder(arm, camera, free, robust=track_huber, model=free.joint_model, spin_model=free.spin_model,
                        joint_offsets=None if offsets is None else offsets.names(arm), intrinsics_key=INTRINSICS_KEY)
-    circles = {k: dict(zip(keys[k].tracks, _circles(keys[k], result), strict=True)) for k in used}
-    lines = {k: result.atRot3(keys[k].line_key) for k in used}
     pose = result.atPose3(POSE_KEY)
     extra = _with_floor(correlated, camera, setup, keys, used, result)
     try:
@@ -432,8 +426,7 @@ def _floor_meat(camera, setup, keys, values: gtsam.Values, pose: gtsam.Pose3, ax
     factor = keys.coaxial
     H = factor.track_information(values).sum(axis=0)
     line, J_line = image_line_from_rot3(camera.K, values.atRot3(keys.line_key))
-    pixels = camera.project(np.array([pose.transformTo(p) for p in axis_test_points(axis)]), distort=False)
-    A = np.column_stack([pixels, np.ones(len(pixels))]) @ J_line
+    A = axis_point_residuals(camera.K, pose, axis_test_points(axis), line)[2] @ J_line  # as the tie's
     try:
         L = np.linalg.inv(A @ np.linalg.solve(H, A.T))
     except np.linalg.LinAlgError:
@@ -453,10 +446,6 @@ def _outside(alternatives, result: CalibrationResult) -> list:
     limit = chi2_quantile(6, DISTINCT_Z)
     return [a for a in alternatives
             if (d := result.arm_T_camera.localCoordinates(a.arm_T_camera)) @ information @ d > limit]
-
-
-#: Where each of ``INTRINSICS`` sits in the intrinsic matrix.
-_K_ENTRIES = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}
 
 
 class _IntrinsicsPrior(NamedTuple):
