@@ -67,6 +67,8 @@ def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float, i
     (``benchmarks/accuracy.py``'s ``crlb_rigid`` with those variables)."""
     from accuracy import add_noise_free
 
+    from gtsam_rotid.calibration.joint import intrinsics_prior_sigmas
+    from gtsam_rotid.calibration.options import INTRINSICS
     from gtsam_rotid.graph import RotIdGraph
     from gtsam_rotid.uncertainty import joint_marginal_covariance
 
@@ -84,9 +86,8 @@ def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float, i
         keys.append(builder.offsets_key)
         dims.append(len(joints))
     if intrinsics_sigma is not None:
-        K = dataset.camera.K
-        builder.add_intrinsics_prior(graph, values, [intrinsics_sigma[0] * K[0, 0], intrinsics_sigma[0] * K[1, 1],
-                                                     1e-6, intrinsics_sigma[1], intrinsics_sigma[1]])
+        builder.add_intrinsics_prior(graph, values, intrinsics_prior_sigmas(dataset.camera.K, INTRINSICS,
+                                                                            intrinsics_sigma))
         keys.append(key)
         dims.append(5)
     add_noise_free(builder, graph, values, dataset.camera, list(readings), truth)

@@ -296,9 +296,8 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     out = _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
                   consistency=_axis_consistency(rows, setup, options, fitted=determined),
                   prior=_prior_floor_covariance(rows, setup))
-    if shapes is not None:  # (judged at the axes' scale that a camera change leaves by run._checked_model)
-        c = out.axis_consistency
-        out = replace(out, intrinsics_shapes=_judged(shapes, 1.0 if c is None or c.consistent else max(c.scale, 1.0)))
+    if shapes is not None:  # (judged, at the axes' scale that a camera change leaves, by run._checked_model)
+        out = replace(out, intrinsics_shapes=shapes)
     if intrinsics is not None:
         c = out.axis_consistency
         if intrinsics_covariance is not None and c is not None and not c.consistent:
@@ -467,13 +466,21 @@ class _IntrinsicsPrior(NamedTuple):
         if not names:
             return None
         given = camera if setup.given_camera is None else setup.given_camera
-        K = given.K
-        mean = cal3_s2(K)
-        focal, principal = options.intrinsics_sigma
-        free = {"fx": focal * K[0, 0], "fy": focal * K[1, 1], "cx": principal, "cy": principal}
-        order = ("fx", "fy", "s", "cx", "cy")  # Cal3_S2's tangent
-        sigmas = np.array([free[n] if n in names else HELD_INTRINSIC_PX for n in order])
-        return cls(mean, sigmas, [order.index(n) for n in INTRINSICS if n in names], cal3_s2(camera.K), given)
+        return cls(cal3_s2(given.K), intrinsics_prior_sigmas(given.K, names, options.intrinsics_sigma),
+                   [CAL3_S2_ORDER.index(n) for n in INTRINSICS if n in names], cal3_s2(camera.K), given)
+
+
+#: Cal3_S2's tangent order
+CAL3_S2_ORDER = ("fx", "fy", "s", "cx", "cy")
+
+
+def intrinsics_prior_sigmas(K: np.ndarray, names, sigma: tuple[float, float]) -> np.ndarray:
+    """(5,) the intrinsics' prior 1 sigma in Cal3_S2's tangent order (fx, fy, s, cx, cy) for refining ``names``
+    (of ``INTRINSICS``) of the camera matrix ``K`` at ``sigma`` = (focal lengths' fraction, principal point px,
+    ``CalibrationOptions.intrinsics_sigma``): the others (and the skew) held at ``HELD_INTRINSIC_PX``."""
+    focal, principal = sigma
+    free = {"fx": focal * K[0, 0], "fy": focal * K[1, 1], "cx": principal, "cy": principal}
+    return np.array([free[n] if n in names else HELD_INTRINSIC_PX for n in CAL3_S2_ORDER])
 
 
 def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas, circles, lines, fk_start=(),

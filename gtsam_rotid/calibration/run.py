@@ -252,10 +252,14 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
     """The result with its axes' test extended by :func:`modelcheck.intrinsics_check` and
     :func:`modelcheck.kinematics_check` (every measurement's axis, each at the pixel noise its report gives);
     unchanged where the axes are not tested (the paper's method, fewer than four measurements used) or a check cannot
-    run. With refined intrinsics the offsets' check sees the refined camera and the intrinsics' check is not made."""
+    run. With refined intrinsics the offsets' check sees the refined camera and the intrinsics' check is not made.
+    The tracks' shapes' reading of the camera (``result.intrinsics_shapes``, from the joint fit) is judged here, at
+    the axes' scale where the axes are not tested by the checks."""
     c = result.axis_consistency
+    shapes = result.intrinsics_shapes
     if c is None or not result.observability.is_observable:
-        return result
+        return result if shapes is None else replace(result, intrinsics_shapes=_judged(
+            shapes, 1.0 if c is None or c.consistent else max(c.scale, 1.0)))
     camera = camera if result.camera is None else result.camera  # (refined intrinsics: the camera the fit found)
     sigma2 = {r.index: float(r.residual_rms_px) ** 2 for r in result.measurements
               if np.isfinite(r.residual_rms_px) and r.residual_rms_px > 0.0}
@@ -271,7 +275,6 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
                                       result.covariance)
     except (np.linalg.LinAlgError, ValueError):
         kinematics = None
-    shapes = result.intrinsics_shapes
     if shapes is not None:
         # the shapes' reading at the axes' scatter that a camera change leaves: a wrong camera makes the axes
         # disagree too (focal -2 %: scale 10), and that scale would hide it
