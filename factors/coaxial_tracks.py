@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from .circle_track import COLD_GRID_SIZE, CircleTrack, _phase_grid
+from .circle_track import COLD_GRID_SIZE, PHASE_GRID_SIZE, PHASE_NEWTON_STEPS, CircleTrack, _phase_grid
 from .coaxial_coefficients import (
     _C8,
     _D,
@@ -286,17 +286,26 @@ class CoaxialTracks:
             ok &= ~bad.ravel()[idx]
         return idx[~ok]
 
-    def _restart(self, R, d, r, rows, G, s, c, todo, lay: _Layout) -> np.ndarray:
+    def _restart(self, R, d, r, rows, G, s, c, todo, lay: _Layout, certify: bool = True) -> np.ndarray:
         """CircleTrack's stage 1 for the pixels ``todo`` of tracks with a valid image ellipse, vectorised: the
         nearest of ``COLD_GRID_SIZE`` phases, then safeguarded Newton on ``y2^3 f'`` (Gauss-Newton
         ``|z[:2]|^2 / y2`` where ``F'`` is not safely positive; steps clamped to one grid cell). Writes the phases
-        into (s, c); returns the pixels still not certified."""
+        into (s, c); returns the pixels still not certified.
+
+        Without ``certify``: CircleTrack's stage 3 (its search where the image conic is not an ellipse), vectorised
+        over all such tracks at once: the same with ``PHASE_GRID_SIZE`` phases and ``PHASE_NEWTON_STEPS`` steps,
+        uncertified (returns no pixels)."""
         n = len(todo)
         if n == 0:  # every pixel left belongs to a track without a valid image ellipse
             return todo
         row = todo // lay.L
-        self.restarted_points += n
-        grid, basis = _phase_grid(COLD_GRID_SIZE)
+        if certify:
+            self.restarted_points += n
+            grid_size, cold_steps = COLD_GRID_SIZE, self.cold_steps
+        else:
+            self.fallback_points += n
+            grid_size, cold_steps = PHASE_GRID_SIZE, PHASE_NEWTON_STEPS
+        grid, basis = _phase_grid(grid_size)
         Y = [rows[part][:, row] for part in (_Y0, _Y1, _Y2)]  # (3, n) each
         y0, y1, y2 = (np.einsum("kn,kg->ng", Yi, basis[:3]) for Yi in Y)
         dx = lay.px.ravel()[todo][:, None] - y0 / y2
@@ -306,10 +315,10 @@ class CoaxialTracks:
         g = G.reshape(8, -1)[:, todo]
         sign = -rows[_SIDE, row]  # F' > 0 at a minimum of the distance for sign * F
         Z, Y2 = rows[_Z][:, row], Y[2]
-        max_step = 2.0 * np.pi / COLD_GRID_SIZE
+        max_step = 2.0 * np.pi / grid_size
         tol = self.tol
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            for i in range(self.cold_steps):
+            for i in range(cold_steps):
                 sc, cc = si * ci, ci * ci
                 F = sign * (g[0] + g[1] * si + g[2] * ci + g[3] * sc + g[4] * cc)
                 dF = sign * (g[1] * ci - g[2] * si - g[3] + 2.0 * (g[3] * cc - g[4] * sc))
@@ -317,8 +326,11 @@ class CoaxialTracks:
                 step = np.clip(F / np.where(dF > 1e-3 * gn, dF, gn), -max_step, max_step)
                 converged = float(step.max()) <= tol and float(step.min()) >= -tol
                 si, ci = _rotate(si, ci, step)
-                if converged or i == self.cold_steps - 1:
+                if converged or i == cold_steps - 1:
                     break
+            if not certify:
+                s.ravel()[todo], c.ravel()[todo] = si, ci
+                return todo[:0]
             bad = None if converged else ~(np.abs(step) <= tol)
             sc, cc = si * ci, ci * ci
             z2 = Z[0] + Z[1] * si + Z[2] * ci + Z[3] * sc + Z[4] * cc
@@ -393,7 +405,8 @@ class CoaxialTracks:
         todo = self._certify(R, d, r, rows, s, c, V[0], bad, lay)
         if len(todo):
             valid = np.isfinite(rows[_THRESHOLD, todo // L])
-            rest = np.concatenate([self._restart(R, d, r, rows, G, s, c, todo[valid], lay), todo[~valid]])
+            rest = self._restart(R, d, r, rows, G, s, c, todo[valid], lay)
+            self._restart(R, d, r, rows, G, s, c, todo[~valid], lay, certify=False)  # (conics that are no ellipse)
             if len(rest):
                 self._fallback(R, d, r, s, c, np.sort(rest), lay)
             lay.sync_padding(s, c)

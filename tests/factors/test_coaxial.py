@@ -16,6 +16,7 @@ from gtsam.utils.numerical_derivative import numericalDerivative11
 
 import gtsam_rotid.factors.coaxial as coaxial_module
 import gtsam_rotid.factors.coaxial_layout as layout_module
+import gtsam_rotid.factors.coaxial_tracks as coaxial_tracks_module
 from gtsam_rotid.dataset import Track
 from gtsam_rotid.factors import (
     CircleTrack,
@@ -205,6 +206,21 @@ def brute_force_distance(K, R, d, r, pixels) -> np.ndarray:
     """Distance to the nearest of 20 000 curve samples: never below the true distance, ~1e-4 px above it."""
     points = curve(K, R, d, r, np.linspace(-np.pi, np.pi, 20_000, endpoint=False))
     return np.array([np.sqrt(np.min(np.sum((points - pixel) ** 2, axis=1))) for pixel in pixels])
+
+
+def test_circles_partly_behind_the_camera_match_circle_track(rng):
+    """Circles so large that part of them lies behind the camera (their image conic is no ellipse: a runaway short
+    arc's circle) go through CircleTrack's grid search, all tracks at once: the same phases, residuals and
+    Jacobians as one CircleTrack per track, from a cold start and warm after small moves."""
+    R = random_line_rot3(rng).matrix()
+    tracks, d, r = random_tracks(rng, K_NOMINAL, R, [30, 12, 40, 25, 8])
+    coaxial = CoaxialTracks(K_NOMINAL, tracks)
+    r = 50.0 * r
+    assert np.all(np.isinf(coaxial._table.coefficients(R, d, r)[coaxial_tracks_module._THRESHOLD]))  # no ellipse
+    for R_k, d_k, r_k in [(R, d, r), perturb(R, d, r, rng, 1e-3), perturb(R, d, r, rng, 1e-2)]:
+        before = coaxial.fallback_points
+        assert_same(coaxial.evaluate(R_k, d_k, r_k), per_track(K_NOMINAL, tracks, R_k, d_k, r_k))
+        assert coaxial.fallback_points > before
 
 
 def test_nearly_edge_on_tracks_with_pixels_inside(rng):
