@@ -7,8 +7,9 @@ coefficients are one small matrix product of monomials of the (m,) arrays ``d``,
 fills one or more rows of L points; see :mod:`.coaxial_layout`), and the warm-started Halley iterations, the
 certificates and the Jacobians are whole-array operations. Pixels whose closest phase neither the cheap nor the
 exact certificate of CircleTrack certifies go through CircleTrack's stage 1 (coarse grid, safeguarded Newton),
-vectorised too, and the few still uncertified through CircleTrack's own later stages, track by track. The results
-are those of ``CircleTrack.evaluate`` (the certified closest phase is unique, so they do not depend on the
+vectorised too, as are the pixels of tracks whose image conic is no ellipse (part of the circle behind the camera:
+CircleTrack's grid search); the few still uncertified go through CircleTrack's bracketed search, track by track.
+The results are those of ``CircleTrack.evaluate`` (the certified closest phase is unique, so they do not depend on the
 start), to ~1e-14 px and, because the phases get their last Newton step, with Jacobians exact to ~tol^2
 (CircleTrack's to ~tol).
 
@@ -296,7 +297,7 @@ class CoaxialTracks:
         over all such tracks at once: the same with ``PHASE_GRID_SIZE`` phases and ``PHASE_NEWTON_STEPS`` steps,
         uncertified (returns no pixels)."""
         n = len(todo)
-        if n == 0:  # every pixel left belongs to a track without a valid image ellipse
+        if n == 0:
             return todo
         row = todo // lay.L
         if certify:
@@ -348,8 +349,9 @@ class CoaxialTracks:
         return todo[~ok]
 
     def _fallback(self, R, d, r, s, c, todo, lay: _Layout) -> None:
-        """CircleTrack's own search from stage 2 on (the bracketed search in the pixel's quadrant arc; the grid
-        search for a conic that is not an ellipse) for the pixels ``todo``, track by track."""
+        """CircleTrack's own search from stage 2 on (the bracketed search in the pixel's quadrant arc, its grid
+        search where that does not converge) for the pixels ``todo``, track by track (the pixels of tracks whose
+        image conic is no ellipse go through the vectorised grid search, :meth:`_restart`, instead)."""
         L = lay.L
         track = lay.row_track[todo // L]
         local = lay.local.ravel()[todo]

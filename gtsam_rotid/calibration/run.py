@@ -253,8 +253,8 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
     :func:`modelcheck.kinematics_check` (every measurement's axis, each at the pixel noise its report gives);
     unchanged where the axes are not tested (the paper's method, fewer than four measurements used) or a check cannot
     run. With refined intrinsics the offsets' check sees the refined camera and the intrinsics' check is not made.
-    The tracks' shapes' reading of the camera (``result.intrinsics_shapes``, from the joint fit) is judged here, at
-    the axes' scale where the axes are not tested by the checks."""
+    The tracks' shapes' reading of the camera (``result.intrinsics_shapes``, from the joint fit) is judged here
+    (:func:`.joint._judged`), at the axes' scale unless the axes agree or a camera change explains their scatter."""
     c = result.axis_consistency
     shapes = result.intrinsics_shapes
     if c is None or not result.observability.is_observable:
