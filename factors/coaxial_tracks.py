@@ -7,9 +7,9 @@ coefficients are one small matrix product of monomials of the (m,) arrays ``d``,
 fills one or more rows of L points; see :mod:`.coaxial_layout`), and the warm-started Halley iterations, the
 certificates and the Jacobians are whole-array operations. Pixels whose closest phase neither the cheap nor the
 exact certificate of CircleTrack certifies go through CircleTrack's stage 1 (coarse grid, safeguarded Newton),
-vectorised too, as are the pixels of tracks whose image conic is no ellipse (part of the circle behind the camera:
-CircleTrack's grid search); the few still uncertified go through CircleTrack's bracketed search, track by track.
-The results are those of ``CircleTrack.evaluate`` (the certified closest phase is unique, so they do not depend on the
+vectorised too, and the few still uncertified through CircleTrack's own later stages: its bracketed search track by
+track, its grid search (where the image conic is no ellipse) for all such tracks at once. The results
+are those of ``CircleTrack.evaluate`` (the certified closest phase is unique, so they do not depend on the
 start), to ~1e-14 px and, because the phases get their last Newton step, with Jacobians exact to ~tol^2
 (CircleTrack's to ~tol).
 
@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from .circle_track import COLD_GRID_SIZE, PHASE_GRID_SIZE, PHASE_NEWTON_STEPS, CircleTrack, _phase_grid
+from .circle_track import _QUARTER, _Y012, COLD_GRID_SIZE, CircleTrack, _phase_grid
 from .coaxial_coefficients import (
     _C8,
     _D,
@@ -287,26 +287,17 @@ class CoaxialTracks:
             ok &= ~bad.ravel()[idx]
         return idx[~ok]
 
-    def _restart(self, R, d, r, rows, G, s, c, todo, lay: _Layout, certify: bool = True) -> np.ndarray:
+    def _restart(self, R, d, r, rows, G, s, c, todo, lay: _Layout) -> np.ndarray:
         """CircleTrack's stage 1 for the pixels ``todo`` of tracks with a valid image ellipse, vectorised: the
         nearest of ``COLD_GRID_SIZE`` phases, then safeguarded Newton on ``y2^3 f'`` (Gauss-Newton
         ``|z[:2]|^2 / y2`` where ``F'`` is not safely positive; steps clamped to one grid cell). Writes the phases
-        into (s, c); returns the pixels still not certified.
-
-        Without ``certify``: CircleTrack's stage 3 (its search where the image conic is not an ellipse), vectorised
-        over all such tracks at once: the same with ``PHASE_GRID_SIZE`` phases and ``PHASE_NEWTON_STEPS`` steps,
-        uncertified (returns no pixels)."""
+        into (s, c); returns the pixels still not certified."""
         n = len(todo)
-        if n == 0:
+        if n == 0:  # every pixel left belongs to a track without a valid image ellipse
             return todo
         row = todo // lay.L
-        if certify:
-            self.restarted_points += n
-            grid_size, cold_steps = COLD_GRID_SIZE, self.cold_steps
-        else:
-            self.fallback_points += n
-            grid_size, cold_steps = PHASE_GRID_SIZE, PHASE_NEWTON_STEPS
-        grid, basis = _phase_grid(grid_size)
+        self.restarted_points += n
+        grid, basis = _phase_grid(COLD_GRID_SIZE)
         Y = [rows[part][:, row] for part in (_Y0, _Y1, _Y2)]  # (3, n) each
         y0, y1, y2 = (np.einsum("kn,kg->ng", Yi, basis[:3]) for Yi in Y)
         dx = lay.px.ravel()[todo][:, None] - y0 / y2
@@ -316,10 +307,10 @@ class CoaxialTracks:
         g = G.reshape(8, -1)[:, todo]
         sign = -rows[_SIDE, row]  # F' > 0 at a minimum of the distance for sign * F
         Z, Y2 = rows[_Z][:, row], Y[2]
-        max_step = 2.0 * np.pi / grid_size
+        max_step = 2.0 * np.pi / COLD_GRID_SIZE
         tol = self.tol
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            for i in range(cold_steps):
+            for i in range(self.cold_steps):
                 sc, cc = si * ci, ci * ci
                 F = sign * (g[0] + g[1] * si + g[2] * ci + g[3] * sc + g[4] * cc)
                 dF = sign * (g[1] * ci - g[2] * si - g[3] + 2.0 * (g[3] * cc - g[4] * sc))
@@ -327,11 +318,8 @@ class CoaxialTracks:
                 step = np.clip(F / np.where(dF > 1e-3 * gn, dF, gn), -max_step, max_step)
                 converged = float(step.max()) <= tol and float(step.min()) >= -tol
                 si, ci = _rotate(si, ci, step)
-                if converged or i == cold_steps - 1:
+                if converged or i == self.cold_steps - 1:
                     break
-            if not certify:
-                s.ravel()[todo], c.ravel()[todo] = si, ci
-                return todo[:0]
             bad = None if converged else ~(np.abs(step) <= tol)
             sc, cc = si * ci, ci * ci
             z2 = Z[0] + Z[1] * si + Z[2] * ci + Z[3] * sc + Z[4] * cc
@@ -349,14 +337,16 @@ class CoaxialTracks:
         return todo[~ok]
 
     def _fallback(self, R, d, r, s, c, todo, lay: _Layout) -> None:
-        """CircleTrack's own search from stage 2 on (the bracketed search in the pixel's quadrant arc, its grid
-        search where that does not converge) for the pixels ``todo``, track by track (the pixels of tracks whose
-        image conic is no ellipse go through the vectorised grid search, :meth:`_restart`, instead)."""
+        """CircleTrack's own search from stage 2 on for the pixels ``todo``: the bracketed search in the pixel's
+        quadrant arc, track by track; where the image conic is not an ellipse (part of the circle behind the camera:
+        a short arc's runaway circle), CircleTrack's grid search, for all such tracks at once
+        (:func:`_grid_search`)."""
         L = lay.L
         track = lay.row_track[todo // L]
         local = lay.local.ravel()[todo]
         bounds = np.flatnonzero(np.diff(track)) + 1
         s_flat, c_flat = s.ravel(), c.ravel()
+        no_ellipse = []
         for part, part_local in zip(np.split(todo, bounds), np.split(local, bounds), strict=True):
             j = int(lay.row_track[part[0] // L])
             track_j = self._circle_tracks.get(j)
@@ -364,9 +354,15 @@ class CoaxialTracks:
                 track_j = self._circle_tracks[j] = CircleTrack(self.K, self.pixels[j], warm_start=False)
             dj, rj = float(d[j]), float(r[j])
             setup = track_j._coefficients(R, dj, rj)
-            stage = 2 if setup[3].valid else 3
-            phi, _, _, _ = track_j._solve_points(R, dj, rj, setup, part_local, None, stage)
+            if not setup[3].valid:
+                no_ellipse.append((part, track_j, part_local, setup))
+                continue
+            phi, _, _, _ = track_j._solve_points(R, dj, rj, setup, part_local, None, 2)
             pair = np.sin(phi)
+            s_flat[part], c_flat[part] = pair[0], pair[1]
+        if no_ellipse:
+            pair = np.sin(_grid_search(no_ellipse))
+            part = np.concatenate([p for p, _, _, _ in no_ellipse])
             s_flat[part], c_flat[part] = pair[0], pair[1]
         self.fallback_points += len(todo)
 
@@ -407,8 +403,7 @@ class CoaxialTracks:
         todo = self._certify(R, d, r, rows, s, c, V[0], bad, lay)
         if len(todo):
             valid = np.isfinite(rows[_THRESHOLD, todo // L])
-            rest = self._restart(R, d, r, rows, G, s, c, todo[valid], lay)
-            self._restart(R, d, r, rows, G, s, c, todo[~valid], lay, certify=False)  # (conics that are no ellipse)
+            rest = np.concatenate([self._restart(R, d, r, rows, G, s, c, todo[valid], lay), todo[~valid]])
             if len(rest):
                 self._fallback(R, d, r, s, c, np.sort(rest), lay)
             lay.sync_padding(s, c)
@@ -520,3 +515,39 @@ class CoaxialTracks:
         self._solution = (ev.d.copy(), ev.r.copy())
         return ev.d.copy(), ev.r.copy()
 
+
+def _grid_search(parts) -> np.ndarray:
+    """CircleTrack's stage 3 (``_solve_points(..., stage=3)``: the nearest of its ``grid_size`` phases, then up to
+    ``newton_steps`` safeguarded Newton steps, each track stopping once its steps' sum of squares is below tol^2, and
+    the last step applied) for several tracks' pixels at once, with each track's own coefficients, so that the
+    phases are CircleTrack's to rounding. ``parts``: (flat indices, CircleTrack, its pixels' indices, its
+    ``_coefficients``) per track; returns the phase pairs ``(phi, phi + pi/2)`` (2, n) in the parts' order."""
+    first = parts[0][1]
+    grid, grid_basis = _phase_grid(first.grid_size)
+    phis, PCs, CRs, owner = [], [], [], []
+    for t, (_, track, idx, (PC, CR, _, _, sign)) in enumerate(parts):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            y0, y1, y2 = CR[_Y012] @ grid_basis  # homogeneous curve points at the grid phases
+            dx = track._px[idx, None] - y0 / y2
+            dy = track._py[idx, None] - y1 / y2
+        phis.append(grid[np.argmin(dx * dx + dy * dy, axis=1)] + _QUARTER)
+        PCs.append(PC[:, :, idx] * np.array([[sign], [sign], [1.0], [sign]]))  # F, F', F'' as y2^3 f', ...
+        CRs.append(np.broadcast_to(CR[:2, :, None], (2, 5, len(idx))))
+        owner.append(np.full(len(idx), t))
+    phi, PC, CR, owner = (np.concatenate(phis, axis=1), np.concatenate(PCs, axis=2), np.concatenate(CRs, axis=2),
+                          np.concatenate(owner))
+    basis, basis3, product = CircleTrack._workspace(phi.shape[1])
+    active = np.ones(phi.shape[1], dtype=bool)
+    max_step = 2.0 * np.pi / first.grid_size
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for _ in range(first.newton_steps):
+            CircleTrack._fill_basis(phi, basis)
+            F, dF, _, _ = np.add.reduce(np.multiply(PC, basis3, out=product), 0)
+            gn = np.einsum("kn,kn->n", CR[0], basis) / np.einsum("kn,kn->n", CR[1], basis)
+            step = np.minimum(np.maximum(F / np.where(dF > 1e-3 * gn, dF, gn), -max_step), max_step)
+            step = np.where(active, step, 0.0)
+            phi -= step  # (a track's last step too: CircleTrack applies it after stopping)
+            active &= ~(np.bincount(owner, weights=step * step, minlength=len(parts)) <= first._tol2)[owner]
+            if not active.any():
+                break
+    return phi
