@@ -532,10 +532,12 @@ def _grid_search(parts) -> np.ndarray:
             dy = track._py[idx, None] - y1 / y2
         phis.append(grid[np.argmin(dx * dx + dy * dy, axis=1)] + _QUARTER)
         PCs.append(PC[:, :, idx] * np.array([[sign], [sign], [1.0], [sign]]))  # F, F', F'' as y2^3 f', ...
-        CRs.append(np.broadcast_to(CR[:2, :, None], (2, 5, len(idx))))
+        CRs.append(CR[:2])
         owner.append(np.full(len(idx), t))
-    phi, PC, CR, owner = (np.concatenate(phis, axis=1), np.concatenate(PCs, axis=2), np.concatenate(CRs, axis=2),
-                          np.concatenate(owner))
+    phi, PC, owner = np.concatenate(phis, axis=1), np.concatenate(PCs, axis=2), np.concatenate(owner)
+    ends = np.cumsum([len(idx) for _, _, idx, _ in parts])
+    spans = list(zip(ends - [len(idx) for _, _, idx, _ in parts], ends, strict=True))
+    gn_num, gn_den = np.empty(len(owner)), np.empty(len(owner))
     basis, basis3, product = CircleTrack._workspace(phi.shape[1])
     active = np.ones(phi.shape[1], dtype=bool)
     max_step = 2.0 * np.pi / first.grid_size
@@ -543,7 +545,9 @@ def _grid_search(parts) -> np.ndarray:
         for _ in range(first.newton_steps):
             CircleTrack._fill_basis(phi, basis)
             F, dF, _, _ = np.add.reduce(np.multiply(PC, basis3, out=product), 0)
-            gn = np.einsum("kn,kn->n", CR[0], basis) / np.einsum("kn,kn->n", CR[1], basis)
+            for (a, b), C in zip(spans, CRs, strict=True):  # (each track's own product: near the camera plane
+                gn_num[a:b], gn_den[a:b] = C @ np.ascontiguousarray(basis[:, a:b])  # the sums cancel)
+            gn = gn_num / gn_den
             step = np.minimum(np.maximum(F / np.where(dF > 1e-3 * gn, dF, gn), -max_step), max_step)
             step = np.where(active, step, 0.0)
             phi -= step  # (a track's last step too: CircleTrack applies it after stopping)
