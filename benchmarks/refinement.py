@@ -67,7 +67,7 @@ def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float, i
     (``benchmarks/accuracy.py``'s ``crlb_rigid`` with those variables)."""
     from accuracy import add_noise_free
 
-    from gtsam_rotid.calibration.joint import intrinsics_prior_sigmas
+    from gtsam_rotid.calibration.joint import CAL3_S2_ORDER, intrinsics_prior_sigmas
     from gtsam_rotid.calibration.options import INTRINSICS
     from gtsam_rotid.graph import RotIdGraph
     from gtsam_rotid.uncertainty import joint_marginal_covariance
@@ -95,7 +95,7 @@ def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float, i
     offsets_bound = both[6:6 + len(joints), 6:6 + len(joints)] if names else None
     intrinsics_bound = None
     if intrinsics_sigma is not None:
-        chosen = 6 + len(joints) + np.array([0, 1, 3, 4])  # Cal3_S2's fx, fy, (s), cx, cy
+        chosen = 6 + len(joints) + np.array([CAL3_S2_ORDER.index(n) for n in INTRINSICS])  # (the skew left out)
         intrinsics_bound = both[np.ix_(chosen, chosen)]
     return both[:6, :6], offsets_bound, intrinsics_bound
 
