@@ -8,7 +8,7 @@ See README.md and docs/design.md for conventions.
 from . import simulate
 from .arm import Arm
 from .camera import Camera
-from .dataset import Dataset, Measurement, Track
+from .dataset import Dataset, Measurement, SpinReadings, Track
 from .errors import (
     ArmError,
     CameraError,
@@ -65,6 +65,7 @@ __all__ = [
     "RecordingError",
     "RotIdError",
     "SimulationError",
+    "SpinReadings",
     "Track",
     "Tracker",
     "TrackerParams",

@@ -6,10 +6,11 @@ arm pose: its joint angles and the :class:`Track` of every feature seen during t
 optional frame indices that let the estimators model the rigid spin (docs/design.md §4).
 
 On disk a dataset is a directory (format version :data:`FORMAT_VERSION`, or 1 where no measurement names a
-``spin_joint``: version 1 files are written and read as before)::
+``spin_joint`` or carries ``spin_readings``: version 1 files are written and read as before)::
 
     dataset.json   arm, camera, measurements (joint angles, track array names), metadata
-    tracks.npz     one (N, 2) float array of pixels and, when known, one (N,) int array of frames per track
+    tracks.npz     one (N, 2) float array of pixels and, when known, one (N,) int array of frames per track; a
+                   measurement's spin readings as three float arrays (frame times, reading times, angles)
     arm.urdf       the arm's URDF text, only for arms built from a URDF
 
 ``dataset.json`` is checked against ``gtsam_rotid/schemas/dataset-v2.schema.json`` (JSON Schema 2020-12; a
@@ -47,7 +48,7 @@ from .errors import (
     ValidationError,
 )
 from .files import staged_directory
-from .measurements import MAX_FRAME_SPAN, Measurement, Track, _located, _plural
+from .measurements import MAX_FRAME_SPAN, Measurement, SpinReadings, Track, _located, _plural
 
 #: ``"format"`` marker of ``dataset.json``.
 FORMAT = "gtsam_rotid.dataset"
@@ -352,11 +353,17 @@ class Dataset:
             entry = {"name": m.name, "joint_angles": angles, "tracks": tracks}
             if m.spin_joint is not None:
                 entry["spin_joint"] = m.spin_joint
+            if m.spin_readings is not None:
+                entry["spin_readings"] = {}
+                for name in ("frame_times", "times", "angles"):
+                    entry["spin_readings"][name] = key = f"m{k}_spin_{name}"
+                    arrays[key] = getattr(m.spin_readings, name)
             entries.append(entry)
         document = {
             "format": FORMAT,
             # version 1 where it holds everything (no spin of another joint): earlier gtsam_rotid reads it
-            "version": FORMAT_VERSION if any(m.spin_joint is not None for m in self.measurements) else 1,
+            "version": FORMAT_VERSION if any(m.spin_joint is not None or m.spin_readings is not None
+                                             for m in self.measurements) else 1,
             "arm": arm,
             "camera": self.camera.to_dict(),
             "measurements": entries,
@@ -517,9 +524,19 @@ def _load_measurements(npz_path: Path, entries: list[dict]) -> list[Measurement]
                     tracks.append(Track(pixels, frames))
                 except ValidationError as err:
                     raise _located(err, measurement=k, track=j) from None
+            readings = None
+            if entry.get("spin_readings") is not None:
+                spec = entry["spin_readings"]
+                arrays = {name: _npz_array(npz, spec[name], "spin readings", k, None)
+                          for name in ("frame_times", "times", "angles")}
+                used.update(spec.values())
+                try:
+                    readings = SpinReadings(**arrays)
+                except ValidationError as err:
+                    raise _located(err, measurement=k) from None
             try:
                 measurements.append(Measurement(entry["joint_angles"], tracks, name=entry["name"],
-                                                spin_joint=entry.get("spin_joint")))
+                                                spin_joint=entry.get("spin_joint"), spin_readings=readings))
             except ValidationError as err:
                 raise _located(err, measurement=k) from None
         extra = sorted(set(npz.files) - used)

@@ -149,6 +149,64 @@ class Track:
 
 
 # ---------------------------------------------------------------------------------------------- Measurement
+class SpinReadings:
+    """The spinning joint's own readings during one spin (synced mode): the encoder's time-stamped angles and the
+    video's frame times.
+
+    Args:
+        frame_times: (n,) each frame index's time (s) on the camera's clock (index i at ``frame_times[i]``),
+            strictly increasing; it must cover every frame index of the measurement's tracks.
+        times: (K,) the readings' times (s) on the encoder's clock, K >= 2, strictly increasing. The two clocks may
+            differ by a constant offset (the calibration can estimate it).
+        angles: (K,) the spinning joint's readings (rad), in the arm model's sense of the joint (a joint reported
+            in [-pi, pi) is unwrapped).
+
+    Attributes are read-only float64 copies.
+    """
+
+    __slots__ = ("frame_times", "times", "angles")
+
+    def __init__(self, frame_times, times, angles):
+        self.frame_times = self._checked("frame_times", frame_times, 1)
+        self.times = self._checked("times", times, 2)
+        self.angles = self._checked("angles", angles, 2)
+        if len(self.angles) != len(self.times):
+            raise ValidationError(f"spin readings need one angle per time, got {len(self.angles)} angles for "
+                                  f"{len(self.times)} times")
+
+    @staticmethod
+    def _checked(name: str, values, least: int) -> np.ndarray:
+        try:
+            array = np.array(values, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValidationError(f"spin readings' {name} must be numbers, got {type(values).__name__}") from None
+        if array.ndim != 1 or len(array) < least:
+            raise ValidationError(f"spin readings' {name} must be a 1-D array of at least {least} values, got shape "
+                                  f"{array.shape}")
+        bad = np.flatnonzero(~np.isfinite(array))
+        if len(bad):
+            raise ValidationError(f"spin readings' {name}[{bad[0]}] is not finite ({array[bad[0]]})")
+        if name != "angles":
+            back = np.flatnonzero(np.diff(array) <= 0)
+            if len(back):
+                i = int(back[0])
+                raise ValidationError(f"spin readings' {name} must be strictly increasing: {name}[{i + 1}] = "
+                                      f"{array[i + 1]} s follows {array[i]} s")
+        array.setflags(write=False)
+        return array
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, SpinReadings):
+            return NotImplemented
+        return all(np.array_equal(getattr(self, a), getattr(other, a)) for a in self.__slots__)
+
+    __hash__ = None
+
+    def __repr__(self) -> str:
+        return (f"SpinReadings({len(self.times)} readings over {self.times[-1] - self.times[0]:.3g} s, "
+                f"{len(self.frame_times)} frame times)")
+
+
 def _checked_joint_angles(joint_angles) -> np.ndarray | dict[str, float]:
     """A copy of the joint angles: a float64 vector, or a dict name -> float (arm-independent checks only)."""
     if isinstance(joint_angles, Mapping):
@@ -197,11 +255,15 @@ class Measurement:
         spin_joint: the name of the joint that spun (its features trace circles about its axis); None (default):
             the arm's wrist joint (:attr:`gtsam_rotid.arm.Arm.wrist_joint`, the last revolute joint unless the arm
             names another). Checked against the arm by :class:`Dataset`.
+        spin_readings: optional :class:`SpinReadings` of the spinning joint (synced mode: the rigid spin's
+            per-frame angles then follow them, with the clocks' offset estimated); needs tracks with frame indices,
+            each within ``spin_readings.frame_times``.
     """
 
-    __slots__ = ("joint_angles", "tracks", "name", "spin_joint")
+    __slots__ = ("joint_angles", "tracks", "name", "spin_joint", "spin_readings")
 
-    def __init__(self, joint_angles, tracks, *, name: str | None = None, spin_joint: str | None = None):
+    def __init__(self, joint_angles, tracks, *, name: str | None = None, spin_joint: str | None = None,
+                 spin_readings: SpinReadings | None = None):
         if name is not None and not isinstance(name, str):
             raise ValidationError(f"measurement name must be a string or None, got {type(name).__name__}")
         if spin_joint is not None and (not isinstance(spin_joint, str) or not spin_joint):
@@ -220,6 +282,16 @@ class Measurement:
         if not items:
             raise ValidationError("a measurement needs at least one track, got none")
         self.tracks: tuple[Track, ...] = tuple(Track.from_any(t, track=j) for j, t in enumerate(items))
+        if spin_readings is not None and not isinstance(spin_readings, SpinReadings):
+            raise ValidationError(f"spin_readings must be SpinReadings or None, got {type(spin_readings).__name__}")
+        if spin_readings is not None:
+            for j, track in enumerate(self.tracks):
+                if track.frames is None:
+                    raise ValidationError(f"track {j}: spin readings need every track's frame indices; it has none")
+                if len(track.frames) and track.frames[-1] >= len(spin_readings.frame_times):
+                    raise ValidationError(f"track {j}: frame {int(track.frames[-1])} has no time in the spin "
+                                          f"readings' frame_times ({len(spin_readings.frame_times)} frames)")
+        self.spin_readings = spin_readings
 
     @property
     def n_tracks(self) -> int:
@@ -246,7 +318,7 @@ class Measurement:
         else:
             same_angles = np.array_equal(a, b)
         return (self.name == other.name and self.spin_joint == other.spin_joint and same_angles
-                and self.tracks == other.tracks)
+                and self.tracks == other.tracks and self.spin_readings == other.spin_readings)
 
     __hash__ = None
 

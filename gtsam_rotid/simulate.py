@@ -23,7 +23,7 @@ import numpy as np
 
 from .arm import Arm
 from .camera import Camera
-from .dataset import Dataset, Measurement, Track
+from .dataset import Dataset, Measurement, SpinReadings, Track
 from .errors import ArmError, InputError, SimulationError
 from .files import write_json
 from .geometry import Line3, circle_points, look_at, perpendicular_basis, unit
@@ -51,6 +51,15 @@ class SceneConfig:
     duration: float = 60.0
     fps: float = 30.0
     wrist_speed: float = 0.5
+    #: Seconds over which the spin speeds up from rest at the start and slows to rest at the end (0: the spin turns
+    #: at ``wrist_speed`` throughout). A speed that changes lets the spinning joint's readings date the frames.
+    spin_ramp: float = 0.0
+    #: Readings of the spinning joint per second (0: none). With readings each measurement carries
+    #: :class:`~gtsam_rotid.measurements.SpinReadings` (synced mode), stamped on the encoder's clock, which runs
+    #: ``encoder_time_offset`` s ahead of the camera's, with Gaussian noise of ``encoder_sigma_deg``.
+    encoder_rate: float = 0.0
+    encoder_sigma_deg: float = 0.0
+    encoder_time_offset: float = 0.0
     noise_var: float = 1.5
     #: A feature is visible while cos(angle between its outward normal and the ray to the camera)
     #: exceeds this (0 = visible up to the silhouette).
@@ -313,7 +322,7 @@ class SpinScene:
         axis, e1, e2, radii, offsets, phases, normals = self.spin_features(joint_angles, joint)
         n_frames = int(round(cfg.duration * cfg.fps))
         frames = np.arange(n_frames)
-        spin = cfg.wrist_speed * frames / cfg.fps
+        spin = spin_profile(frames / cfg.fps, cfg)
         sigma = np.sqrt(cfg.noise_var)
         tracks: list[Track] = []
         truths: list[TrackTruth] = []
@@ -344,7 +353,16 @@ class SpinScene:
         self._plant_outliers(tracks, truths, axis, rng)
         truth = MeasurementTruth(np.asarray(joint_angles, dtype=float), axis.point.copy(),
                                  axis.direction.copy(), e1, e2, spin, truths, spin_joint=joint)
-        return Measurement(np.asarray(joint_angles, dtype=float), tracks, spin_joint=joint), truth
+        readings = None
+        if cfg.encoder_rate > 0:  # from half a second before the first frame to half a second after the last
+            delta = cfg.encoder_time_offset
+            times = np.arange(delta - 0.5, delta + cfg.duration + 0.5, 1.0 / cfg.encoder_rate)
+            start = float(np.asarray(joint_angles, dtype=float)[self.arm.spin_index(joint)])
+            angles = start + spin_profile(times - delta, cfg) + rng.normal(
+                0.0, np.radians(cfg.encoder_sigma_deg), size=len(times))
+            readings = SpinReadings(frames / cfg.fps, times, angles)
+        return Measurement(np.asarray(joint_angles, dtype=float), tracks, spin_joint=joint,
+                           spin_readings=readings), truth
 
     def _plant_outliers(self, tracks, truths, axis: Line3, rng: np.random.Generator) -> None:
         """Replace a fraction of the tracks by arcs of circles about a wrong axis."""
@@ -367,6 +385,22 @@ class SpinScene:
                     tracks[j] = Track(pixels, frames)
                     truths[j] = TrackTruth(-1, float(radius), float("nan"), float(phase0), is_outlier=True)
                     break
+
+
+def spin_profile(t, config: SceneConfig) -> np.ndarray:
+    """The spin's angle (rad) at camera times ``t`` (s from the first frame): ``wrist_speed`` throughout, or with
+    ``spin_ramp`` at rest before 0 and after ``duration``, speeding up (and slowing down) at a constant rate over
+    ``spin_ramp`` s at each end."""
+    t = np.asarray(t, dtype=float)
+    speed, ramp, duration = config.wrist_speed, config.spin_ramp, config.duration
+    if ramp <= 0:
+        return speed * t
+    ramp = min(ramp, duration / 2)
+    t = np.clip(t, 0.0, duration)
+    late = duration - ramp
+    angle = np.where(t <= ramp, t * t / (2 * ramp), ramp / 2 + (t - ramp))
+    angle = np.where(t > late, ramp / 2 + (late - ramp) + (ramp**2 - (duration - t) ** 2) / (2 * ramp), angle)
+    return speed * angle
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -393,6 +427,10 @@ def _check_config(config: SceneConfig) -> None:
     number("outlier_fraction", 0.0, 1.0)
     number("n_features", 1)
     number("min_track_length", 2, what=" (points)")
+    number("spin_ramp", 0.0, what=" (seconds)")
+    number("encoder_rate", 0.0, what=" (readings per second)")
+    number("encoder_sigma_deg", 0.0, what=" (degrees)")
+    number("encoder_time_offset", -1e6, 1e6, what=" (seconds)")
     if isinstance(config.spin_joints, str) or not all(isinstance(j, str) for j in config.spin_joints):
         raise InputError(f"spin_joints must be a tuple of joint names, got {config.spin_joints!r}")
     if not (isinstance(config.wrist_speed, int | float) and math.isfinite(config.wrist_speed)

@@ -15,7 +15,7 @@ from urdf_arm import URDF_3_JOINTS
 from gtsam_rotid import dataset as dataset_module
 from gtsam_rotid.arm import Arm
 from gtsam_rotid.camera import Camera
-from gtsam_rotid.dataset import Dataset, Measurement, Track
+from gtsam_rotid.dataset import Dataset, Measurement, SpinReadings, Track
 from gtsam_rotid.errors import (
     DatasetExistsError,
     DatasetNotFoundError,
@@ -640,3 +640,46 @@ def test_a_dataset_directory_with_the_users_files_is_never_replaced(kinova, came
     with pytest.raises(DatasetExistsError, match=r"holds files that are not part of the dataset \(notes.txt\)"):
         dataset.save(folder, overwrite=True)
     assert (folder / "notes.txt").read_text() == "mine" and (folder / "dataset.json").is_file()
+
+
+# ---------------------------------------------------------------------------------------------- spin readings
+def spin_readings(n_frames: int = 12) -> SpinReadings:
+    times = np.linspace(-0.2, 1.0, 61) + 1e-3 / 7
+    return SpinReadings(np.arange(n_frames) / 15.0 + 1.0 / 9.0, times, 0.5 * times + 1.0 / 3.0)
+
+
+def test_spin_readings_round_trip_in_version_2(kinova, camera, tmp_path):
+    """A measurement's spin readings (synced mode) are saved as three arrays and read back exactly; the file is
+    then version 2 (older readers refuse it by the schema rather than drop the readings)."""
+    measurements = make_measurements(kinova.joint_names)
+    m0 = measurements[0]
+    synced = Measurement(m0.joint_angles, m0.tracks, name=m0.name, spin_readings=spin_readings())
+    dataset = Dataset(kinova, camera, [synced, measurements[1]])
+    root = dataset.save(tmp_path / "synced")
+    document = read_json(root)
+    assert document["version"] == 2
+    assert document["measurements"][0]["spin_readings"] == {
+        "frame_times": "m0_spin_frame_times", "times": "m0_spin_times", "angles": "m0_spin_angles"}
+    assert "spin_readings" not in document["measurements"][1]
+    loaded = Dataset.load(root)
+    assert loaded == dataset
+    np.testing.assert_array_equal(loaded.measurements[0].spin_readings.angles, synced.spin_readings.angles)
+    assert loaded.measurements[1].spin_readings is None
+
+
+def test_spin_readings_are_checked_with_words_that_name_the_problem(kinova):
+    tracks = make_measurements(kinova.joint_names)[0].tracks
+    angles = np.zeros(len(kinova.joint_names))
+    with pytest.raises(ValidationError, match=r"track 0: frame 9 has no time in the spin readings' frame_times "
+                                              r"\(8 frames\)"):
+        Measurement(angles, tracks, spin_readings=spin_readings(8))
+    with pytest.raises(ValidationError, match="track 0: spin readings need every track's frame indices"):
+        Measurement(angles, [arc_pixels((300.0, 200.0), 10.0, 6)], spin_readings=spin_readings())
+    with pytest.raises(ValidationError, match=r"times must be strictly increasing: times\[2\] = 0.1 s follows 0.1 s"):
+        SpinReadings([0.0], [0.0, 0.1, 0.1], [0.0, 1.0, 2.0])
+    with pytest.raises(ValidationError, match="one angle per time, got 2 angles for 3 times"):
+        SpinReadings([0.0], [0.0, 0.1, 0.2], [0.0, 1.0])
+    with pytest.raises(ValidationError, match=r"angles\[1\] is not finite"):
+        SpinReadings([0.0], [0.0, 0.1], [0.0, np.nan])
+    with pytest.raises(ValidationError, match="spin_readings must be SpinReadings or None, got dict"):
+        Measurement(angles, tracks, spin_readings={"times": [0.0]})

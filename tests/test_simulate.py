@@ -191,3 +191,38 @@ def test_other_arms(robot):
 def test_a_scene_that_cannot_be_made_is_refused_by_its_field(field, value, words):
     with pytest.raises(InputError, match=words):
         simulate.simulate(simulate.SceneConfig(**{field: value}))
+
+
+def test_a_ramped_spin_and_the_joints_readings():
+    """``spin_ramp`` speeds the spin up from rest and down again; ``encoder_rate`` gives each measurement the
+    spinning joint's readings, stamped ``encoder_time_offset`` s ahead: between two frames a feature turns
+    right-handed about the FK axis by the readings' change between their times on the encoder's clock."""
+    from gtsam_rotid.simulate import spin_profile
+
+    config = SceneConfig(n_measurements=2, duration=4.0, spin_ramp=1.0, encoder_rate=250.0, encoder_sigma_deg=0.0,
+                         encoder_time_offset=0.04, noise_var=0.0)
+    dataset, truth = simulate.simulate(config, seed=5)
+    t = np.linspace(-1.0, 5.0, 6001)
+    angle = spin_profile(t, config)
+    speed = np.gradient(angle, t)
+    assert np.all(angle[t <= 0] == 0) and np.allclose(angle[t >= 4.0], angle[-1])
+    assert abs(speed[np.argmin(abs(t - 2.0))] - 0.5) < 1e-9 and abs(speed[np.argmin(abs(t - 0.5))] - 0.25) < 1e-3
+    assert np.allclose(spin_profile(t, config.with_(spin_ramp=0.0)), 0.5 * t)
+    arm = dataset.arm
+    for m, m_truth in zip(dataset.measurements, truth.measurements, strict=True):
+        readings = m.spin_readings
+        assert readings.times[0] < 0.04 and readings.times[-1] > 4.04 and len(readings.frame_times) == 120
+        np.testing.assert_allclose(readings.frame_times, np.arange(120) / 30.0)
+        f = 77
+        axis = arm.wrist_axis(m.joint_angles)
+        track = next(j for j, tr in enumerate(m.tracks) if f in tr.frames)
+        start = m_truth.feature_points(track, [0])[0]  # the feature at frame 0, turned by the readings' change
+        turned = np.interp(readings.frame_times[f] + 0.04, readings.times, readings.angles) - np.interp(
+            0.04, readings.times, readings.angles)
+        r = start - axis.point
+        c, s = np.cos(turned), np.sin(turned)
+        d = axis.direction
+        rotated = axis.point + r * c + np.cross(d, r) * s + d * (d @ r) * (1 - c)
+        np.testing.assert_allclose(m_truth.feature_points(track, [f])[0], rotated, atol=1e-6)
+    plain, _ = simulate.simulate(config.with_(encoder_rate=0.0), seed=5)
+    assert all(m.spin_readings is None for m in plain.measurements)
