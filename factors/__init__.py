@@ -79,9 +79,10 @@ from .rigid import (
     spin_chunk_index,
     spin_priors,
 )
-from .rigid_line import RigidLineFactor, RigidTracks, make_rigid_line_factor
+from .rigid_line import EncoderPrior, RigidLineFactor, RigidTracks, make_rigid_line_factor
 
 __all__ = [
+    "EncoderPrior",
     "CircleTrack",
     "CoaxialLineFactor",
     "CoaxialTracks",

@@ -117,11 +117,12 @@ class CoaxialLineFactor:
                     max_evaluations, cache_size, tracks.n_points)
 
     def _setup(self, line_key: int, tracks, start, sigma_px: float, robust, tol: float, max_evaluations: int,
-               cache_size: int, dim: int, intrinsics_key: int | None = None) -> None:
+               cache_size: int, dim: int, intrinsics_key: int | None = None, extra_keys=()) -> None:
         """What every projected-out line factor holds (this and :class:`.rigid_line.RigidLineFactor`): its
         settings, the start of its first solve, the caches and anchors, the diagnostics, and the CustomFactor of
         dimension ``dim``, bound to a twin (see the class docstring); with ``intrinsics_key`` the factor's second
-        key is a ``gtsam.Cal3_S2`` (only factors that implement :meth:`_jacobian_intrinsics`)."""
+        key is a ``gtsam.Cal3_S2`` (only factors that implement :meth:`_jacobian_intrinsics`); ``extra_keys`` follow
+        (only factors whose :meth:`_outer_jacobians` give theirs)."""
         if not np.isfinite(sigma_px) or sigma_px <= 0:
             raise ValueError(f"sigma_px must be a positive number of pixels, got {sigma_px!r}")
         self.line_key = line_key
@@ -149,7 +150,7 @@ class CoaxialLineFactor:
         self.work = 0.0
         twin = object.__new__(type(self))  # same attributes, no factor slot: no cycle through C++ (see above)
         twin.__dict__ = self.__dict__
-        keys = [line_key] if intrinsics_key is None else [line_key, intrinsics_key]
+        keys = [line_key] + ([] if intrinsics_key is None else [intrinsics_key]) + list(extra_keys)
         self.factor = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(dim), keys, twin._error_function)
 
     # ------------------------------------------------------------------------------------------------------------
@@ -170,8 +171,8 @@ class CoaxialLineFactor:
             self._pinned.popitem(last=False)
         irls = self._scales(state)[0]
         H[0] = self._jacobian(state, irls)
-        if K is not None:
-            H[1] = self._jacobian_intrinsics(state, irls)
+        for i, J in enumerate(self._outer_jacobians(state, irls), start=1):
+            H[i] = J
         return self._residual(state, irls)
 
     def _intrinsics(self, values: gtsam.Values) -> np.ndarray | None:
@@ -187,6 +188,10 @@ class CoaxialLineFactor:
 
     def _jacobian_intrinsics(self, state, scale: np.ndarray) -> np.ndarray:
         raise NotImplementedError(f"{type(self).__name__} has fixed intrinsics")
+
+    def _outer_jacobians(self, state, scale: np.ndarray) -> list[np.ndarray]:
+        """The Jacobians of the factor's keys after the line (in key order), rows scaled."""
+        return [] if self.intrinsics_key is None else [self._jacobian_intrinsics(state, scale)]
 
     def _at(self, x):
         """The state at ``x`` (see the class docstring; with an intrinsics variable, a ``gtsam.Values`` gives both

@@ -25,6 +25,14 @@ Gauge: ``theta_f + k, phi0_j - k`` over a connected component of tracks (linked 
 sees have no angle. The first-order change of the inner variables with the line (``-X w``, ``X = (J^T W J)^-1 J^T W
 H_R``) starts the solves of LM's trial lines from the last linearisation point, and the caching, anchors and trust
 region are those of :class:`.coaxial.CoaxialLineFactor`.
+
+Synced (an :class:`EncoderPrior`): the spinning joint's own readings put a prior on every frame's angle,
+``theta_f = sign * q(t_f + delta)`` (``q`` the readings interpolated, ``t_f`` the frame's time on the camera's clock,
+``delta`` the offset of the encoder's clock), one extra residual per frame ``(theta_f - sign q(t_f + delta)) / sigma``.
+It is a diagonal term in the frames' block of the inner normal equations (the Schur elimination is unchanged), the
+gauge is then fixed by the readings (no ``phi0`` is held), and with ``time_key`` the offset ``delta`` is an outer
+variable (a ``gtsam`` Vector1, seconds) whose column is the prior rows' derivative ``-sign q'(t_f + delta)``,
+projected as the line's columns are.
 """
 
 from __future__ import annotations
@@ -37,7 +45,7 @@ from .coaxial_solve import CIRCLE_TOL
 from .geometry import cal3_s2
 from .rigid import _track_components
 
-__all__ = ["RigidLineFactor", "RigidTracks", "make_rigid_line_factor"]
+__all__ = ["EncoderPrior", "RigidLineFactor", "RigidTracks", "make_rigid_line_factor"]
 
 #: Trust region of the inner steps: no track's circle ``(d, r)`` moves by more than this times its radius in one
 #: step (nor by the first-order prediction, which is then left out). Without it, a track whose circle is weakly
@@ -131,6 +139,72 @@ class RigidTracks:
         return self._indices[q]
 
 
+class EncoderPrior:
+    """Readings of the spinning joint as a prior on a rigid spin's per-frame angles (synced mode).
+
+    Frame ``f``'s angle is ``sign * q(frame_times[f] + delta)``: ``q`` the readings interpolated by cubic Hermite
+    segments with finite-difference slopes (continuous with a continuous derivative, so that ``delta``'s column
+    is; linear beyond the readings), ``delta`` the encoder clock's offset from the camera's (s). ``sign`` is +1
+    when the line variable's axis (its second column) points along the joint's axis (the angle turns features
+    right-handed about it), else -1.
+
+    Args:
+        frame_times: (F,) the frames' times on the camera's clock (s), in the order of the tracks' ``frame_ids``.
+        times: (K,) the readings' times on the encoder's clock (s), K >= 2, strictly increasing.
+        angles: (K,) the joint's readings (rad; unwrapped here: a joint reported in [-pi, pi) is continuous).
+        sigma_rad: each frame's prior sigma (the readings' noise and jitter, rad).
+        sign: +1 or -1 (see above).
+    """
+
+    __slots__ = ("frame_times", "times", "angles", "sigma", "sign", "_slopes")
+
+    def __init__(self, frame_times, times, angles, sigma_rad: float, sign: float = 1.0):
+        self.frame_times = np.array(frame_times, dtype=float).reshape(-1)
+        self.times = np.array(times, dtype=float).reshape(-1)
+        self.angles = np.unwrap(np.array(angles, dtype=float).reshape(-1))
+        if len(self.times) < 2 or len(self.angles) != len(self.times):
+            raise ValueError(f"need at least 2 readings with one angle each, got {len(self.times)} times and "
+                             f"{len(self.angles)} angles")
+        for name, a in (("frame_times", self.frame_times), ("times", self.times), ("angles", self.angles)):
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"encoder {name} must be finite")
+        if np.any(np.diff(self.times) <= 0):
+            i = int(np.flatnonzero(np.diff(self.times) <= 0)[0])
+            raise ValueError(f"encoder times must be strictly increasing: reading {i + 1} at {self.times[i + 1]} s "
+                             f"follows {self.times[i]} s")
+        if not np.isfinite(sigma_rad) or sigma_rad <= 0:
+            raise ValueError(f"sigma_rad must be a positive angle, got {sigma_rad!r}")
+        if sign not in (1, -1, 1.0, -1.0):
+            raise ValueError(f"sign must be +1 or -1, got {sign!r}")
+        self.sigma, self.sign = float(sigma_rad), float(sign)
+        t, q = self.times, self.angles
+        slopes = np.empty_like(q)
+        slopes[1:-1] = (q[2:] - q[:-2]) / (t[2:] - t[:-2])
+        slopes[0], slopes[-1] = (q[1] - q[0]) / (t[1] - t[0]), (q[-1] - q[-2]) / (t[-1] - t[-2])
+        self._slopes = slopes
+
+    def covers(self, delta: float = 0.0) -> bool:
+        """Whether every frame's time (plus ``delta``) lies within the readings."""
+        shifted = self.frame_times + delta
+        return bool(shifted.min() >= self.times[0] and shifted.max() <= self.times[-1])
+
+    def at(self, delta: float) -> tuple[np.ndarray, np.ndarray]:
+        """(F,) the frames' prior angles ``sign * q(t_f + delta)`` and (F,) their derivatives wrt ``delta``."""
+        t, q, m = self.times, self.angles, self._slopes
+        x = self.frame_times + float(delta)
+        i = np.clip(np.searchsorted(t, x, side="right") - 1, 0, len(t) - 2)
+        h = t[i + 1] - t[i]
+        u = np.clip((x - t[i]) / h, 0.0, 1.0)
+        u2, u3 = u * u, u * u * u
+        value = ((2 * u3 - 3 * u2 + 1) * q[i] + (u3 - 2 * u2 + u) * h * m[i] + (3 * u2 - 2 * u3) * q[i + 1]
+                 + (u3 - u2) * h * m[i + 1])
+        rate = (6 * u2 - 6 * u) * (q[i] - q[i + 1]) / h + (3 * u2 - 4 * u + 1) * m[i] + (3 * u2 - 2 * u) * m[i + 1]
+        before, after = x < t[0], x > t[-1]  # linear beyond the readings
+        value = np.where(before, q[0] + m[0] * (x - t[0]), np.where(after, q[-1] + m[-1] * (x - t[-1]), value))
+        rate = np.where(before, m[0], np.where(after, m[-1], rate))
+        return self.sign * value, self.sign * rate
+
+
 class _Inner:
     """An evaluation of the rigid spin at one line and inner point: residuals and derivatives per pixel."""
 
@@ -179,14 +253,19 @@ class _Inner:
 class _Normal:
     """The inner Gauss-Newton normal equations at an evaluation, the frames' diagonal block eliminated."""
 
-    def __init__(self, tracks: RigidTracks, ev: _Inner, w_pixel: np.ndarray):
+    def __init__(self, tracks: RigidTracks, ev: _Inner, w_pixel: np.ndarray, held: np.ndarray,
+                 frame_weight: float | None = None):
         m, F = tracks.n_tracks, tracks.n_frames
         self.tracks = tracks
+        self.frame_weight = frame_weight  # the encoder prior's weight per frame angle (synced), or None
         a = ev.a
         wa = a * w_pixel  # (3, 2, N)
         P = np.einsum("isn,ksn->ikn", wa, a)  # (3, 3, N): per pixel, products of the (d, r, phi) derivatives
         A = tracks.track_sums(P.reshape(9, -1)).reshape(3, 3, m)
-        self.root = np.sqrt(np.maximum(np.bincount(tracks.frame, weights=P[2, 2], minlength=F), 1e-300))  # D^1/2
+        D = np.bincount(tracks.frame, weights=P[2, 2], minlength=F)
+        if frame_weight is not None:
+            D = D + frame_weight
+        self.root = np.sqrt(np.maximum(D, 1e-300))  # D^1/2
         # C = B D^-1/2, B (3m, F) the track-frame block of the normal matrix, S = A - C C^T, all by frame groups
         self._C = np.zeros(tracks._coupling_size)
         self._C[tracks._coupling] = (P[:, 2] / self.root[tracks.frame]).reshape(-1)
@@ -195,7 +274,6 @@ class _Normal:
         S.reshape(m, 3, m, 3)[idx, :, idx, :] = A.transpose(2, 0, 1)
         for _, _, _, block, Cg in self._blocks():
             S[block] -= Cg @ Cg.T
-        held = np.flatnonzero(~tracks.free)
         S[held, :] = 0.0
         S[:, held] = 0.0
         S[held, held] = 1.0
@@ -207,15 +285,18 @@ class _Normal:
         for rows, first, end, block, offset in self.tracks._groups:
             yield rows, first, end, block, self._C[offset:offset + len(rows) * (end - first)].reshape(-1, end - first)
 
-    def project(self, V: np.ndarray, gradients: bool = False) -> tuple[np.ndarray, ...]:
-        """``(J^T W J)^-1 J^T W V`` for per-pixel columns ``V`` (q, 2, N): (3m, q) and (F, q); with ``gradients``
-        also ``J^T W V`` (held entries 0)."""
+    def project(self, V: np.ndarray, gradients: bool = False, frame_V: np.ndarray | None = None
+                ) -> tuple[np.ndarray, ...]:
+        """``(J^T W J)^-1 J^T W V`` for per-pixel columns ``V`` (q, 2, N) (and, synced, their prior rows ``frame_V``
+        (F, q)): (3m, q) and (F, q); with ``gradients`` also ``J^T W V`` (held entries 0)."""
         tracks = self.tracks
         m, F = tracks.n_tracks, tracks.n_frames
         q = V.shape[0]
         G = np.einsum("isn,qsn->iqn", self.wa, V)  # (3, q, N)
         gt = tracks.track_sums(G.reshape(3 * q, -1)).reshape(3, q, m).transpose(2, 0, 1).reshape(3 * m, q)
         gf = np.bincount(tracks._frame_index(q), weights=G[2].reshape(-1), minlength=F * q).reshape(F, q)
+        if frame_V is not None:
+            gf = gf + self.frame_weight * frame_V
         gt[self.held] = 0.0
         xt, xf = self.solve(gt, gf)
         return (xt, xf, gt, gf) if gradients else (xt, xf)
@@ -243,15 +324,19 @@ class _Normal:
 class _RigidState:
     """The inner solution at one line variable, and what the factor needs there."""
 
-    __slots__ = ("rot", "R", "K", "ev", "converged", "evaluations", "normal", "X", "_J")
+    __slots__ = ("rot", "R", "K", "delta", "ev", "converged", "evaluations", "normal", "X", "prior", "_J", "_Jf")
 
     def __init__(self, rot, R, ev: _Inner, converged: bool, evaluations: int, normal: _Normal, X: np.ndarray,
-                 K: np.ndarray):
-        self.rot, self.R, self.K, self.ev = rot, R, K, ev
+                 K: np.ndarray, delta: float = 0.0, prior: tuple[np.ndarray, np.ndarray] | None = None):
+        self.rot, self.R, self.K, self.delta, self.ev = rot, R, K, delta, ev
         self.converged, self.evaluations = converged, evaluations
         self.normal = normal  # the inner normal equations at ev, weighted by its IRLS weights
-        self.X = X  # (3m + F, 3) (J^T W J)^-1 J^T W H_R (at ev, by normal); with intrinsics (3m + F, 8): H_K too
-        self._J = None  # (3, 2, N) P H_R (with intrinsics (8, 2, N): P H_K too)
+        # (3m + F, q) (J^T W J)^-1 J^T W H of the outer columns (at ev, by normal): the line's 3, then with
+        # intrinsics their 5 (H_K), then with a time offset its 1
+        self.X = X
+        self.prior = prior  # synced: (F,) the prior rows' unwhitened residuals and (F,) their delta derivatives
+        self._J = None  # (q, 2, N) P H of the pixel rows
+        self._Jf = None  # synced: (q, F) P H of the prior rows (unwhitened)
 
     @property
     def sse(self) -> np.ndarray:
@@ -276,7 +361,8 @@ class RigidLineFactor(CoaxialLineFactor):
 
     def __init__(self, line_key: int, tracks: RigidTracks, K, circles, phi0, theta, sigma_px: float = 1.0,
                  robust=None, *, tol: float = CIRCLE_TOL, max_evaluations: int = 30, cache_size: int = 4,
-                 intrinsics_key: int | None = None):
+                 intrinsics_key: int | None = None, encoder: EncoderPrior | None = None, time_key: int | None = None,
+                 time_offset: float = 0.0):
         circles = np.array(circles, dtype=float).reshape(-1, 2)
         phi0 = np.array(phi0, dtype=float).reshape(-1)
         theta = np.array(theta, dtype=float).reshape(-1)
@@ -285,12 +371,26 @@ class RigidLineFactor(CoaxialLineFactor):
                              f"and {len(phi0)}")
         if len(theta) != tracks.n_frames:
             raise ValueError(f"need one spin angle per frame seen ({tracks.n_frames}), got {len(theta)}")
+        if time_key is not None and encoder is None:
+            raise ValueError("a time offset variable needs the encoder's readings (encoder=EncoderPrior(...))")
+        if encoder is not None and len(encoder.frame_times) != tracks.n_frames:
+            raise ValueError(f"need one encoder frame time per frame seen ({tracks.n_frames}), got "
+                             f"{len(encoder.frame_times)}")
+        if not np.isfinite(time_offset):
+            raise ValueError(f"time_offset must be finite seconds, got {time_offset!r}")
         self.K = np.asarray(K, dtype=float).reshape(3, 3)
+        self.encoder, self.time_key, self._delta0 = encoder, time_key, float(time_offset)
+        #: inner parameters held to fix the gauge (none when the encoder's readings fix it)
+        self._held = np.flatnonzero(~tracks.free) if encoder is None else np.zeros(0, dtype=np.int64)
+        if encoder is not None:  # the readings' zero: every angle shifted onto them, the phase offsets against
+            shift = float(np.mean(theta - encoder.at(self._delta0)[0]))
+            theta, phi0 = theta - shift, phi0 + shift
         x0 = np.empty(3 * tracks.n_tracks + tracks.n_frames)
         x0[0:3 * tracks.n_tracks:3], x0[1:3 * tracks.n_tracks:3] = circles[:, 0], circles[:, 1]
         x0[2:3 * tracks.n_tracks:3], x0[3 * tracks.n_tracks:] = phi0, theta
-        self._setup(line_key, tracks, x0, sigma_px, robust, tol, max_evaluations, cache_size, 2 * tracks.n_points,
-                    intrinsics_key)
+        dim = 2 * tracks.n_points + (0 if encoder is None else tracks.n_frames)
+        self._setup(line_key, tracks, x0, sigma_px, robust, tol, max_evaluations, cache_size, dim, intrinsics_key,
+                    extra_keys=() if time_key is None else (time_key,))
 
     # ------------------------------------------------------------------------------------------------------------
 
@@ -299,13 +399,31 @@ class RigidLineFactor(CoaxialLineFactor):
             return np.ones(self.tracks.n_tracks)
         return _robust_terms(np.sqrt(np.maximum(sse, 0.0)) / self.sigma_px, self._huber_k, self._estimators)[0]
 
-    def _solve(self, rot: gtsam.Rot3, R: np.ndarray, K: np.ndarray | None = None) -> _RigidState:
-        """The inner problem at ``rot`` (and the intrinsic matrix ``K``, default the factor's) by Gauss-Newton
-        (IRLS), from its anchor's solution moved by its first-order change, with steps shortened to the trust region
-        ``MAX_CIRCLE_STEP`` and halved where the robust cost rises."""
+    def _outer(self, values: gtsam.Values | None = None) -> np.ndarray | None:
+        """What the factor reads besides its line: None (fixed intrinsics and time offset), else the intrinsic
+        matrix (9, row-major) and the time offset (s) in one vector, from ``values`` (None: the factor's own)."""
+        if self.intrinsics_key is None and self.time_key is None:
+            return None
+        K = self.K if values is None or self.intrinsics_key is None else values.atCal3_S2(self.intrinsics_key).K()
+        delta = self._delta0 if values is None or self.time_key is None else float(values.atVector(self.time_key)[0])
+        return np.concatenate([np.ravel(K), [delta]])
+
+    def _intrinsics(self, values: gtsam.Values) -> np.ndarray | None:
+        return self._outer(values)
+
+    def _at(self, x):
+        if isinstance(x, gtsam.Values):
+            return self._state(self._rot(x), self._outer(x))
+        return self._state(self._rot(x), self._last_K if self._last is not None else self._outer())
+
+    def _solve(self, rot: gtsam.Rot3, R: np.ndarray, outer: np.ndarray | None = None) -> _RigidState:
+        """The inner problem at ``rot`` (and ``outer``: the intrinsic matrix and time offset, default the factor's,
+        see :meth:`_outer`) by Gauss-Newton (IRLS), from its anchor's solution moved by its first-order change, with
+        steps shortened to the trust region ``MAX_CIRCLE_STEP`` and halved where the robust cost rises."""
         tracks = self.tracks
-        K = self.K if K is None else K
-        intrinsics = self.intrinsics_key is not None
+        K = self.K if outer is None else outer[:9].reshape(3, 3)
+        delta = self._delta0 if outer is None else float(outer[9])
+        intrinsics, timed = self.intrinsics_key is not None, self.time_key is not None
         anchor, w, norm = self._anchor(rot)
         if anchor is None:
             x = self._start.copy()
@@ -314,18 +432,35 @@ class RigidLineFactor(CoaxialLineFactor):
             if norm <= PREDICT_MAX_RAD:
                 if intrinsics:  # the intrinsics' change too (Cal3_S2's tangent: fx, fy, s, cx, cy)
                     w = np.concatenate([w, cal3_s2(K).vector() - cal3_s2(anchor.K).vector()])
+                if timed:
+                    w = np.append(w, delta - anchor.delta)
                 change = -anchor.X[:, :len(w)] @ w
                 if np.all(np.isfinite(change)) and self._circle_change(x, change) <= MAX_CIRCLE_STEP:
                     x += change
+        m3 = 3 * tracks.n_tracks
+        prior, frame_weight = None, None
+        if self.encoder is not None:
+            target, rate = self.encoder.at(delta)
+            frame_weight = 1.0 / self.encoder.sigma**2
         ev = _Inner(tracks, K, R, x)
-        cost = self._cost(ev.sse)
+        cost = self._cost(ev.sse) + self._prior_cost(x, target if self.encoder is not None else None)
         converged, evaluations = False, 1
         while True:
-            normal = _Normal(tracks, ev, self._irls(ev.sse)[tracks.track] / self.sigma_px**2)
-            # the line's derivatives ride along (one factorisation): the projection the Jacobian needs if this is
+            normal = _Normal(tracks, ev, self._irls(ev.sse)[tracks.track] / self.sigma_px**2, self._held,
+                             frame_weight)
+            # the outer derivatives ride along (one factorisation): the projection the Jacobian needs if this is
             # the last evaluation
-            columns = [ev.e[None], ev.H_R, ev.H_K] if intrinsics else [ev.e[None], ev.H_R]
-            xt, xf, gt, gf = normal.project(np.concatenate(columns), gradients=True)
+            columns = [ev.e[None], ev.H_R] + ([ev.H_K] if intrinsics else []) + (
+                [np.zeros((1,) + ev.e.shape)] if timed else [])
+            frame_V = None
+            if self.encoder is not None:  # the prior rows: residual, zero for the line and intrinsics, -q' for delta
+                eps = x[m3:] - target
+                frame_V = np.zeros((tracks.n_frames, sum(c.shape[0] for c in columns)))
+                frame_V[:, 0] = eps
+                if timed:
+                    frame_V[:, -1] = -rate
+                prior = (eps, rate)
+            xt, xf, gt, gf = normal.project(np.concatenate(columns), gradients=True, frame_V=frame_V)
             projected = (xt[:, 1:], xf[:, 1:])
             decrement = float(gt[:, 0] @ xt[:, 0] + gf[:, 0] @ xf[:, 0])  # g^T (J^T W J)^-1 g, whitened
             if decrement <= self.tol * max(cost, 1e-300) or decrement < 1e-20 * tracks.n_points:
@@ -338,14 +473,15 @@ class RigidLineFactor(CoaxialLineFactor):
             while True:
                 trial = _Inner(tracks, K, R, x + t * step)
                 evaluations += 1
-                trial_cost = self._cost(trial.sse)
+                trial_cost = self._cost(trial.sse) + self._prior_cost(
+                    x + t * step, target if self.encoder is not None else None)
                 if trial_cost <= cost or evaluations >= self.max_evaluations or t < 1e-3:
                     break
                 t *= 0.5
             if not trial_cost <= cost:
                 break
             x, ev, cost = x + t * step, trial, trial_cost
-        state = _RigidState(rot, R, ev, converged, evaluations, normal, np.concatenate(projected), K)
+        state = _RigidState(rot, R, ev, converged, evaluations, normal, np.concatenate(projected), K, delta, prior)
         self.solves += 1
         self.evaluations += evaluations
         self.work += evaluations
@@ -356,6 +492,13 @@ class RigidLineFactor(CoaxialLineFactor):
         m = self.tracks.n_tracks
         circles, moves = x[:3 * m].reshape(m, 3)[:, :2], change[:3 * m].reshape(m, 3)[:, :2]
         return float(np.max(np.abs(moves).max(axis=1) / np.maximum(np.abs(circles[:, 1]), 1e-12)))
+
+    def _prior_cost(self, x: np.ndarray, target: np.ndarray | None) -> float:
+        """Half the encoder prior's whitened chi-square at inner point ``x`` (0 unsynced)."""
+        if target is None:
+            return 0.0
+        eps = (x[3 * self.tracks.n_tracks:] - target) / self.encoder.sigma
+        return float(0.5 * eps @ eps)
 
     def _cost(self, sse: np.ndarray) -> float:
         """The robust cost (sum of losses of the tracks' whitened norms)."""
@@ -368,12 +511,16 @@ class RigidLineFactor(CoaxialLineFactor):
         return per_track[self.tracks.track]
 
     def _residual(self, state: _RigidState, scale: np.ndarray) -> np.ndarray:
-        return (state.ev.e * self._per_row(scale)).T.reshape(-1)
+        pixels = (state.ev.e * self._per_row(scale)).T.reshape(-1)
+        if state.prior is None:
+            return pixels
+        return np.concatenate([pixels, state.prior[0] / self.encoder.sigma])
 
     def _projected(self, state: _RigidState) -> np.ndarray:
-        """(3, 2, N) ``P H_R`` (unweighted rows; the projection ``state.X``, made with the state's last inner step,
-        weighted by the IRLS weights of the state's residuals); with an intrinsics variable (8, 2, N): ``P H_K``
-        follows."""
+        """(q, 2, N) ``P H`` of the pixel rows (unweighted rows; the projection ``state.X``, made with the state's
+        last inner step, weighted by the IRLS weights of the state's residuals): the line's 3 columns, then with an
+        intrinsics variable its 5 (``P H_K``), then with a time offset its 1. Synced, ``state._Jf`` (q, F) holds
+        the prior rows' (unwhitened)."""
         if state._J is None:
             tracks, ev = self.tracks, state.ev
             m, q = tracks.n_tracks, state.X.shape[1]
@@ -382,19 +529,40 @@ class RigidLineFactor(CoaxialLineFactor):
             Xt = xt.reshape(m, 3, q)[tracks.track]  # (N, param, column)
             Xf = xf[tracks.frame]  # (N, column)
             JX = np.einsum("asn,nal->lsn", ev.a, Xt) + ev.a[2][None] * Xf.T[:, None, :]
-            H = ev.H_R if q == 3 else np.concatenate([ev.H_R, ev.H_K])
-            state._J = H - JX
+            H = [ev.H_R] + ([ev.H_K] if self.intrinsics_key is not None else [])
+            if self.time_key is not None:  # the pixels do not depend on the time offset
+                H.append(np.zeros((1,) + ev.e.shape))
+            state._J = (H[0] if len(H) == 1 else np.concatenate(H)) - JX
+            if state.prior is not None:  # the prior rows: d theta_f / d inner = 1, d/d delta = -q'
+                Jf = -xf.T.copy()
+                if self.time_key is not None:
+                    Jf[-1] -= state.prior[1]
+                state._Jf = Jf
         return state._J
 
+    def _columns(self, state: _RigidState, scale: np.ndarray, columns: slice) -> np.ndarray:
+        """(2N (+ F synced), c) the factor's Jacobian in the outer ``columns`` (see :meth:`_projected`), rows
+        scaled (the prior rows by the encoder's sigma)."""
+        J = self._projected(state)[columns] * self._per_row(scale)[None, None]
+        J = J.transpose(2, 1, 0).reshape(-1, J.shape[0])
+        if state.prior is None:
+            return J
+        return np.concatenate([J, state._Jf[columns].T / self.encoder.sigma])
+
     def _jacobian(self, state: _RigidState, scale: np.ndarray) -> np.ndarray:
-        """(2N, 3) ``P H_R``, rows scaled."""
-        J = self._projected(state)[:3] * self._per_row(scale)[None, None]
-        return J.transpose(2, 1, 0).reshape(-1, 3)
+        """(2N, 3) ``P H_R`` (synced: (2N + F, 3)), rows scaled."""
+        return self._columns(state, scale, slice(0, 3))
 
     def _jacobian_intrinsics(self, state: _RigidState, scale: np.ndarray) -> np.ndarray:
-        """(2N, 5) ``P H_K`` (``gtsam.Cal3_S2``'s tangent), rows scaled."""
-        J = self._projected(state)[3:] * self._per_row(scale)[None, None]
-        return J.transpose(2, 1, 0).reshape(-1, 5)
+        """(2N, 5) ``P H_K`` (``gtsam.Cal3_S2``'s tangent; synced: (2N + F, 5)), rows scaled."""
+        return self._columns(state, scale, slice(3, 8))
+
+    def _outer_jacobians(self, state: _RigidState, scale: np.ndarray) -> list[np.ndarray]:
+        out = [] if self.intrinsics_key is None else [self._jacobian_intrinsics(state, scale)]
+        if self.time_key is not None:
+            q = 3 + (5 if self.intrinsics_key is not None else 0)
+            out.append(self._columns(state, scale, slice(q, q + 1)))
+        return out
 
     # ------------------------------------------------------------------------------------------------------------
     # inspection
@@ -402,8 +570,25 @@ class RigidLineFactor(CoaxialLineFactor):
     @property
     def inner_dof(self) -> int:
         """Parameters projected out of the factor: ``(d, r, phi0)`` per track, less the held ``phi0`` (one per
-        group of tracks linked by shared frames), and one spin angle per frame."""
-        return 3 * self.tracks.n_tracks - len(self.tracks.components) + self.tracks.n_frames
+        group of tracks linked by shared frames; none when synced), and one spin angle per frame."""
+        return 3 * self.tracks.n_tracks - len(self._held) + self.tracks.n_frames
+
+    def error(self, x=None) -> float:
+        """The factor's error (GTSAM's): the pixels' (half the whitened chi-square, or the robust losses), plus
+        half the encoder prior's whitened chi-square when synced."""
+        state = self._at(x)
+        pixels = super().error(x)
+        return pixels if state.prior is None else pixels + 0.5 * float(np.sum((state.prior[0] / self.encoder.sigma)
+                                                                              ** 2))
+
+    def time_offset(self, x=None) -> float:
+        """The time offset (s) of the state at ``x`` (the factor's fixed one without a time variable)."""
+        return self._at(x).delta
+
+    def encoder_residuals(self, x=None) -> np.ndarray | None:
+        """(F,) the frames' angles less the encoder prior's (rad) at ``x``; None unsynced."""
+        prior = self._at(x).prior
+        return None if prior is None else prior[0].copy()
 
     def _inner(self, x=None) -> np.ndarray:
         return self._at(x).ev.x
@@ -465,7 +650,8 @@ class RigidLineFactor(CoaxialLineFactor):
 
 def make_rigid_line_factor(line_key: int, tracks, K, circles, phi0, theta, *, sigma_px: float = 1.0,
                            robust=None, tol: float = CIRCLE_TOL, max_evaluations: int = 30,
-                           intrinsics_key: int | None = None) -> RigidLineFactor:
+                           intrinsics_key: int | None = None, encoder: EncoderPrior | None = None,
+                           time_key: int | None = None, time_offset: float = 0.0) -> RigidLineFactor:
     """One rigid-spin variable-projection factor for all framed tracks of one measurement, keyed on its line variable.
 
     Args:
@@ -481,6 +667,10 @@ def make_rigid_line_factor(line_key: int, tracks, K, circles, phi0, theta, *, si
             the start of the first solve) and the factor has a second Jacobian, (2N, 5) wrt its tangent
             ``(fx, fy, s, cx, cy)``. The ``tracks``' pixels stay as given (undistorted with the camera's own
             intrinsics).
+        encoder: synced mode: an :class:`EncoderPrior` (one frame time per frame seen) puts the spinning joint's
+            readings as a prior on every frame's angle (the factor then has F more residuals, after the 2N).
+        time_key: with ``encoder``, key of a ``gtsam`` Vector1 variable: the encoder clock's offset from the
+            camera's (s), the factor's last key (Jacobian (2N + F, 1)); without it the offset is ``time_offset``.
 
     Returns:
         :class:`RigidLineFactor`; add ``.factor`` to the graph.
@@ -488,4 +678,5 @@ def make_rigid_line_factor(line_key: int, tracks, K, circles, phi0, theta, *, si
     if not isinstance(tracks, RigidTracks):
         tracks = RigidTracks(tracks)
     return RigidLineFactor(line_key, tracks, K, circles, phi0, theta, sigma_px, robust, tol=tol,
-                           max_evaluations=max_evaluations, intrinsics_key=intrinsics_key)
+                           max_evaluations=max_evaluations, intrinsics_key=intrinsics_key, encoder=encoder,
+                           time_key=time_key, time_offset=time_offset)
