@@ -33,6 +33,7 @@ from .errors import InputError
 from .factors import (
     CoaxialLineFactor,
     CoaxialTracks,
+    EncoderPrior,
     FKAxis,
     RigidLineFactor,
     RigidTracks,
@@ -269,13 +270,20 @@ class RotIdGraph:
             model with the rigid spin and tracks with frame indices (the free phase fits each point's phase
             anywhere on its ellipse and leaves the intrinsics nearly free). The tracks' pixels are undistorted with
             the camera's own intrinsics (distortion is not refined).
+        encoder_sigma_deg: synced mode: a measurement whose :class:`~gtsam_rotid.measurements.SpinReadings` are
+            given has its rigid spin's per-frame angles under a prior from those readings, of this sigma (degrees;
+            None, the default: readings are not used). Needs the ``"projected"`` model with the rigid spin.
+        time_offset_key: synced mode: the encoder clock's offset from the camera's (s) is a ``gtsam`` Vector1
+            variable at this key (insert it with :meth:`add_time_offset_prior` before the measurements), shared by
+            every synced measurement; None: the clocks agree.
     """
 
     def __init__(self, arm: Arm, camera: Camera, *, pose_key: int = gtsam.symbol("T", 0), line_symbol: str = "l",
                  circle_symbol: str = "c", track_sigma_px: float = 1.0, tie_sigma_px: float = 1e-3,
                  min_track_points: int = MIN_TRACK_POINTS, min_track_extent_px: float = MIN_TRACK_EXTENT_PX,
                  robust=None, model: str | Model = Model.LINE, spin_model: str | SpinModel = SpinModel.FREE,
-                 joint_offsets=None, offsets_key: int = gtsam.symbol("o", 0), intrinsics_key: int | None = None):
+                 joint_offsets=None, offsets_key: int = gtsam.symbol("o", 0), intrinsics_key: int | None = None,
+                 encoder_sigma_deg: float | None = None, time_offset_key: int | None = None):
         if line_symbol == circle_symbol:
             raise InputError("line_symbol and circle_symbol must differ")
         try:
@@ -305,6 +313,16 @@ class RotIdGraph:
         if intrinsics_key is not None and (self.model is not Model.PROJECTED or self.spin_model is not SpinModel.RIGID):
             raise InputError("refining the intrinsics needs model='projected' and spin_model='rigid' (got "
                              f"{self.model.value!r}, {self.spin_model.value!r})")
+        if encoder_sigma_deg is not None:
+            if not (np.isfinite(encoder_sigma_deg) and encoder_sigma_deg > 0):
+                raise InputError(f"encoder_sigma_deg must be a positive angle in degrees, got {encoder_sigma_deg!r}")
+            if self.model is not Model.PROJECTED or self.spin_model is not SpinModel.RIGID:
+                raise InputError("synced mode (encoder_sigma_deg) needs model='projected' and spin_model='rigid' "
+                                 f"(got {self.model.value!r}, {self.spin_model.value!r})")
+        if time_offset_key is not None and encoder_sigma_deg is None:
+            raise InputError("a time offset variable needs synced mode: give encoder_sigma_deg too")
+        self.encoder_sigma_deg = None if encoder_sigma_deg is None else float(encoder_sigma_deg)
+        self.time_offset_key = time_offset_key
         self.offset_joints: list[int] = []
         if joint_offsets is not None and joint_offsets is not False:
             if self.model is Model.POSE:
@@ -354,6 +372,21 @@ class RotIdGraph:
         mean = cal3_s2(self.camera.K) if mean is None else mean
         values.insert(self.intrinsics_key, mean if initial is None else initial)
         graph.add(gtsam.PriorFactorCal3_S2(self.intrinsics_key, mean, gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
+
+    def add_time_offset_prior(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, sigma_s: float,
+                              mean_s: float = 0.0, initial_s: float | None = None) -> None:
+        """Insert the time offset variable (s; at ``initial_s``, default the prior's mean) with a Gaussian prior of
+        mean ``mean_s`` and ``sigma_s`` (how far the encoder's stamps may be from the camera's)."""
+        if self.time_offset_key is None:
+            raise InputError("this graph has no time offset variable (RotIdGraph(time_offset_key=...))")
+        if not (np.isfinite(sigma_s) and sigma_s > 0) or not np.isfinite(mean_s):
+            raise InputError(f"the time offset's prior needs a positive sigma and a finite mean (s), got sigma "
+                             f"{sigma_s!r}, mean {mean_s!r}")
+        if values.exists(self.time_offset_key):
+            raise InputError(f"key {gtsam.DefaultKeyFormatter(self.time_offset_key)} already exists in values")
+        values.insert(self.time_offset_key, np.array([mean_s if initial_s is None else float(initial_s)]))
+        graph.add(gtsam.PriorFactorVector(self.time_offset_key, np.array([float(mean_s)]),
+                                          gtsam.noiseModel.Isotropic.Sigma(1, float(sigma_s))))
 
     def axis_of(self, joint_angles, spin_joint: str | None = None):
         """``delta -> (test points (2, 3), their derivatives (2, 3, n))`` of the FK axis of ``spin_joint`` (default
@@ -421,6 +454,8 @@ class RotIdGraph:
             raise InputError("insert the joint offsets first (RotIdGraph.add_offsets_prior)")
         if self.intrinsics_key is not None and not values.exists(self.intrinsics_key):
             raise InputError("insert the intrinsics first (RotIdGraph.add_intrinsics_prior)")
+        if self.time_offset_key is not None and not values.exists(self.time_offset_key):
+            raise InputError("insert the time offset first (RotIdGraph.add_time_offset_prior)")
         if tie and self.offset_joints:
             axis = self.arm.wrist_axis_offset_derivatives(measurement.joint_angles, self.offset_joints,
                                                           values.atVector(self.offsets_key),
@@ -463,7 +498,8 @@ class RotIdGraph:
             raise InputError(f"measurement {k}: only {len(keys.tracks)} usable track(s), need at least 2 "
                              f"(rejected: {keys.rejected})")
         if projected:
-            keys.coaxial = self._coaxial(line_key, prepared, keys.tracks, start_circles, track_sigmas, line_cam)
+            keys.coaxial = self._coaxial(line_key, prepared, keys.tracks, start_circles, track_sigmas, line_cam,
+                                         measurement, direction_cam, values)
             new_factors.append(keys.coaxial.factor)
         elif refine_circles:
             new_values = self._refined_circles(new_factors, new_values, keys, line_key, line_cam, arm_T_camera)
@@ -489,10 +525,13 @@ class RotIdGraph:
         return make_circle_point_factor(noise, line_key, circle_key, track.ideal, self.camera.K)
 
     def _coaxial(self, line_key, prepared: PreparedMeasurement, tracks: list[int], start_circles: list[np.ndarray],
-                 track_sigmas: dict[int, float] | None, line: gtsam.Rot3):
+                 track_sigmas: dict[int, float] | None, line: gtsam.Rot3, measurement: Measurement,
+                 direction_cam: np.ndarray, values: gtsam.Values):
         """The projected model's one factor of a measurement: its tracks' circles (and with the rigid spin, their
         phase offsets and the spin angles) solved inside, at the median of their pixel sigmas. The rigid spin
-        starts from the closest phases of the start circles at the start ``line``."""
+        starts from the closest phases of the start circles at the start ``line``; synced (the measurement's spin
+        readings, ``encoder_sigma_deg``), its angles follow the readings, turning right-handed about the FK axis'
+        direction ``direction_cam`` (camera frame)."""
         sigmas = [self.track_sigma_px if track_sigmas is None else track_sigmas.get(j, self.track_sigma_px)
                   for j in tracks]
         ideal = [prepared.usable[j].ideal for j in tracks]
@@ -512,9 +551,25 @@ class RotIdGraph:
         robust = self.robust
         if callable(robust) and not isinstance(robust, gtsam.noiseModel.mEstimator.Base):
             robust = lambda n, per_residuals=self.robust: per_residuals(2 * n)  # noqa: E731  (2 residuals a point)
+        encoder, time_key, offset = None, None, 0.0
+        readings = measurement.spin_readings
+        if self.encoder_sigma_deg is not None and readings is not None:
+            # the line variable's axis (its second column) keeps its side of the FK axis while LM moves it
+            sign = 1.0 if line.matrix()[:, 1] @ direction_cam >= 0 else -1.0
+            encoder = EncoderPrior(readings.frame_times[rigid.frame_ids], readings.times, readings.angles,
+                                   np.radians(self.encoder_sigma_deg), sign)
+            if self.time_offset_key is not None:
+                time_key, offset = self.time_offset_key, float(values.atVector(self.time_offset_key)[0])
+            if not encoder.covers(offset):
+                k = gtsam.Symbol(line_key).index()
+                raise InputError(f"measurement {k}: the spin readings ({readings.times[0]:.3f}-"
+                                 f"{readings.times[-1]:.3f} s) do not cover the tracks' frames "
+                                 f"({encoder.frame_times[0] + offset:.3f}-{encoder.frame_times[-1] + offset:.3f} s "
+                                 "on the encoder's clock)")
         return make_rigid_line_factor(line_key, rigid, self.camera.K, circles, spin.phi0,
                                       spin.theta[0][rigid.frame_ids - first], sigma_px=float(np.median(sigmas)),
-                                      robust=robust, intrinsics_key=self.intrinsics_key)
+                                      robust=robust, intrinsics_key=self.intrinsics_key, encoder=encoder,
+                                      time_key=time_key, time_offset=offset)
 
     def _refined_circles(self, factors, circles: gtsam.Values, keys: MeasurementKeys, line_key, line_cam,
                          arm_T_camera) -> gtsam.Values:
