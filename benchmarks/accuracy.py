@@ -16,7 +16,13 @@ Printed per method:
 - mean error per axis in units of the RMSE (a bias shows as |mean| >> 1/sqrt(trials));
 - NEES = mean of e^T Sigma^-1 e with the reported Sigma (6 is ideal) and its 95 % interval for this many trials.
 
-Run: ``python benchmarks/accuracy.py [--trials 50] [--jobs 2] [--duration 60] [--noise-var 1.5]``.
+Synced (``--synced``): every spin speeds up from rest over ``--spin-ramp`` s and slows down again, and each
+measurement carries its spinning joint's readings (100 per second, ``--encoder-sigma-deg`` noise, stamped
+``--time-offset`` s ahead of the camera); ``joint`` syncs them (``CalibrationOptions.sync_encoders``) and is compared
+with the synced bound (:func:`crlb_synced`: the same graph, exact readings, the offset estimated under its 0.1 s
+prior), and the estimated offset with its own bound and NEES (target: within a tenth of a frame).
+
+Run: ``python benchmarks/accuracy.py [--trials 50] [--jobs 2] [--duration 60] [--noise-var 1.5] [--synced]``.
 Trials run in separate processes (CustomFactors cannot be pickled: each process builds its own graphs).
 """
 
@@ -30,6 +36,7 @@ import gtsam
 import numpy as np
 from tqdm import tqdm
 
+from gtsam_rotid.dataset import Measurement
 from gtsam_rotid.uncertainty import chi2_mean_interval
 
 METHODS = ("joint", "weighted", "paper")
@@ -83,11 +90,43 @@ def crlb_rigid(dataset, truth, noise_var: float) -> np.ndarray:
     return np.linalg.inv(pose_information(graph, values, builder.pose_key))
 
 
+def crlb_synced(dataset, truth, noise_var: float, config) -> tuple[np.ndarray, float]:
+    """Cramér–Rao bound (6x6) of ``arm_T_camera`` and (1 sigma, s) of the clocks' offset with the rigid spin synced
+    with the spinning joint's readings: :func:`crlb_rigid`'s graph on noise-free pixels with noise-free readings
+    (``config``'s spin, stamped with its offset) under the estimator's prior (``encoder_sigma_deg`` per frame), the
+    offset a variable under ``CalibrationOptions``' default prior (0.1 s)."""
+    from gtsam_rotid.calibration.options import CalibrationOptions
+    from gtsam_rotid.dataset import SpinReadings
+    from gtsam_rotid.graph import RotIdGraph
+    from gtsam_rotid.simulate import spin_profile
+    from gtsam_rotid.uncertainty import marginal_information
+
+    options = CalibrationOptions(encoder_sigma_deg=config.encoder_sigma_deg)
+    key = gtsam.symbol("d", 0)
+    builder = RotIdGraph(dataset.arm, dataset.camera, track_sigma_px=float(np.sqrt(noise_var)), model="projected",
+                         spin_model="rigid", encoder_sigma_deg=options.encoder_sigma_deg, time_offset_key=key)
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(builder.pose_key, truth.arm_T_camera)
+    builder.add_time_offset_prior(graph, values, options.time_offset_sigma_s, options.time_offset_s,
+                                  config.encoder_time_offset)
+    exact = []
+    for measurement, m_truth in zip(dataset, truth.measurements, strict=True):
+        r = measurement.spin_readings
+        start = float(m_truth.joint_angles[dataset.arm.spin_index(measurement.spin_joint)])
+        angles = start + spin_profile(r.times - config.encoder_time_offset, config)
+        exact.append(Measurement(measurement.joint_angles, measurement.tracks, spin_joint=measurement.spin_joint,
+                                 spin_readings=SpinReadings(r.frame_times, r.times, angles)))
+    add_noise_free(builder, graph, values, dataset.camera, exact, truth)
+    pose = np.linalg.inv(marginal_information(graph, values, builder.pose_key, 6))
+    offset = float(np.sqrt(1.0 / marginal_information(graph, values, key, 1)[0, 0]))
+    return pose, offset
+
+
 def add_noise_free(builder, graph, values, camera, measurements, truth) -> None:
     """Each measurement's tracks as noise-free pixels (the true feature points at the tracks' frames, seen from the
     true pose), its circles started at the truth, added to ``builder``'s graph (readings as ``measurements`` have
     them): the estimators' graph at the truth, where its information is the Fisher information."""
-    from gtsam_rotid.dataset import Measurement, Track
+    from gtsam_rotid.dataset import Track
 
     pose = truth.arm_T_camera
     for k, (measurement, m_truth) in enumerate(zip(measurements, truth.measurements, strict=True)):
@@ -100,22 +139,27 @@ def add_noise_free(builder, graph, values, camera, measurements, truth) -> None:
         scale = float(m_truth.axis.distance_to(pose.translation())[0])
         circles = {j: np.array([(t.offset + along) / scale, t.radius / scale]) for j, t in enumerate(m_truth.tracks)}
         builder.add_measurement(graph, values, k, Measurement(measurement.joint_angles, exact,
-                                                              spin_joint=measurement.spin_joint),
+                                                              spin_joint=measurement.spin_joint,
+                                                              spin_readings=measurement.spin_readings),
                                 initial_circles=circles, refine_circles=False)
 
 
 def trial(seed: int, duration: float, noise_var: float, joint_model: str, spin_model: str, methods,
-          joint_angles) -> dict:
+          joint_angles, synced: dict | None = None) -> dict:
     from gtsam_rotid import simulate
     from gtsam_rotid.errors import RotIdError
     from gtsam_rotid.estimate import CalibrationOptions, calibrate
 
     dataset, truth = simulate.reference_scene(seed=seed, noise_var=noise_var, duration=duration,
-                                              joint_angles=joint_angles)
+                                              joint_angles=joint_angles, **(synced or {}))
     out = {"seed": seed, "crlb": crlb(dataset, truth, noise_var), "points": sum(m.n_observations for m in dataset)}
     if spin_model == "rigid" and "joint" in methods:
         out["crlb_rigid"] = crlb_rigid(dataset, truth, noise_var)
-    options = CalibrationOptions(joint_model=joint_model, spin_model=spin_model)
+        if synced:
+            config = simulate.SceneConfig().with_(duration=duration, **synced)
+            out["crlb_synced"], out["offset_bound"] = crlb_synced(dataset, truth, noise_var, config)
+    options = CalibrationOptions(joint_model=joint_model, spin_model=spin_model,
+                                 **({} if not synced else {"encoder_sigma_deg": synced["encoder_sigma_deg"]}))
     for method in methods:
         start = time.perf_counter()
         try:
@@ -128,6 +172,8 @@ def trial(seed: int, duration: float, noise_var: float, joint_model: str, spin_m
             "covariance": result.covariance,
             "usable": result.covariance_usable,
             "seconds": time.perf_counter() - start,
+            "offset": result.time_offset_s,
+            "offset_sigma": result.time_offset_sigma_s,
         }
     return out
 
@@ -147,6 +193,12 @@ def main(argv=None) -> int:
                         help="phase model of the joint method (CalibrationOptions.spin_model) and of the bound")
     parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated subset of " + ",".join(METHODS))
     parser.add_argument("--save", help="also write every trial's errors and covariances to this .npz file")
+    parser.add_argument("--synced", action="store_true", help="ramped spins with the spinning joint's readings; "
+                        "joint syncs them and is compared with the synced bound")
+    parser.add_argument("--spin-ramp", type=float, default=2.0, help="synced: seconds of speeding up and of "
+                        "slowing down at each end of a spin")
+    parser.add_argument("--encoder-sigma-deg", type=float, default=0.02, help="synced: the readings' noise (deg)")
+    parser.add_argument("--time-offset", type=float, default=0.037, help="synced: the encoder clock's offset (s)")
     args = parser.parse_args(argv)
     methods = [m for m in args.methods.split(",") if m]
     unknown = set(methods) - set(METHODS)
@@ -160,10 +212,16 @@ def main(argv=None) -> int:
 
         _, scene = simulate.reference_scene(seed=args.scene_seed, duration=1.0)
         joint_angles = tuple(tuple(m.joint_angles.tolist()) for m in scene.measurements)
+    synced = None
+    if args.synced:
+        if args.spin_model != "rigid":
+            parser.error("--synced needs --spin-model rigid")
+        synced = {"spin_ramp": args.spin_ramp, "encoder_rate": 100.0, "encoder_sigma_deg": args.encoder_sigma_deg,
+                  "encoder_time_offset": args.time_offset}
     start = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         futures = [pool.submit(trial, s, args.duration, args.noise_var, args.joint_model,
-                               args.spin_model, methods, joint_angles) for s in seeds]
+                               args.spin_model, methods, joint_angles, synced) for s in seeds]
         results = [f.result() for f in tqdm(futures, desc="trials", unit="trial")]
     wall = time.perf_counter() - start
     if args.save:
@@ -180,14 +238,22 @@ def main(argv=None) -> int:
     rigid = "crlb_rigid" in results[0]
     if rigid:
         rigid_sigma = np.sqrt(np.diag(np.mean([r["crlb_rigid"] for r in results], axis=0))) * UNITS
+    synced_bound = "crlb_synced" in results[0]
+    if synced_bound:
+        synced_sigma = np.sqrt(np.diag(np.mean([r["crlb_synced"] for r in results], axis=0))) * UNITS
     poses = f"arm poses of seed {args.scene_seed}" if joint_angles else "new arm poses every trial"
-    print(f"\nreference scene ({poses}), {args.trials} trials, {args.duration:g} s spins, "
+    spins = "" if not synced else (f", synced: {args.spin_ramp:g} s ramps, readings at 100/s with "
+                                   f"{args.encoder_sigma_deg:g} deg noise, {1000 * args.time_offset:g} ms late")
+    print(f"\nreference scene ({poses}), {args.trials} trials, {args.duration:g} s spins{spins}, "
           f"sigma^2 = {args.noise_var} px^2, ~{int(np.mean([r['points'] for r in results]))} points per trial "
           f"({wall:.0f} s wall, {args.jobs} jobs)")
     print(f"{'':24}" + "".join(f"{a:>10}" for a in AXES))
     print(f"{'CRLB (1 sigma)':24}" + "".join(f"{v:10.4f}" for v in bound_sigma) + "   free phase")
     if rigid:
-        print(f"{'CRLB (1 sigma)':24}" + "".join(f"{v:10.4f}" for v in rigid_sigma) + "   rigid spin (joint)")
+        print(f"{'CRLB (1 sigma)':24}" + "".join(f"{v:10.4f}" for v in rigid_sigma) + "   rigid spin"
+              + ("" if synced_bound else " (joint)"))
+    if synced_bound:
+        print(f"{'CRLB (1 sigma)':24}" + "".join(f"{v:10.4f}" for v in synced_sigma) + "   synced (joint)")
     low, high = chi2_mean_interval(6, args.trials)
     for method in methods:
         ok = [r[method] for r in results if "error" in r[method]]
@@ -203,17 +269,37 @@ def main(argv=None) -> int:
         seconds = np.median([o["seconds"] for o in ok])
         print(f"\n{method} ({len(ok)} trials{f', {failed} FAILED' if failed else ''}, median {seconds:.1f} s)")
         print(f"{'  RMSE':24}" + "".join(f"{v:10.4f}" for v in rmse))
-        key = "crlb_rigid" if rigid and method == "joint" else "crlb"
-        reference = rigid_sigma if key == "crlb_rigid" else bound_sigma
+        key = "crlb" if not (rigid and method == "joint") else "crlb_synced" if synced_bound else "crlb_rigid"
+        reference = {"crlb": bound_sigma, "crlb_rigid": rigid_sigma if rigid else None,
+                     "crlb_synced": synced_sigma if synced_bound else None}[key]
         print(f"{'  RMSE / bound':24}" + "".join(f"{v:10.3f}" for v in rmse / reference)
-              + ("   (rigid spin's)" if key == "crlb_rigid" else ""))
+              + {"crlb": "", "crlb_rigid": "   (rigid spin's)", "crlb_synced": "   (synced)"}[key])
         own = np.array([np.sqrt(np.diag(r[key])) for r in results if "error" in r[method]])
         per_trial = np.sqrt(np.mean((errors / own) ** 2, axis=0))
         print(f"{'  RMS(error / own bound)':24}" + "".join(f"{v:10.3f}" for v in per_trial))
         print(f"{'  mean error / RMSE':24}" + "".join(f"{v:10.2f}" for v in mean / rmse))
         verdict = "inside" if low <= nees <= high else "OUTSIDE"
         print(f"  NEES {nees:.2f} (ideal 6; 95 % interval for {len(usable)} trials [{low:.2f}, {high:.2f}]: {verdict})")
+        timed = [(o["offset"], o["offset_sigma"]) for o in ok if o.get("offset_sigma") is not None]
+        if synced_bound and method == "joint" and timed:
+            offsets, sigmas = np.array(timed).T
+            off_rmse = float(np.sqrt(np.mean((offsets - args.time_offset) ** 2)))
+            bound_offset = float(np.sqrt(np.mean([r["offset_bound"] ** 2 for r in results])))
+            off_nees = float(np.mean(((offsets - args.time_offset) / sigmas) ** 2))
+            lo1, hi1 = chi2_mean_interval(1, len(timed))
+            frame = 1.0 / simulate_fps()
+            print(f"  time offset: RMSE {1000 * off_rmse:.2f} ms ({off_rmse / frame:.3f} frame; bound "
+                  f"{1000 * bound_offset:.2f} ms, ratio {off_rmse / bound_offset:.2f}), mean error "
+                  f"{1000 * (np.mean(offsets) - args.time_offset):+.2f} ms, reported 1 sigma median "
+                  f"{1000 * np.median(sigmas):.2f} ms, NEES {off_nees:.2f} (95 % interval [{lo1:.2f}, {hi1:.2f}]: "
+                  f"{'inside' if lo1 <= off_nees <= hi1 else 'OUTSIDE'})")
     return 0
+
+
+def simulate_fps() -> float:
+    from gtsam_rotid.simulate import SceneConfig
+
+    return SceneConfig().fps
 
 
 if __name__ == "__main__":

@@ -275,7 +275,8 @@ class RotIdGraph:
             None, the default: readings are not used). Needs the ``"projected"`` model with the rigid spin.
         time_offset_key: synced mode: the encoder clock's offset from the camera's (s) is a ``gtsam`` Vector1
             variable at this key (insert it with :meth:`add_time_offset_prior` before the measurements), shared by
-            every synced measurement; None: the clocks agree.
+            every synced measurement; None: the offset is ``time_offset_s`` (known).
+        time_offset_s: synced, without ``time_offset_key``: the encoder clock's known offset from the camera's (s).
     """
 
     def __init__(self, arm: Arm, camera: Camera, *, pose_key: int = gtsam.symbol("T", 0), line_symbol: str = "l",
@@ -283,7 +284,8 @@ class RotIdGraph:
                  min_track_points: int = MIN_TRACK_POINTS, min_track_extent_px: float = MIN_TRACK_EXTENT_PX,
                  robust=None, model: str | Model = Model.LINE, spin_model: str | SpinModel = SpinModel.FREE,
                  joint_offsets=None, offsets_key: int = gtsam.symbol("o", 0), intrinsics_key: int | None = None,
-                 encoder_sigma_deg: float | None = None, time_offset_key: int | None = None):
+                 encoder_sigma_deg: float | None = None, time_offset_key: int | None = None,
+                 time_offset_s: float = 0.0):
         if line_symbol == circle_symbol:
             raise InputError("line_symbol and circle_symbol must differ")
         try:
@@ -323,6 +325,9 @@ class RotIdGraph:
             raise InputError("a time offset variable needs synced mode: give encoder_sigma_deg too")
         self.encoder_sigma_deg = None if encoder_sigma_deg is None else float(encoder_sigma_deg)
         self.time_offset_key = time_offset_key
+        if not np.isfinite(time_offset_s):
+            raise InputError(f"time_offset_s must be finite seconds, got {time_offset_s!r}")
+        self.time_offset_s = float(time_offset_s)
         self.offset_joints: list[int] = []
         if joint_offsets is not None and joint_offsets is not False:
             if self.model is Model.POSE:
@@ -551,7 +556,7 @@ class RotIdGraph:
         robust = self.robust
         if callable(robust) and not isinstance(robust, gtsam.noiseModel.mEstimator.Base):
             robust = lambda n, per_residuals=self.robust: per_residuals(2 * n)  # noqa: E731  (2 residuals a point)
-        encoder, time_key, offset = None, None, 0.0
+        encoder, time_key, offset = None, None, self.time_offset_s
         readings = measurement.spin_readings
         if self.encoder_sigma_deg is not None and readings is not None:
             # the line variable's axis (its second column) keeps its side of the FK axis while LM moves it

@@ -54,6 +54,7 @@ from .words import (
     observability_words,
     outlier_words,
     refined_intrinsics_words,
+    synced_words,
     tracking_words,
     untrusted_words,
     verdict,
@@ -147,6 +148,11 @@ class CalibrationReport:
     intrinsics_sigma: dict = field(default_factory=dict)
     given_intrinsics: dict = field(default_factory=dict)
     intrinsics_prior: tuple | None = None
+    #: synced mode: the measurements whose spin readings were used, the encoder clock's offset (s) and its 1σ
+    synced: tuple = ()
+    time_offset_s: float | None = None
+    time_offset_sigma_s: float | None = None
+    time_offset_prior_sigma_s: float | None = None
     #: intrinsics as given: what the tracks' shapes say of them (``result.intrinsics_shapes``); None: not checked
     intrinsics_shapes: dict | None = None
     #: why a determined calibration's covariance is still not trusted (``result.untrusted``'s kinds)
@@ -214,6 +220,8 @@ class CalibrationReport:
                 *refined_intrinsics_words(self.intrinsics, self.intrinsics_sigma, self.given_intrinsics,
                                           self.intrinsics_prior),
                 *filter(None, [intrinsics_assumed_words(self.intrinsics_shapes)]),
+                *synced_words(self.synced, self.time_offset_s, self.time_offset_sigma_s, len(self.measurements),
+                              self.time_offset_prior_sigma_s),
                 tracking_words(self.axis_floor_px)]
 
     def _uncertainty_lines(self) -> list[str]:
@@ -349,6 +357,11 @@ class CalibrationReport:
             "given_intrinsics": {k: f(v) for k, v in self.given_intrinsics.items()},
             "intrinsics_prior": None if self.intrinsics_prior is None else [f(v) for v in self.intrinsics_prior],
             "intrinsics_shapes": self.intrinsics_shapes,
+            "synced": list(self.synced),
+            "time_offset_s": None if self.time_offset_s is None else f(self.time_offset_s),
+            "time_offset_sigma_s": None if self.time_offset_sigma_s is None else f(self.time_offset_sigma_s),
+            "time_offset_prior_sigma_s": None if self.time_offset_prior_sigma_s is None
+            else f(self.time_offset_prior_sigma_s),
             "untrusted": list(self.untrusted),
             "axis_consistency": None if self.axis_consistency is None
             else {k: (f(v) if isinstance(v, float) else v) for k, v in self.axis_consistency.to_dict().items()},
@@ -577,6 +590,10 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         given_intrinsics=dict(getattr(result, "given_intrinsics", {})),
         intrinsics_prior=getattr(result, "intrinsics_prior_sigma", None),
         intrinsics_shapes=getattr(result, "intrinsics_shapes", None),
+        synced=tuple(getattr(result, "synced", ())),
+        time_offset_s=getattr(result, "time_offset_s", None),
+        time_offset_sigma_s=getattr(result, "time_offset_sigma_s", None),
+        time_offset_prior_sigma_s=getattr(result, "time_offset_prior_sigma_s", None),
     )
 
 

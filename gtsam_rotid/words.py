@@ -81,6 +81,8 @@ def summary(result: CalibrationResult) -> str:
     assumed = intrinsics_assumed_words(result.intrinsics_shapes)
     if assumed is not None:
         lines.append("  " + assumed)
+    lines.extend("  " + line for line in synced_words(result.synced, result.time_offset_s, result.time_offset_sigma_s,
+                                                      len(result.measurements), result.time_offset_prior_sigma_s))
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
         why = outlier_words(m, intrinsics_suspected(result.untrusted), kinematics_suspected(result.untrusted))
@@ -457,6 +459,26 @@ def refined_intrinsics_words(intrinsics: dict[str, float], sigma: dict[str, floa
     lines.append("  refining intrinsics costs precision along the camera's depth (a focal length and the distance "
                  "trade off): add arm poses at other distances from the camera to win it back")
     return lines
+
+
+def synced_words(synced, offset_s: float | None, sigma_s: float | None, n_measurements: int,
+                 prior_sigma_s: float | None = None) -> list[str]:
+    """What synced mode did (``result.synced``, ``time_offset_s``, ``time_offset_sigma_s``, and the offset's prior
+    1 sigma); [] when no spin's readings were used."""
+    if not synced:
+        return []
+    which = "every spin" if len(synced) == n_measurements else "measurements " + ", ".join(str(k) for k in synced)
+    head = f"encoders: the spinning joint's readings set the spin's angle in every frame of {which} (synced)"
+    if offset_s is None:
+        return [head]
+    if sigma_s is None:
+        return [head + f"; the encoder's clock taken as {1000.0 * offset_s:+.1f} ms from the camera's (held)"]
+    line = (head + f"; the encoder's clock runs {1000.0 * offset_s:+.2f} ms +- {1000.0 * sigma_s:.2f} ms (1 sigma) "
+            "from the camera's")
+    if prior_sigma_s is not None and sigma_s > 0.5 * prior_sigma_s:
+        line += (f" (mostly its prior's {1000.0 * prior_sigma_s:g} ms: the spins' speed hardly changes, so the "
+                 "readings cannot date the frames; start and stop the spin within the video to measure it)")
+    return [line]
 
 
 def tracking_words(axis_floor_px: float) -> str:

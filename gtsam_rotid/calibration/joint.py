@@ -57,6 +57,7 @@ from .tuning import (
     RESTART_SAME_M,
     SAME_ANGLE_DEG,
     SHAPES_Z,
+    TIME_KEY,
     WATCH_POSE,
 )
 
@@ -201,9 +202,10 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     pose, iterations, used, chi2, stage1 = fit.pose, fit.iterations, fit.used, fit.chi2, fit.stage1
     offsets = setup.offsets
     intrinsics = _IntrinsicsPrior.of(camera, setup, options)
+    sync = _Sync.of(measurements, used, options)
     builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model,
                        spin_model=options.spin_model, joint_offsets=None if offsets is None else offsets.names(arm),
-                       intrinsics_key=None if intrinsics is None else INTRINSICS_KEY)
+                       intrinsics_key=None if intrinsics is None else INTRINSICS_KEY, **_sync_kwargs(sync))
     rest = None if offsets is None else np.zeros(len(offsets.joints))  # the offsets beyond offsets.start (rad)
     sigmas = {k: float(np.sqrt(stage1[k].sigma2)) for k in used}
     circles = {k: None if builder.model is Model.POSE else dict(stage1[k].circles) for k in used}
@@ -211,7 +213,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     converged = True
     for _round in range(3):
         graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas, circles,
-                                           lines, rest=rest, intrinsics=intrinsics)
+                                           lines, rest=rest, intrinsics=intrinsics, sync=sync)
         # A rigid spin whose inner solve does not converge about its start line is started again about the FK axis
         # seen from the pose where that fits it better. Stage 1's free phases can fit thin ellipses (minor semi-axes
         # of 2-4 px at 1.2 px noise) about a line whose tilt is far off (14 degrees on a Panda pose), where no rigid
@@ -222,13 +224,14 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                  and not np.all(keys[k].coaxial.converged(values))]
         if unfit:
             _, fk_values, fk_keys = _joint_graph(builder, camera, measurements, setup, stage1, unfit, pose, sigmas,
-                                                 circles, lines, fk_start=unfit, rest=rest, intrinsics=intrinsics)
+                                                 circles, lines, fk_start=unfit, rest=rest, intrinsics=intrinsics,
+                                                 sync=sync)
             better = [k for k in unfit if fk_keys[k].coaxial.error(fk_values) < keys[k].coaxial.error(values)]
             for k in better:
                 lines[k] = circles[k] = None
             if better:
                 graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas,
-                                                   circles, lines, rest=rest, intrinsics=intrinsics)
+                                                   circles, lines, rest=rest, intrinsics=intrinsics, sync=sync)
         start_pose = pose
         result, it, error, converged = _lm(
             graph, values, options.max_iterations, anchor=True, watch_tolerance=WATCH_POSE,
@@ -239,6 +242,8 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
             rest = np.asarray(result.atVector(builder.offsets_key), dtype=float)
         if intrinsics is not None:
             intrinsics = intrinsics._replace(now=result.atCal3_S2(INTRINSICS_KEY))
+        if sync is not None and sync.sigma is not None:
+            sync = sync._replace(now=float(result.atVector(TIME_KEY)[0]))
         new_sigmas = {k: float(np.sqrt(_joint_variance(graph, keys[k], result, options))) for k in used}
         failed = [setup.index[k] if setup.index else k for k in used if not np.isfinite(new_sigmas[k])]
         if failed:
@@ -280,7 +285,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     shapes = None
     if intrinsics is None and covariance is not None:
         shapes = _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result, keys, sigmas, circles,
-                                    lines, correlated, options, rest)
+                                    lines, correlated, options, rest, sync)
     solved = _Solved(pose, covariance, info, Method.JOINT, converged, iterations, error)
     projected = sum(keys[k].coaxial.inner_dof for k in used if keys[k].coaxial is not None)
     offsets_covariance, cross, determined = None, None, 0
@@ -306,6 +311,10 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         out = replace(out, refined_intrinsics=options.refine_intrinsics, camera=camera,
                       intrinsics_covariance=intrinsics_covariance, intrinsics_prior_sigma=options.intrinsics_sigma,
                       given_intrinsics={n: given[n] for n in options.refine_intrinsics})
+    if sync is not None:
+        out = replace(out, synced=sync.measurements, time_offset_s=sync.now,
+                      time_offset_sigma_s=_time_offset_sigma(graph, result, sync, correlated, out),
+                      time_offset_prior_sigma_s=sync.sigma)
     if offsets is not None:
         c = out.axis_consistency
         if offsets_covariance is not None and c is not None and not c.consistent:
@@ -323,8 +332,25 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     return replace(out, alternatives=_outside(fit.alternatives, out))
 
 
+def _time_offset_sigma(graph, result: gtsam.Values, sync: _Sync, correlated: dict,
+                       out: CalibrationResult) -> float | None:
+    """The estimated time offset's 1 sigma (s): its cluster-robust marginal (as the pose's), scaled as the pose's
+    where the axes' scatter scaled it; None where held or indeterminate."""
+    if sync.sigma is None:
+        return None
+    try:
+        variance = sandwich_marginal(graph, result, TIME_KEY, 1, correlated) if correlated else None
+        if variance is None:
+            variance = gtsam.Marginals(graph, result).marginalCovariance(TIME_KEY)
+    except RuntimeError:
+        return None
+    c = out.axis_consistency
+    scale = max(c.scale, 1.0) if c is not None and not c.consistent else 1.0
+    return float(np.sqrt(float(np.asarray(variance).reshape(-1)[0]) * scale))
+
+
 def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: gtsam.Values, keys, sigmas, circles,
-                       lines, correlated, options, rest) -> dict | None:
+                       lines, correlated, options, rest, sync: _Sync | None = None) -> dict | None:
     """What the tracks' shapes say of the camera as given, at the joint estimate ``result`` (fixed intrinsics): the
     same graph with the intrinsics free under their prior (``options.intrinsics_sigma`` about the camera's),
     linearised at the estimate (its ``circles`` and ``lines`` there). Its Gauss-Newton step's intrinsics
@@ -341,12 +367,13 @@ def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: g
     prior = _IntrinsicsPrior.of(camera, setup, free)
     offsets = setup.offsets
     builder = _builder(arm, camera, free, robust=track_huber, model=free.joint_model, spin_model=free.spin_model,
-                       joint_offsets=None if offsets is None else offsets.names(arm), intrinsics_key=INTRINSICS_KEY)
+                       joint_offsets=None if offsets is None else offsets.names(arm), intrinsics_key=INTRINSICS_KEY,
+                       **_sync_kwargs(sync))
     pose = result.atPose3(POSE_KEY)
     extra = _with_floor(correlated, camera, setup, keys, used, result)
     try:
         graph, values, _ = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas, circles,
-                                        lines, rest=rest, intrinsics=prior)
+                                        lines, rest=rest, intrinsics=prior, sync=sync)
         step = np.asarray(graph.linearize(values).optimize().at(INTRINSICS_KEY))
         covariance = sandwich_marginal(graph, values, INTRINSICS_KEY, 5, extra)
         both = joint_marginal_covariance(graph, values, [POSE_KEY, INTRINSICS_KEY], 11)
@@ -470,6 +497,37 @@ class _IntrinsicsPrior(NamedTuple):
                    [CAL3_S2_ORDER.index(n) for n in INTRINSICS if n in names], cal3_s2(camera.K), given)
 
 
+class _Sync(NamedTuple):
+    """Synced mode (``CalibrationOptions.sync_encoders``): the measurements with spin readings among those fitted,
+    the readings' sigma, and the encoder clock's offset: its prior (mean, sigma; sigma None: held at the mean) and
+    its current value (s)."""
+
+    measurements: tuple
+    encoder_sigma_deg: float
+    mean: float
+    sigma: float | None
+    now: float
+
+    @classmethod
+    def of(cls, measurements, used, options) -> _Sync | None:
+        """None unless some measurement of ``used`` has spin readings, the options sync them and the joint fit has
+        the rigid spin on the projected model."""
+        synced = tuple(k for k in used if measurements[k].spin_readings is not None)
+        if (not synced or not options.sync_encoders or options.spin_model != "rigid"
+                or options.joint_model is not Model.PROJECTED):
+            return None
+        return cls(synced, options.encoder_sigma_deg, options.time_offset_s, options.time_offset_sigma_s,
+                   options.time_offset_s)
+
+    def builder_kwargs(self) -> dict:
+        return {"encoder_sigma_deg": self.encoder_sigma_deg, "time_offset_s": self.now,
+                "time_offset_key": None if self.sigma is None else TIME_KEY}
+
+
+def _sync_kwargs(sync: _Sync | None) -> dict:
+    return {} if sync is None else sync.builder_kwargs()
+
+
 #: Cal3_S2's tangent order
 CAL3_S2_ORDER = ("fx", "fy", "s", "cx", "cy")
 
@@ -484,12 +542,13 @@ def intrinsics_prior_sigmas(K: np.ndarray, names, sigma: tuple[float, float]) ->
 
 
 def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas, circles, lines, fk_start=(),
-                 rest=None, intrinsics: _IntrinsicsPrior | None = None):
+                 rest=None, intrinsics: _IntrinsicsPrior | None = None, sync: _Sync | None = None):
     """The joint graph of measurements ``ks`` at ``pose`` (each at its pixel sigma): those in ``fk_start`` started
     about the FK axis seen from it (their circles from their tracks' rays), the others from ``lines`` and ``circles``
     (stage 1's or the last round's). With ``setup.offsets``, the offsets beyond those the readings were shifted by
     are a variable starting at ``rest`` (rad) under the prior of the total offsets; with ``intrinsics`` the camera's
-    intrinsics are a variable too (at ``intrinsics.now``). Returns (graph, values, keys by measurement)."""
+    intrinsics are a variable too (at ``intrinsics.now``); synced (``sync``, its offset estimated), the encoder clock's
+    offset too (at ``sync.now``, under its prior). Returns (graph, values, keys by measurement)."""
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(POSE_KEY, pose)
     if setup.offsets is not None:
@@ -497,6 +556,8 @@ def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas,
             setup.offsets.start), initial_deg=np.degrees(rest))
     if intrinsics is not None:
         builder.add_intrinsics_prior(graph, values, intrinsics.sigmas, intrinsics.mean, intrinsics.now)
+    if builder.time_offset_key is not None:
+        builder.add_time_offset_prior(graph, values, sync.sigma, sync.mean, sync.now)
     keys = {k: builder.add_measurement(graph, values, k, measurements[k], track_sigmas=dict.fromkeys(
                 setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
                 prepared=setup.prepared[k], initial_circles=None if k in fk_start else circles[k],
@@ -509,11 +570,11 @@ def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas,
 def _joint_variance(graph, keys, values, options) -> float:
     """A measurement's pixel noise variance (px^2 per image coordinate) from its residuals in the joint graph: the
     free phase's point-to-circle distances, or the rigid spin's 2-D errors (their degrees of freedom: two per
-    pixel less each track's circle and phase offset, each frame's angle, and one gauge per group of tracks linked
-    by shared frames)."""
+    pixel less each track's circle and phase offset, each frame's angle (synced: by the pixels' share of it), and
+    one gauge per group of tracks linked by shared frames)."""
     factor = keys.coaxial
     if isinstance(factor, RigidLineFactor):
-        dof = 2 * factor.tracks.n_points - factor.inner_dof - 1
+        dof = factor.pixel_dof(values) - 1
         return max(float(factor.track_sse(values).sum()) / max(dof, 1), options.min_sigma_px**2)
     return _noise_variance(_track_stats(graph, keys, values), 1, options)
 

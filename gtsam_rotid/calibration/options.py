@@ -122,6 +122,18 @@ class CalibrationOptions:
     #: the intrinsics' Gaussian prior, 1 sigma: (focal length as a fraction of it, principal point in px): how far
     #: the camera file may be off
     intrinsics_sigma: tuple = DEFAULT_INTRINSICS_SIGMA
+    #: joint, rigid spin: measurements that carry their spinning joint's readings (``Measurement.spin_readings``)
+    #: have every frame's angle under those readings' prior (synced mode), with the encoder clock's offset from the
+    #: camera's estimated (``time_offset_s``, ``time_offset_sigma_s``). False: the readings are not used.
+    sync_encoders: bool = True
+    #: synced: each frame's angle's 1 sigma from the readings (deg): the encoder's noise and its stamps' jitter
+    #: times the spin's speed
+    encoder_sigma_deg: float = 0.05
+    #: synced: the encoder clock's offset from the camera's (s), the mean of its Gaussian prior of 1 sigma
+    #: ``time_offset_sigma_s`` (None: known, held at ``time_offset_s``). A spin at constant speed cannot tell the
+    #: offset from the features' phases: the prior then holds it (a spin that speeds up and slows down dates it).
+    time_offset_s: float = 0.0
+    time_offset_sigma_s: float | None = 0.1
 
     def __post_init__(self):
         # a misspelt choice ("rigd") must not silently run the default
@@ -180,6 +192,17 @@ class CalibrationOptions:
             raise InputError("CalibrationOptions.intrinsics_sigma must be (focal fraction, principal point px), both "
                              f"positive, got {self.intrinsics_sigma!r}")
         self.intrinsics_sigma = (float(sigma[0]), float(sigma[1]))
+        if not isinstance(self.sync_encoders, bool | np.bool_):
+            raise InputError(f"CalibrationOptions.sync_encoders must be True or False, got {self.sync_encoders!r}")
+        for name, low in (("encoder_sigma_deg", 0.0), ("time_offset_s", -np.inf), ("time_offset_sigma_s", 0.0)):
+            value = getattr(self, name)
+            if name == "time_offset_sigma_s" and value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float | np.number) or not np.isfinite(value) \
+                    or value <= low:
+                what = "a finite number of seconds" if name == "time_offset_s" else "a positive number" + (
+                    " of degrees" if name == "encoder_sigma_deg" else " of seconds or None")
+                raise InputError(f"CalibrationOptions.{name} must be {what}, got {value!r}")
         if self.refine_intrinsics and self.spin_model is not SpinModel.RIGID:
             raise InputError("CalibrationOptions.refine_intrinsics needs spin_model='rigid'")
         if self.refine_intrinsics and self.joint_model is not Model.PROJECTED:

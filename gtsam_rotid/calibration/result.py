@@ -243,6 +243,16 @@ class CalibrationResult:
     #: estimate with them free, ``change`` and ``sigma`` per name in px, its Wald ``chi2`` for ``dof``, ``p_value``);
     #: None: not checked
     intrinsics_shapes: dict | None = None
+    #: joint, synced (``CalibrationOptions.sync_encoders``): the measurements whose spin readings put a prior on
+    #: their rigid spin's angles; () : none
+    synced: tuple = ()
+    #: the encoder clock's offset from the camera's (s: a frame at camera time t was read at encoder time t +
+    #: offset), estimated (or held, ``time_offset_sigma_s`` None) in the synced fit; None: not synced
+    time_offset_s: float | None = None
+    #: its 1 sigma (s; scaled with the pose's when the axes' scatter scaled it); None: held or not synced
+    time_offset_sigma_s: float | None = None
+    #: its prior's 1 sigma (s, ``CalibrationOptions.time_offset_sigma_s``); None: held or not synced
+    time_offset_prior_sigma_s: float | None = None
 
     @property
     def intrinsics(self) -> dict[str, float]:
@@ -341,6 +351,10 @@ class CalibrationResult:
             else list(self.intrinsics_prior_sigma),
             "given_intrinsics": self.given_intrinsics,
             "intrinsics_shapes": self.intrinsics_shapes,
+            "synced": list(self.synced),
+            "time_offset_s": self.time_offset_s,
+            "time_offset_sigma_s": self.time_offset_sigma_s,
+            "time_offset_prior_sigma_s": self.time_offset_prior_sigma_s,
         }
 
     @classmethod
@@ -384,6 +398,12 @@ class CalibrationResult:
             else tuple(float(x) for x in data["intrinsics_prior_sigma"]),
             given_intrinsics={str(k): float(v) for k, v in (data.get("given_intrinsics") or {}).items()},
             intrinsics_shapes=data.get("intrinsics_shapes"),
+            synced=tuple(int(k) for k in data.get("synced") or ()),
+            time_offset_s=None if data.get("time_offset_s") is None else float(data["time_offset_s"]),
+            time_offset_sigma_s=None if data.get("time_offset_sigma_s") is None
+            else float(data["time_offset_sigma_s"]),
+            time_offset_prior_sigma_s=None if data.get("time_offset_prior_sigma_s") is None
+            else float(data["time_offset_prior_sigma_s"]),
         )
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:

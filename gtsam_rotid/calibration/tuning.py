@@ -11,6 +11,8 @@ import gtsam
 POSE_KEY = gtsam.symbol("T", 0)
 #: The refined intrinsics' ``gtsam.Cal3_S2`` (CalibrationOptions.refine_intrinsics).
 INTRINSICS_KEY = gtsam.symbol("k", 0)
+#: The encoder clock's offset from the camera's (s) in a synced joint graph (CalibrationOptions.sync_encoders).
+TIME_KEY = gtsam.symbol("d", 0)
 #: Passes of a calibration with refined intrinsics: the first only refines the camera (one joint fit), each after it
 #: calibrates from the camera the last refined (its stage 1, starts and outlier tests see it: from a camera 3 % off, a
 #: good measurement was left out as wrong, and the restarts took 19 s) ...
