@@ -18,7 +18,8 @@ from .arm import Arm
 from .bags import Bag, BagError, estimate_time_offset, is_rectified
 from .camera import Camera
 from .camerafiles import load_camera
-from .dataset import Dataset, Measurement
+from .dataset import Dataset, Measurement, SpinReadings
+from .errors import ValidationError
 from .recordings import MIN_SPIN_DEG, STILL_TOLERANCE_DEG, JointFile, _spin_runs, _still_pose
 from .trackrun import default_tracker, tracked_frames, tracker_description
 
@@ -28,6 +29,9 @@ from .trackrun import default_tracker, tracked_frames, tracker_description
 MIN_OFFSET_CORRELATION = 0.8
 #: Images this close (s) to a spin's first or last joint state are left out (the stamps' own jitter).
 SPIN_MARGIN_S = 0.1
+#: A spin's readings (Measurement.spin_readings, synced mode) reach this far (s) beyond its first and last joint
+#: state: the joint at rest there, so that the estimated clocks' offset can move the frames within them.
+READINGS_MARGIN_S = 1.0
 
 
 def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | None = None,
@@ -54,9 +58,11 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
     (:func:`gtsam_rotid.bags.estimate_time_offset`); it is applied, and recorded with its score in
     ``metadata["recording"]``, when its score is at least MIN_OFFSET_CORRELATION, no other offset scores nearly as
     well and it is not at the edge of the search (else it is recorded, not applied, and a warning printed). Track
-    frame indices are the images' positions on the topic. Images of ``image_rect*`` topics get CameraInfo's
-    projection matrix without distortion. Raises :class:`BagError` naming the bag and topic: no spin, a spin
-    without images, images of another size.
+    frame indices are the images' positions on the topic. Each measurement carries the spinning joint's states
+    around its spin as its spin readings (synced mode, ``CalibrationOptions.sync_encoders``), its frames' times the
+    images' stamps less the offset applied (the calibration then estimates what remains). Images of
+    ``image_rect*`` topics get CameraInfo's projection matrix without distortion. Raises :class:`BagError` naming
+    the bag and topic: no spin, a spin without images, images of another size.
     """
     with Bag(path) as bag:
         topics = bag.choose_topics(image_topic, joint_topic, camera_info_topic, with_camera_info=camera is None)
@@ -114,7 +120,8 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
                 frames = (image for _, _, image in bag.images(topics.image, first, last))
                 tracks = tracked_frames(frames, last - first + 1, first, Path(where), camera, tracker,
                                         tracker_params, k, label, progress)
-                measurements.append(Measurement(angles, tracks, name=f"spin {k}"))
+                readings = _spin_readings(image_stamps - shift, stamps, unwrapped[:, arm.wrist_index], a, b, label)
+                measurements.append(Measurement(angles, tracks, name=f"spin {k}", spin_readings=readings))
                 spans.append([float(stamps[a]), float(stamps[b - 1])])
                 bar.update(1)
     recording = {
@@ -134,6 +141,19 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
         from .trackparams import tracker_metadata
         extra["tracker"] = tracker_metadata(tracker_params, sum(corner_tracks))
     return Dataset(arm, camera, measurements, metadata={**extra, **dict(metadata or {})})
+
+
+def _spin_readings(frame_times: np.ndarray, stamps: np.ndarray, wrist: np.ndarray, a: int, b: int,
+                   label: str) -> SpinReadings | None:
+    """The spin's joint states ``a:b`` (with READINGS_MARGIN_S of rest on each side) as its readings, the images'
+    stamps moved onto the joint states' clock as its frame times; None (with a warning) where the stamps are not
+    in order (the readings then are not used)."""
+    window = (stamps >= stamps[a] - READINGS_MARGIN_S) & (stamps <= stamps[b - 1] + READINGS_MARGIN_S)
+    try:
+        return SpinReadings(frame_times, stamps[window], wrist[window])
+    except ValidationError as error:
+        print(f"warning: {label}: its joint readings are not attached (no synced mode): {error}", file=sys.stderr)
+        return None
 
 
 def _period(stamps: np.ndarray) -> float:

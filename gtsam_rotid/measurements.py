@@ -154,8 +154,8 @@ class SpinReadings:
     video's frame times.
 
     Args:
-        frame_times: (n,) each frame index's time (s) on the camera's clock (index i at ``frame_times[i]``),
-            strictly increasing; it must cover every frame index of the measurement's tracks.
+        frame_times: (n,) each frame index's time (s) on the camera's clock (index i at ``frame_times[i]``), never
+            decreasing (two images may share a stamp); it must cover every frame index of the measurement's tracks.
         times: (K,) the readings' times (s) on the encoder's clock, K >= 2, strictly increasing. The two clocks may
             differ by a constant offset (the calibration can estimate it).
         angles: (K,) the spinning joint's readings (rad), in the arm model's sense of the joint (a joint reported
@@ -186,12 +186,13 @@ class SpinReadings:
         bad = np.flatnonzero(~np.isfinite(array))
         if len(bad):
             raise ValidationError(f"spin readings' {name}[{bad[0]}] is not finite ({array[bad[0]]})")
-        if name != "angles":
-            back = np.flatnonzero(np.diff(array) <= 0)
+        if name != "angles":  # (two images may share a stamp; two readings may not)
+            back = np.flatnonzero(np.diff(array) < 0 if name == "frame_times" else np.diff(array) <= 0)
             if len(back):
                 i = int(back[0])
-                raise ValidationError(f"spin readings' {name} must be strictly increasing: {name}[{i + 1}] = "
-                                      f"{array[i + 1]} s follows {array[i]} s")
+                order = "never decrease" if name == "frame_times" else "be strictly increasing"
+                raise ValidationError(f"spin readings' {name} must {order}: {name}[{i + 1}] = {array[i + 1]} s "
+                                      f"follows {array[i]} s")
         array.setflags(write=False)
         return array
 

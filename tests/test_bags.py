@@ -99,7 +99,14 @@ def test_a_dataset_from_a_bag_calibrates_within_its_covariance(rendered, bags):
     assert recording["time_offset_applied"] and abs(recording["time_offset_s"] - OFFSET_S) < 0.1 / FPS
     assert recording["camera_from"] == "/camera/camera_info" and len(recording["spans"]) == len(dataset)
     assert "axis_floor_px" in made.metadata["tracker"]  # the default tracker states its floor (dots: none)
+    for ours, span in zip(made, recording["spans"], strict=True):  # each spin's joint states, for synced mode
+        readings = ours.spin_readings
+        assert readings.times[0] <= span[0] and readings.times[-1] >= span[1]
+        seen = readings.frame_times[np.concatenate([t.frames for t in ours.tracks])]
+        assert readings.times[0] < seen.min() and seen.max() < readings.times[-1]
     result = calibrate(made)
+    assert result.synced == tuple(range(len(made)))  # (steady spins: the offset left is its prior's, about 0)
+    assert abs(result.time_offset_s) < 3 * result.time_offset_sigma_s
     error = result.error_to(truth.arm_T_camera)
     assert result.covariance_usable
     assert float(error @ np.linalg.solve(result.covariance, error)) < CHI2_6_999

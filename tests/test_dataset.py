@@ -677,6 +677,9 @@ def test_spin_readings_are_checked_with_words_that_name_the_problem(kinova):
         Measurement(angles, [arc_pixels((300.0, 200.0), 10.0, 6)], spin_readings=spin_readings())
     with pytest.raises(ValidationError, match=r"times must be strictly increasing: times\[2\] = 0.1 s follows 0.1 s"):
         SpinReadings([0.0], [0.0, 0.1, 0.1], [0.0, 1.0, 2.0])
+    with pytest.raises(ValidationError, match=r"frame_times must never decrease: frame_times\[2\] = 0.05 s follows"):
+        SpinReadings([0.0, 0.1, 0.05], [0.0, 0.1], [0.0, 1.0])
+    SpinReadings([0.0, 0.1, 0.1], [0.0, 0.1], [0.0, 1.0])  # two images may share a stamp
     with pytest.raises(ValidationError, match="one angle per time, got 2 angles for 3 times"):
         SpinReadings([0.0], [0.0, 0.1, 0.2], [0.0, 1.0])
     with pytest.raises(ValidationError, match=r"angles\[1\] is not finite"):
