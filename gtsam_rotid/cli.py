@@ -139,7 +139,9 @@ def cmd_calibrate(args) -> int:
     result = _calibrate_timed(dataset, args.method, CalibrationOptions(
         joint_sigma_deg=args.joint_sigma_deg, axis_floor_px=args.axis_floor_px, joint_offsets=offsets,
         joint_offset_sigma_deg=args.joint_offset_sigma_deg, refine_intrinsics=intrinsics,
-        intrinsics_sigma=tuple(args.intrinsics_sigma)))
+        intrinsics_sigma=tuple(args.intrinsics_sigma), sync_encoders=not args.no_sync,
+        encoder_sigma_deg=args.encoder_sigma_deg, time_offset_s=args.time_offset,
+        time_offset_sigma_s=None if args.time_offset_sigma == 0 else args.time_offset_sigma))
     print(summary(result))
     if truth is not None:
         _print_lines(error_vs_truth_lines(result, truth.arm_T_camera))
@@ -648,6 +650,15 @@ def build_parser() -> argparse.ArgumentParser:
                    metavar=("FOCAL_FRACTION", "PX"),
                    help="prior 1 sigma of the refined intrinsics about the camera file's: focal length as a "
                         "fraction of it, principal point in px (default %(default)s)")
+    p.add_argument("--no-sync", action="store_true",
+                   help="ignore the spinning joint's readings that measurements carry (bags: the joint states); by "
+                        "default they set each frame's spin angle and the encoder clock's offset is estimated")
+    p.add_argument("--encoder-sigma-deg", type=float, default=0.05, metavar="DEG",
+                   help="synced: 1 sigma of each frame's spin angle from the readings in degrees (default 0.05)")
+    p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
+                   help="synced: the encoder clock's offset from the camera's (s), the prior's mean (default 0)")
+    p.add_argument("--time-offset-sigma", type=float, default=0.1, metavar="S",
+                   help="synced: the offset's prior 1 sigma (s; default 0.1; 0: held at --time-offset)")
     p.add_argument("-o", "--output", metavar="RESULT_JSON", help="write the result as JSON to this file")
     p.add_argument("--overwrite", action="store_true", help="replace an existing result file")
     p.set_defaults(func=cmd_calibrate)
