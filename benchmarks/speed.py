@@ -1,7 +1,8 @@
 """Wall time of ``calibrate`` per method on the reference scene, and the cost per observation of our factors.
 
 1. ``calibrate(dataset, method=...)`` on the reference scene (docs/design.md §6: six 60 s spins, ~56k pixel
-   observations), best of ``--repeats`` runs after one warm-up (imports, first-call overheads).
+   observations), best of ``--repeats`` runs after one warm-up (imports, first-call overheads); and ``joint``
+   synced with the spinning joint's readings (the same poses, spins ramped over 2 s, readings at 100/s).
 2. One linearisation of the joint graph (one pose-bound circle-point CustomFactor per track, vectorised over its
    pixels) against the same maths with one CustomFactor per pixel, timed on a subset of the tracks and given per
    observation; the per-pixel cost is extrapolated to the whole scene. The issue's target: the whole joint
@@ -90,6 +91,14 @@ def main(argv=None) -> int:
     for method in METHODS:
         seconds[method] = best_time(lambda method=method: calibrate(dataset, method=method), args.repeats)
         print(f"  {method:9} {seconds[method]:7.2f} s  ({1e6 * seconds[method] / n_points:.1f} us per observation)")
+    # synced: the same poses, spins ramped over 2 s with the joint's readings at 100/s (every frame's angle under a
+    # prior, the clocks' offset a variable)
+    synced, _ = simulate.reference_scene(seed=args.seed, spin_ramp=2.0, encoder_rate=100.0, encoder_sigma_deg=0.02,
+                                         encoder_time_offset=0.037)
+    seconds["synced"] = best_time(lambda: calibrate(synced), args.repeats)
+    n_synced = sum(m.n_observations for m in synced)
+    print(f"  {'synced':9} {seconds['synced']:7.2f} s  ({1e6 * seconds['synced'] / n_synced:.1f} us per observation; "
+          f"joint, ramped spins with readings, {n_synced} observations)")
 
     builder, graph, values, made = joint_graph_at_truth(dataset, truth)
     n_graph = sum(graph.at(i).dim() for i in range(graph.size()))

@@ -426,7 +426,7 @@ class RotIdGraph:
                         prepared: PreparedMeasurement | None = None,
                         initial_circles: dict[int, np.ndarray] | None = None,
                         initial_line: gtsam.Rot3 | None = None, refine_circles: bool = True,
-                        tie_covariance: np.ndarray | None = None) -> MeasurementKeys:
+                        tie_covariance: np.ndarray | None = None, spin_start=None) -> MeasurementKeys:
         """Add measurement k's variables (with initial values) and factors; return the keys it made.
 
         Initial values come from ``arm_T_camera`` (default: the pose already in ``values``): the FK axis
@@ -443,6 +443,10 @@ class RotIdGraph:
         free, and is turned minimally so that its image is the FK axis' image. ``prepared`` reuses
         :meth:`prepare`'s work. ``tie_covariance`` (2x2, px²) is added to the tie's ``tie_sigma_px²`` (e.g. the
         FK axis' uncertainty from the joint-angle readings, :func:`gtsam_rotid.estimate.joint_tie_covariance`).
+        ``spin_start`` (rigid spin): ``(factor, values)``, a rigid-spin factor of the same tracks (another graph's,
+        e.g. the same measurement without the intrinsics variable) and the values it was solved at: the new factor
+        starts from its inner solution there (circles, phase offsets, spin angles) and shares its tracks, instead
+        of starting from the closest phases of the start circles (a graph rebuilt at a solution, solved at once).
 
         Nothing is added to ``graph`` or ``values`` unless every check passes.
         """
@@ -504,7 +508,7 @@ class RotIdGraph:
                              f"(rejected: {keys.rejected})")
         if projected:
             keys.coaxial = self._coaxial(line_key, prepared, keys.tracks, start_circles, track_sigmas, line_cam,
-                                         measurement, direction_cam, values)
+                                         measurement, direction_cam, values, spin_start)
             new_factors.append(keys.coaxial.factor)
         elif refine_circles:
             new_values = self._refined_circles(new_factors, new_values, keys, line_key, line_cam, arm_T_camera)
@@ -531,7 +535,7 @@ class RotIdGraph:
 
     def _coaxial(self, line_key, prepared: PreparedMeasurement, tracks: list[int], start_circles: list[np.ndarray],
                  track_sigmas: dict[int, float] | None, line: gtsam.Rot3, measurement: Measurement,
-                 direction_cam: np.ndarray, values: gtsam.Values):
+                 direction_cam: np.ndarray, values: gtsam.Values, spin_start=None):
         """The projected model's one factor of a measurement: its tracks' circles (and with the rigid spin, their
         phase offsets and the spin angles) solved inside, at the median of their pixel sigmas. The rigid spin
         starts from the closest phases of the start circles at the start ``line``; synced (the measurement's spin
@@ -548,11 +552,16 @@ class RotIdGraph:
         if self.spin_model is SpinModel.FREE or any(f is None for f in frames):
             return make_coaxial_line_factor(line_key, ideal, self.camera.K, circles,
                                             sigma_px=float(np.median(sigmas)), robust=self.robust)
-        phases = CoaxialTracks(self.camera.K, ideal).phases(line, circles[:, 0], circles[:, 1])
-        rigid = RigidTracks(list(zip(ideal, frames, strict=True)))
-        first = int(rigid.frame_ids[0])
-        spin = initial_spin(list(zip(frames, np.split(phases, np.cumsum(rigid.counts)[:-1]), strict=True)),
-                            int(rigid.frame_ids[-1]) - first + 1, first)
+        started = _started_spin(spin_start, ideal, frames)
+        if started is not None:
+            rigid, circles, phi0, theta = started
+        else:
+            phases = CoaxialTracks(self.camera.K, ideal).phases(line, circles[:, 0], circles[:, 1])
+            rigid = RigidTracks(list(zip(ideal, frames, strict=True)))
+            first = int(rigid.frame_ids[0])
+            spin = initial_spin(list(zip(frames, np.split(phases, np.cumsum(rigid.counts)[:-1]), strict=True)),
+                                int(rigid.frame_ids[-1]) - first + 1, first)
+            phi0, theta = spin.phi0, spin.theta[0][rigid.frame_ids - first]
         robust = self.robust
         if callable(robust) and not isinstance(robust, gtsam.noiseModel.mEstimator.Base):
             robust = lambda n, per_residuals=self.robust: per_residuals(2 * n)  # noqa: E731  (2 residuals a point)
@@ -571,10 +580,10 @@ class RotIdGraph:
                                  f"{readings.times[-1]:.3f} s) do not cover the tracks' frames "
                                  f"({encoder.frame_times[0] + offset:.3f}-{encoder.frame_times[-1] + offset:.3f} s "
                                  "on the encoder's clock)")
-        return make_rigid_line_factor(line_key, rigid, self.camera.K, circles, spin.phi0,
-                                      spin.theta[0][rigid.frame_ids - first], sigma_px=float(np.median(sigmas)),
-                                      robust=robust, intrinsics_key=self.intrinsics_key, encoder=encoder,
-                                      time_key=time_key, time_offset=offset)
+        return make_rigid_line_factor(line_key, rigid, self.camera.K, circles, phi0, theta,
+                                      sigma_px=float(np.median(sigmas)), robust=robust,
+                                      intrinsics_key=self.intrinsics_key, encoder=encoder, time_key=time_key,
+                                      time_offset=offset)
 
     def _refined_circles(self, factors, circles: gtsam.Values, keys: MeasurementKeys, line_key, line_cam,
                          arm_T_camera) -> gtsam.Values:
@@ -595,6 +604,24 @@ class RotIdGraph:
         for key in keys.circles:
             refined.insert(key, result.atVector(key))
         return refined
+
+
+def _started_spin(spin_start, ideal: list, frames: list):
+    """``(tracks, circles, phi0, theta)`` of :meth:`RotIdGraph.add_measurement`'s ``spin_start`` where its factor
+    holds exactly these tracks (pixels and frames), else None."""
+    if spin_start is None:
+        return None
+    factor, values = spin_start
+    if not isinstance(factor, RigidLineFactor):
+        return None
+    tracks = factor.tracks
+    counts = np.array([len(p) for p in ideal])
+    if tracks.n_tracks != len(ideal) or not np.array_equal(tracks.counts, counts):
+        return None
+    if not (np.array_equal(tracks.pixels, np.concatenate(ideal))
+            and np.array_equal(tracks.frame_ids[tracks.frame], np.concatenate(frames))):
+        return None
+    return tracks, factor.circles(values), factor.phase_offsets(values), factor.spin_angles(values)
 
 
 def _commit(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, factors: list, new_values: gtsam.Values,

@@ -373,7 +373,7 @@ def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: g
     extra = _with_floor(correlated, camera, setup, keys, used, result)
     try:
         graph, values, _ = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas, circles,
-                                        lines, rest=rest, intrinsics=prior, sync=sync)
+                                        lines, rest=rest, intrinsics=prior, sync=sync, solved=(keys, result))
         step = np.asarray(graph.linearize(values).optimize().at(INTRINSICS_KEY))
         covariance = sandwich_marginal(graph, values, INTRINSICS_KEY, 5, extra)
         both = joint_marginal_covariance(graph, values, [POSE_KEY, INTRINSICS_KEY], 11)
@@ -542,13 +542,16 @@ def intrinsics_prior_sigmas(K: np.ndarray, names, sigma: tuple[float, float]) ->
 
 
 def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas, circles, lines, fk_start=(),
-                 rest=None, intrinsics: _IntrinsicsPrior | None = None, sync: _Sync | None = None):
+                 rest=None, intrinsics: _IntrinsicsPrior | None = None, sync: _Sync | None = None,
+                 solved: tuple | None = None):
     """The joint graph of measurements ``ks`` at ``pose`` (each at its pixel sigma): those in ``fk_start`` started
     about the FK axis seen from it (their circles from their tracks' rays), the others from ``lines`` and ``circles``
     (stage 1's or the last round's). With ``setup.offsets``, the offsets beyond those the readings were shifted by
     are a variable starting at ``rest`` (rad) under the prior of the total offsets; with ``intrinsics`` the camera's
     intrinsics are a variable too (at ``intrinsics.now``); synced (``sync``, its offset estimated), the encoder clock's
-    offset too (at ``sync.now``, under its prior). Returns (graph, values, keys by measurement)."""
+    offset too (at ``sync.now``, under its prior). ``solved``: (keys by measurement, values) of a graph of the same
+    tracks solved where this one is built: its rigid spins start from their solutions there. Returns (graph,
+    values, keys by measurement)."""
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(POSE_KEY, pose)
     if setup.offsets is not None:
@@ -563,7 +566,8 @@ def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas,
                 prepared=setup.prepared[k], initial_circles=None if k in fk_start else circles[k],
                 initial_line=None if k in fk_start else lines[k],
                 refine_circles=k in fk_start or circles[k] is None, tie_covariance=setup.tie_covariance(
-                    camera, k, stage1[k].image_axis, pose)) for k in ks}
+                    camera, k, stage1[k].image_axis, pose),
+                spin_start=None if solved is None else (solved[0][k].coaxial, solved[1])) for k in ks}
     return graph, values, keys
 
 
