@@ -174,6 +174,8 @@ def trial(seed: int, duration: float, noise_var: float, joint_model: str, spin_m
             "seconds": time.perf_counter() - start,
             "offset": result.time_offset_s,
             "offset_sigma": result.time_offset_sigma_s,
+            "refused": len(result.readings_refused),
+            "spins": len(dataset),
         }
     return out
 
@@ -292,7 +294,8 @@ def main(argv=None) -> int:
                   f"{1000 * bound_offset:.2f} ms, ratio {off_rmse / bound_offset:.2f}), mean error "
                   f"{1000 * (np.mean(offsets) - args.time_offset):+.2f} ms, reported 1 sigma median "
                   f"{1000 * np.median(sigmas):.2f} ms, NEES {off_nees:.2f} (95 % interval [{lo1:.2f}, {hi1:.2f}]: "
-                  f"{'inside' if lo1 <= off_nees <= hi1 else 'OUTSIDE'})")
+                  f"{'inside' if lo1 <= off_nees <= hi1 else 'OUTSIDE'}); readings refused (disagreeing with the "
+                  f"tracks) on {sum(o.get('refused', 0) for o in ok)} of {sum(o['spins'] for o in ok)} spins")
     return 0
 
 

@@ -414,6 +414,7 @@ class RigidLineFactor(CoaxialLineFactor):
             raise ValueError(f"time_offset must be finite seconds, got {time_offset!r}")
         self.K = np.asarray(K, dtype=float).reshape(3, 3)
         self.encoder, self.time_key, self._delta0 = encoder, time_key, float(time_offset)
+        self._robust = robust
         #: inner parameters held to fix the gauge (none when the encoder's readings fix it)
         self._held = np.flatnonzero(~tracks.free) if encoder is None else np.zeros(0, dtype=np.int64)
         if encoder is not None:  # the readings' zero: every angle shifted onto them, the phase offsets against
@@ -629,6 +630,24 @@ class RigidLineFactor(CoaxialLineFactor):
     def time_offset(self, x=None) -> float:
         """The time offset (s) of the state at ``x`` (the factor's fixed one without a time variable)."""
         return self._at(x).delta
+
+    def readings_test(self, x=None) -> tuple[float, int] | None:
+        """Do the readings agree with the spin the tracks show? The likelihood ratio of the synced fit against the
+        same tracks with free angles at the same line (``x``): twice the difference of their errors, and its
+        degrees of freedom where they agree (one per frame, less one per group of tracks linked by shared frames:
+        the constant the phases take up). None unsynced. Far above its chi-square point, the joint's sense, scale
+        or clock is wrong, or the readings are noisier than the encoder's sigma says. (The prior's own residuals
+        cannot tell: readings far more precise than the tracks hold every angle, wrong or not, and the tracks'
+        residuals take the disagreement.)"""
+        state = self._at(x)
+        if state.prior is None:
+            return None
+        m3 = 3 * self.tracks.n_tracks
+        free = RigidLineFactor(self.line_key, self.tracks, state.K, self.circles(x), state.ev.x[2:m3:3],
+                               state.ev.x[m3:], self.sigma_px, self._robust, tol=self.tol,
+                               max_evaluations=self.max_evaluations)
+        statistic = 2.0 * (self.error(x) - free.error(state.rot))
+        return statistic, self.tracks.n_frames - len(self.tracks.components)
 
     def encoder_residuals(self, x=None) -> np.ndarray | None:
         """(F,) the frames' angles less the encoder prior's (rad) at ``x``; None unsynced."""

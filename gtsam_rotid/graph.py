@@ -579,7 +579,8 @@ class RotIdGraph:
                 raise InputError(f"measurement {k}: the spin readings ({readings.times[0]:.3f}-"
                                  f"{readings.times[-1]:.3f} s) do not cover the tracks' frames "
                                  f"({encoder.frame_times[0] + offset:.3f}-{encoder.frame_times[-1] + offset:.3f} s "
-                                 "on the encoder's clock)")
+                                 f"on the encoder's clock at the clocks' offset {offset:+.3f} s): give the offset "
+                                 "(time_offset_s, calibrate --time-offset) or leave the readings out (--no-sync)")
         return make_rigid_line_factor(line_key, rigid, self.camera.K, circles, phi0, theta,
                                       sigma_px=float(np.median(sigmas)), robust=robust,
                                       intrinsics_key=self.intrinsics_key, encoder=encoder, time_key=time_key,

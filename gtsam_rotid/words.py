@@ -82,7 +82,8 @@ def summary(result: CalibrationResult) -> str:
     if assumed is not None:
         lines.append("  " + assumed)
     lines.extend("  " + line for line in synced_words(result.synced, result.time_offset_s, result.time_offset_sigma_s,
-                                                      len(result.measurements), result.time_offset_prior_sigma_s))
+                                                      len(result.measurements), result.time_offset_prior_sigma_s,
+                                                      result.readings_refused))
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
         why = outlier_words(m, intrinsics_suspected(result.untrusted), kinematics_suspected(result.untrusted))
@@ -462,9 +463,17 @@ def refined_intrinsics_words(intrinsics: dict[str, float], sigma: dict[str, floa
 
 
 def synced_words(synced, offset_s: float | None, sigma_s: float | None, n_measurements: int,
-                 prior_sigma_s: float | None = None) -> list[str]:
+                 prior_sigma_s: float | None = None, refused: dict | None = None) -> list[str]:
     """What synced mode did (``result.synced``, ``time_offset_s``, ``time_offset_sigma_s``, and the offset's prior
-    1 sigma); [] when no spin's readings were used."""
+    1 sigma), and the readings it did not use (``result.readings_refused``); [] when no spin carried readings."""
+    lines = [f"encoders: measurement {k}'s readings disagree with the spin its tracks show (likelihood ratio "
+             f"{v['chi2']:.0f} for {v['dof']} frames): not used; check the joint's sense and scale in the readings, "
+             "their clock, or their noise (CalibrationOptions.encoder_sigma_deg)"
+             for k, v in sorted((refused or {}).items())]
+    return lines + _synced_lines(synced, offset_s, sigma_s, n_measurements, prior_sigma_s)
+
+
+def _synced_lines(synced, offset_s, sigma_s, n_measurements, prior_sigma_s) -> list[str]:
     if not synced:
         return []
     which = "every spin" if len(synced) == n_measurements else "measurements " + ", ".join(str(k) for k in synced)

@@ -12,6 +12,7 @@ import gtsam
 import numpy as np
 
 from ..camera import Camera
+from ..dataset import Measurement
 from ..errors import RotIdError
 from ..factors import RigidLineFactor, axis_point_residuals, cal3_s2, image_line_from_rot3
 from ..graph import (
@@ -52,6 +53,7 @@ from .tuning import (
     INTRINSICS_KEY,
     MIN_STRONG,
     POSE_KEY,
+    READINGS_Z,
     RESTART_LEAVE_OUT,
     RESTART_P,
     RESTART_SAME_M,
@@ -255,6 +257,14 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         sigmas = new_sigmas
         if stable:
             break
+    if sync is not None:  # readings that disagree with the spin the tracks show: that spin fitted without them
+        refused = _disagreeing_readings(keys, result, sync)
+        if refused:
+            kept = [m if k not in refused else Measurement(m.joint_angles, m.tracks, name=m.name,
+                                                           spin_joint=m.spin_joint)
+                    for k, m in enumerate(measurements)]
+            out = _joint_fit(arm, camera, kept, setup, fit, options)
+            return replace(out, readings_refused={**refused, **out.readings_refused})
     info = pose_information(graph, result, POSE_KEY)
     if intrinsics is not None:  # everything after the fit sees the refined camera (the others exactly as given)
         refined = Camera(intrinsics.now.K(), camera.width, camera.height).intrinsics
@@ -330,6 +340,22 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                       joint_offsets_covariance=offsets_covariance, pose_offsets_covariance=cross,
                       joint_offset_sigma_deg=float(np.degrees(offsets.sigma[0])))
     return replace(out, alternatives=_outside(fit.alternatives, out))
+
+
+def _disagreeing_readings(keys, result: gtsam.Values, sync: _Sync) -> dict[int, dict]:
+    """The synced measurements whose readings disagree with their tracks' spin at the fit ``result``: the
+    likelihood ratio of the readings' prior (``RigidLineFactor.readings_test``) beyond its chi-square's READINGS_Z
+    point. measurement -> {"chi2", "dof"}."""
+    out = {}
+    for k in sync.measurements:
+        factor = keys[k].coaxial if k in keys else None
+        measured = factor.readings_test(result) if isinstance(factor, RigidLineFactor) else None
+        if measured is None:
+            continue
+        chi2, dof = measured
+        if chi2 > chi2_quantile(max(dof, 1), READINGS_Z):
+            out[k] = {"chi2": chi2, "dof": dof}
+    return out
 
 
 def _time_offset_sigma(graph, result: gtsam.Values, sync: _Sync, correlated: dict,

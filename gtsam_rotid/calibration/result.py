@@ -253,6 +253,9 @@ class CalibrationResult:
     time_offset_sigma_s: float | None = None
     #: its prior's 1 sigma (s, ``CalibrationOptions.time_offset_sigma_s``); None: held or not synced
     time_offset_prior_sigma_s: float | None = None
+    #: measurements whose readings disagreed with their tracks' spin and were not used: measurement -> {"chi2",
+    #: "dof"} (the likelihood ratio of their prior at the synced fit, and its degrees of freedom)
+    readings_refused: dict = field(default_factory=dict)
 
     @property
     def intrinsics(self) -> dict[str, float]:
@@ -355,6 +358,7 @@ class CalibrationResult:
             "time_offset_s": self.time_offset_s,
             "time_offset_sigma_s": self.time_offset_sigma_s,
             "time_offset_prior_sigma_s": self.time_offset_prior_sigma_s,
+            "readings_refused": {str(k): v for k, v in self.readings_refused.items()},
         }
 
     @classmethod
@@ -404,6 +408,8 @@ class CalibrationResult:
             else float(data["time_offset_sigma_s"]),
             time_offset_prior_sigma_s=None if data.get("time_offset_prior_sigma_s") is None
             else float(data["time_offset_prior_sigma_s"]),
+            readings_refused={int(k): {"chi2": float(v["chi2"]), "dof": int(v["dof"])}
+                              for k, v in (data.get("readings_refused") or {}).items()},
         )
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:

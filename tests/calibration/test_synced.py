@@ -9,7 +9,8 @@ import pytest
 
 from gtsam_rotid import CalibrationOptions, InputError, calibrate, summary
 from gtsam_rotid.calibration.result import CalibrationResult
-from gtsam_rotid.dataset import Dataset, Measurement
+from gtsam_rotid.dataset import Dataset, Measurement, SpinReadings
+from gtsam_rotid.graph import chi2_quantile
 from gtsam_rotid.simulate import reference_scene
 
 OFFSET = 0.037  # s: the encoder's clock ahead of the camera's
@@ -83,3 +84,29 @@ def test_readings_of_only_some_spins_sync_those():
 def test_options_are_checked(field, value, words):
     with pytest.raises(InputError, match=words):
         CalibrationOptions(**{field: value})
+
+
+def test_readings_that_disagree_with_the_tracks_are_named_and_left_out(ramped):
+    """Readings of the other sense (or 10 % off in scale) on some spins: exactly those spins' likelihood ratios
+    beyond their 99.9 % points, those spins fitted without the readings (named in words), the others synced, the
+    pose within its covariance and the pixel noise what the tracks have (readings that held wrong angles had
+    inflated it four times)."""
+    dataset, truth = ramped
+    good = calibrate(dataset)
+    wrong = {1: -1.0, 4: 0.9}
+    measurements = [m if k not in wrong else Measurement(
+        m.joint_angles, m.tracks, spin_readings=SpinReadings(m.spin_readings.frame_times, m.spin_readings.times,
+                                                             wrong[k] * m.spin_readings.angles))
+        for k, m in enumerate(dataset)]
+    result = calibrate(Dataset(dataset.arm, dataset.camera, measurements))
+    assert sorted(result.readings_refused) == [1, 4]
+    assert result.synced == tuple(k for k in range(len(dataset)) if k not in wrong)
+    for v in result.readings_refused.values():
+        assert v["chi2"] > chi2_quantile(v["dof"]) and v["dof"] > 100
+    assert chi2(result, truth) < 22.5
+    assert abs(result.sigma_px / good.sigma_px - 1.0) < 0.05
+    words = summary(result)
+    assert "measurement 1's readings disagree with the spin its tracks show" in words
+    assert "measurement 4's readings disagree" in words
+    again = CalibrationResult.from_dict(result.to_dict())
+    assert again.readings_refused == result.readings_refused
