@@ -294,6 +294,17 @@ class Measurement:
                                           f"readings' frame_times ({len(spin_readings.frame_times)} frames)")
         self.spin_readings = spin_readings
 
+    def replace(self, **changes) -> Measurement:
+        """This measurement with ``changes`` (any of ``joint_angles``, ``tracks``, ``name``, ``spin_joint``,
+        ``spin_readings``), everything else kept."""
+        fields = {"joint_angles": self.joint_angles, "tracks": self.tracks, "name": self.name,
+                  "spin_joint": self.spin_joint, "spin_readings": self.spin_readings}
+        unknown = set(changes) - set(fields)
+        if unknown:
+            raise ValidationError(f"a Measurement has no field(s) {sorted(unknown)}; it has {sorted(fields)}")
+        fields.update(changes)
+        return Measurement(fields.pop("joint_angles"), fields.pop("tracks"), **fields)
+
     @property
     def n_tracks(self) -> int:
         return len(self.tracks)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .dataset import Dataset, Measurement, Track
+from .dataset import Dataset, Track
 from .errors import InputError
 from .meshrender import MeshRenderConfig, MeshSpin, load_arm_meshes, render_mesh_measurement, track_errors
 from .render import RenderConfig, RenderedSpin, render_measurement
@@ -317,8 +317,7 @@ def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | Me
             if not tracks:  # (one track is kept: the calibration leaves such a measurement out and names it)
                 raise InputError(f"measurement {k}: the tracker kept no track in {spin.n_frames} rendered frames"
                                  f"\n{result.summary()}")
-            measurements.append(Measurement(dataset[k].joint_angles, tracks, name=dataset[k].name,
-                                            spin_joint=dataset[k].spin_joint))
+            measurements.append(dataset[k].replace(tracks=tracks))  # (frames numbered as the spin's)
             results.append(result)
             accuracies.append(mesh_accuracy(tracks, spin) if mesh else spin_accuracy(tracks, spin))
             spins.append(spin)

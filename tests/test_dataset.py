@@ -686,3 +686,14 @@ def test_spin_readings_are_checked_with_words_that_name_the_problem(kinova):
         SpinReadings([0.0], [0.0, 0.1], [0.0, np.nan])
     with pytest.raises(ValidationError, match="spin_readings must be SpinReadings or None, got dict"):
         Measurement(angles, tracks, spin_readings={"times": [0.0]})
+
+
+def test_a_measurement_changed_keeps_everything_else(kinova):
+    m = make_measurements(kinova.joint_names)[0]
+    synced = m.replace(spin_readings=spin_readings())
+    moved = synced.replace(joint_angles=np.asarray(m.joint_angles) + 0.1)
+    assert moved.spin_readings == synced.spin_readings and moved.tracks == m.tracks and moved.name == "pose A"
+    np.testing.assert_allclose(moved.joint_angles, np.asarray(m.joint_angles) + 0.1)
+    assert moved.replace(spin_readings=None).spin_readings is None
+    with pytest.raises(ValidationError, match=r"no field\(s\) \['readings'\]"):
+        m.replace(readings=None)

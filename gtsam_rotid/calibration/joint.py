@@ -12,7 +12,6 @@ import gtsam
 import numpy as np
 
 from ..camera import Camera
-from ..dataset import Measurement
 from ..errors import RotIdError
 from ..factors import RigidLineFactor, axis_point_residuals, cal3_s2, image_line_from_rot3
 from ..graph import (
@@ -260,9 +259,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     if sync is not None:  # readings that disagree with the spin the tracks show: that spin fitted without them
         refused = _disagreeing_readings(keys, result, sync)
         if refused:
-            kept = [m if k not in refused else Measurement(m.joint_angles, m.tracks, name=m.name,
-                                                           spin_joint=m.spin_joint)
-                    for k, m in enumerate(measurements)]
+            kept = [m if k not in refused else m.replace(spin_readings=None) for k, m in enumerate(measurements)]
             out = _joint_fit(arm, camera, kept, setup, fit, options)
             return replace(out, readings_refused={**refused, **out.readings_refused})
     info = pose_information(graph, result, POSE_KEY)

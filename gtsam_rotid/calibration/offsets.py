@@ -56,7 +56,7 @@ def shifted(arm: Arm, measurements: list[Measurement], joints, delta) -> list[Me
     for m in measurements:
         q = arm.joint_angle_vector(m.joint_angles).copy()
         q[list(joints)] += delta
-        out.append(Measurement(q, m.tracks, name=m.name, spin_joint=m.spin_joint))
+        out.append(m.replace(joint_angles=q))
     return out
 
 

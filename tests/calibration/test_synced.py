@@ -110,3 +110,15 @@ def test_readings_that_disagree_with_the_tracks_are_named_and_left_out(ramped):
     assert "measurement 4's readings disagree" in words
     again = CalibrationResult.from_dict(result.to_dict())
     assert again.readings_refused == result.readings_refused
+
+
+@pytest.mark.parametrize("refined", [{"joint_offsets": True}, {"refine_intrinsics": True}])
+def test_synced_with_joint_offsets_or_intrinsics_refined(ramped, refined):
+    """The readings stay with the measurements whose joint readings the offsets shift (they were once dropped
+    there), and sync with intrinsics refined (the rigid factor's third key): synced, the offset within 3 sigma, the
+    pose within its covariance."""
+    dataset, truth = ramped
+    result = calibrate(dataset, options=CalibrationOptions(**refined))
+    assert result.synced == tuple(range(len(dataset)))
+    assert abs(result.time_offset_s - OFFSET) < 3 * result.time_offset_sigma_s
+    assert chi2(result, truth) < 22.5
