@@ -37,7 +37,8 @@ and the tracker's numbers). ``--load DIR`` re-runs only the calibration on every
 table (tracker columns as saved), in seconds: for re-evaluating an estimator change without rendering.
 ``--spin-model free|rigid`` and ``--axis-floor-px PX`` calibrate with those ``CalibrationOptions``, ``--method
 weighted|paper`` with that estimator (default ``joint``); ``--json FILE``
-also writes every row's numbers.
+also writes every row's numbers. ``--load DIR --synced`` adds each spin's joint readings (:func:`with_readings`)
+and calibrates synced.
 
 ``--poses planned`` takes the arm poses from :func:`gtsam_rotid.planning.plan_poses` at a guess of the camera (the
 true pose moved by a random 30 mm and 3 degrees per axis, as ``benchmarks/planning.py``) instead of the simulator's
@@ -66,7 +67,7 @@ import numpy as np
 from gtsam_rotid import meshrender as mr
 from gtsam_rotid import simulate
 from gtsam_rotid.camera import Camera
-from gtsam_rotid.dataset import Dataset, Measurement
+from gtsam_rotid.dataset import Dataset, Measurement, SpinReadings
 from gtsam_rotid.errors import InputError, RotIdError
 from gtsam_rotid.estimate import CalibrationOptions, calibrate
 from gtsam_rotid.factors import axis_point_residuals
@@ -234,8 +235,27 @@ def _save_scene(directory: str, row: dict, tracked: Dataset | None, truth) -> No
     os.replace(staging, root / SCENE_FILE)
 
 
-def load_scene(root: str, options: CalibrationOptions | None = None, method: str = "joint") -> dict:
-    """Re-run the calibration of one scene written by ``--save``: the row as :func:`run_scene` gives it."""
+def with_readings(tracked: Dataset, seed: int, config: SceneConfig | None = None) -> Dataset:
+    """The dataset with each spin's joint readings (synced mode) as a recording of the joint states would give
+    them: the simulator's spin (its ``wrist_speed`` from the measurement's wrist angle, ``fps`` frames per second),
+    read 100 times a second with 0.02 degrees of noise, from half a second before the first frame to half a second
+    after the last. The renders spin at one speed: the clocks' offset is left to its prior."""
+    config = SceneConfig() if config is None else config
+    rng = np.random.default_rng(seed)
+    measurements = []
+    for m in tracked:
+        last = max(int(t.frames[-1]) for t in m.tracks)
+        times = np.arange(-0.5, (last + 1) / config.fps + 0.5, 0.01)
+        start = float(tracked.arm.joint_angle_vector(m.joint_angles)[tracked.arm.spin_index(m.spin_joint)])
+        angles = start + config.wrist_speed * times + rng.normal(0.0, np.radians(0.02), len(times))
+        measurements.append(m.replace(spin_readings=SpinReadings(np.arange(last + 1) / config.fps, times, angles)))
+    return Dataset(tracked.arm, tracked.camera, measurements, metadata=tracked.metadata)
+
+
+def load_scene(root: str, options: CalibrationOptions | None = None, method: str = "joint",
+               synced: bool = False) -> dict:
+    """Re-run the calibration of one scene written by ``--save``: the row as :func:`run_scene` gives it (with
+    ``synced``, the spins' joint readings added, :func:`with_readings`)."""
     root = Path(root)
     document = json.loads((root / SCENE_FILE).read_text(encoding="utf-8"))
     row = {k: v for k, v in document["tracking"].items() if k not in ("refused", "err_mm")}
@@ -250,6 +270,8 @@ def load_scene(root: str, options: CalibrationOptions | None = None, method: str
         return row
     if "tracker" not in tracked.metadata:  # saved before datasets named their tracker: the default's
         tracked.metadata["tracker"] = tracker_metadata(TrackerParams())
+    if synced:
+        tracked = with_readings(tracked, int(row.get("seed", 0)))
     return calibrate_scene(row, tracked, gtsam.Pose3(np.array(document["arm_T_camera"], dtype=float)), options,
                            method)
 
@@ -382,12 +404,16 @@ def main(argv=None) -> int:
     parser.add_argument("--axis-floor-px", type=float, default=None,
                         help="CalibrationOptions.axis_floor_px (default: what the tracker wrote into the dataset)")
     parser.add_argument("--json", default=None, metavar="FILE", help="also write the rows (every number) to FILE")
+    parser.add_argument("--synced", action="store_true", help="with --load: add each spin's joint readings (the "
+                        "simulator's spin read at 100/s, 0.02 deg noise) and calibrate synced")
     parser.add_argument("--poses", default="sampled", choices=("sampled", "planned"),
                         help="the simulator's sampled arm poses, or gtsam_rotid.planning's at a perturbed guess")
     args = parser.parse_args(argv)
     options = CalibrationOptions(axis_floor_px=args.axis_floor_px,
                                  **({} if args.spin_model is None else {"spin_model": args.spin_model}))
     started = time.perf_counter()
+    if args.synced and args.load is None:
+        parser.error("--synced re-calibrates saved scenes: give --load DIR")
     if args.load is not None:
         roots = sorted(p.parent for p in Path(args.load).glob(f"*/{SCENE_FILE}"))
         if not roots:
@@ -395,9 +421,10 @@ def main(argv=None) -> int:
         print(f"{len(roots)} saved scenes from {args.load}: calibration only", flush=True)
         if args.jobs > 1:
             from joblib import Parallel, delayed
-            rows = Parallel(n_jobs=args.jobs)(delayed(load_scene)(str(r), options, args.method) for r in roots)
+            rows = Parallel(n_jobs=args.jobs)(delayed(load_scene)(str(r), options, args.method, args.synced)
+                                              for r in roots)
         else:
-            rows = [load_scene(str(r), options, args.method) for r in roots]
+            rows = [load_scene(str(r), options, args.method, args.synced) for r in roots]
         _report(rows, args.json, started)
         return 0
     if args.quick:

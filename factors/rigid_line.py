@@ -42,8 +42,9 @@ import numpy as np
 
 from .coaxial import PREDICT_MAX_RAD, CoaxialLineFactor, _robust_terms
 from .coaxial_solve import CIRCLE_TOL
+from .coaxial_tracks import CoaxialTracks
 from .geometry import cal3_s2
-from .rigid import _track_components
+from .rigid import _track_components, initial_spin
 
 __all__ = ["EncoderPrior", "RigidLineFactor", "RigidTracks", "make_rigid_line_factor"]
 
@@ -192,6 +193,19 @@ class EncoderPrior:
         """Whether every frame's time (plus ``delta``) lies within the readings."""
         shifted = self.frame_times + delta
         return bool(shifted.min() >= self.times[0] and shifted.max() <= self.times[-1])
+
+    def rate_noise(self, delta: float, frames: int = 15) -> float:
+        """The variance (rad^2/s^2) that the readings' own noise puts on the frames' rates (``at``'s derivative),
+        read from the rates themselves: their robust scatter (1.4826 median absolute deviation) about their running
+        mean over ``frames`` frames, which a spin's real changes of speed hardly leave."""
+        order = np.argsort(self.frame_times)
+        rate = self.at(delta)[1][order]
+        if len(rate) < 2 * frames:
+            return 0.0
+        smooth = np.convolve(rate, np.full(frames, 1.0 / frames), mode="same")
+        inner = slice(frames, len(rate) - frames)
+        scatter = 1.4826 * float(np.median(np.abs(rate[inner] - smooth[inner])))
+        return scatter**2 * frames / (frames - 1)  # (the running mean shares 1/frames of each rate's noise)
 
     def at(self, delta: float) -> tuple[np.ndarray, np.ndarray]:
         """(F,) the frames' prior angles ``sign * q(t_f + delta)`` and (F,) their derivatives wrt ``delta``."""
@@ -642,12 +656,43 @@ class RigidLineFactor(CoaxialLineFactor):
         state = self._at(x)
         if state.prior is None:
             return None
-        m3 = 3 * self.tracks.n_tracks
-        free = RigidLineFactor(self.line_key, self.tracks, state.K, self.circles(x), state.ev.x[2:m3:3],
-                               state.ev.x[m3:], self.sigma_px, self._robust, tol=self.tol,
-                               max_evaluations=self.max_evaluations)
-        statistic = 2.0 * (self.error(x) - free.error(state.rot))
+        free = self._free_spin(state, x)
+        # at the pixel noise the free fit shows: readings that force wrong angles inflate the synced fit's own
+        # estimate of it, which would shrink the statistic (flipped readings had passed)
+        free_sse = float(free.track_sse(state.rot).sum())
+        variance = max(free_sse / max(free.pixel_dof(state.rot), 1.0), 1e-300)
+        pixels = (float(state.sse.sum()) - free_sse) / variance
+        statistic = pixels + float(np.sum((state.prior[0] / self.encoder.sigma) ** 2))
         return statistic, self.tracks.n_frames - len(self.tracks.components)
+
+    def dating(self, x=None) -> tuple[float, float] | None:
+        """What dates the frames here: the time offset's information from this factor at ``x`` (its column's
+        ``J^T J``, s^-2) and the part of it that the readings' own noise makes (their rates' variance through each
+        frame's angle: a rate that is noise dates nothing, but counts as information all the same). None without a
+        time offset variable."""
+        state = self._at(x)
+        if state.prior is None or self.time_key is None:
+            return None
+        J = self._outer_jacobians(state, self._scales(state)[0])[-1][:, 0]
+        weight = 1.0 / self.encoder.sigma**2
+        pixels = np.maximum(state.normal.root**2 - weight, 0.0)  # each frame's angle's information from the pixels
+        noise = float(np.sum(self.encoder.rate_noise(state.delta) * weight * pixels / (pixels + weight)))
+        return float(J @ J), noise
+
+    def _free_spin(self, state: _RigidState, x) -> RigidLineFactor:
+        """The same tracks with free angles (no readings), started from the closest phases on the factor's start
+        circles (not from this state's: readings that never move, say, drag the circles where no spin fits)."""
+        tracks, m3 = self.tracks, 3 * self.tracks.n_tracks
+        circles = np.column_stack([self._start[0:m3:3], self._start[1:m3:3]])
+        pixels = np.split(tracks.pixels, np.cumsum(tracks.counts)[:-1])
+        frames = np.split(tracks.frame_ids[tracks.frame], np.cumsum(tracks.counts)[:-1])
+        phases = CoaxialTracks(state.K, pixels).phases(state.R, circles[:, 0], circles[:, 1])
+        first = int(tracks.frame_ids[0])
+        spin = initial_spin(list(zip(frames, np.split(phases, np.cumsum(tracks.counts)[:-1]), strict=True)),
+                            int(tracks.frame_ids[-1]) - first + 1, first)
+        return RigidLineFactor(self.line_key, tracks, state.K, circles, spin.phi0,
+                               spin.theta[0][tracks.frame_ids - first], self.sigma_px, self._robust, tol=self.tol,
+                               max_evaluations=self.max_evaluations)
 
     def encoder_residuals(self, x=None) -> np.ndarray | None:
         """(F,) the frames' angles less the encoder prior's (rad) at ``x``; None unsynced."""

@@ -154,6 +154,7 @@ class CalibrationReport:
     time_offset_sigma_s: float | None = None
     time_offset_prior_sigma_s: float | None = None
     readings_refused: dict = field(default_factory=dict)
+    time_offset_noise_share: float | None = None
     #: intrinsics as given: what the tracks' shapes say of them (``result.intrinsics_shapes``); None: not checked
     intrinsics_shapes: dict | None = None
     #: why a determined calibration's covariance is still not trusted (``result.untrusted``'s kinds)
@@ -222,7 +223,7 @@ class CalibrationReport:
                                           self.intrinsics_prior),
                 *filter(None, [intrinsics_assumed_words(self.intrinsics_shapes)]),
                 *synced_words(self.synced, self.time_offset_s, self.time_offset_sigma_s, len(self.measurements),
-                              self.time_offset_prior_sigma_s, self.readings_refused),
+                              self.time_offset_prior_sigma_s, self.readings_refused, self.time_offset_noise_share),
                 tracking_words(self.axis_floor_px)]
 
     def _uncertainty_lines(self) -> list[str]:
@@ -365,6 +366,8 @@ class CalibrationReport:
             else f(self.time_offset_prior_sigma_s),
             "readings_refused": {str(k): {"chi2": f(v["chi2"]), "dof": v["dof"]}
                                  for k, v in self.readings_refused.items()},
+            "time_offset_noise_share": None if self.time_offset_noise_share is None
+            else f(self.time_offset_noise_share),
             "untrusted": list(self.untrusted),
             "axis_consistency": None if self.axis_consistency is None
             else {k: (f(v) if isinstance(v, float) else v) for k, v in self.axis_consistency.to_dict().items()},
@@ -598,6 +601,7 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         time_offset_sigma_s=getattr(result, "time_offset_sigma_s", None),
         time_offset_prior_sigma_s=getattr(result, "time_offset_prior_sigma_s", None),
         readings_refused=dict(getattr(result, "readings_refused", {})),
+        time_offset_noise_share=getattr(result, "time_offset_noise_share", None),
     )
 
 

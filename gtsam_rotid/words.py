@@ -83,7 +83,7 @@ def summary(result: CalibrationResult) -> str:
         lines.append("  " + assumed)
     lines.extend("  " + line for line in synced_words(result.synced, result.time_offset_s, result.time_offset_sigma_s,
                                                       len(result.measurements), result.time_offset_prior_sigma_s,
-                                                      result.readings_refused))
+                                                      result.readings_refused, result.time_offset_noise_share))
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
         why = outlier_words(m, intrinsics_suspected(result.untrusted), kinematics_suspected(result.untrusted))
@@ -463,17 +463,19 @@ def refined_intrinsics_words(intrinsics: dict[str, float], sigma: dict[str, floa
 
 
 def synced_words(synced, offset_s: float | None, sigma_s: float | None, n_measurements: int,
-                 prior_sigma_s: float | None = None, refused: dict | None = None) -> list[str]:
-    """What synced mode did (``result.synced``, ``time_offset_s``, ``time_offset_sigma_s``, and the offset's prior
-    1 sigma), and the readings it did not use (``result.readings_refused``); [] when no spin carried readings."""
+                 prior_sigma_s: float | None = None, refused: dict | None = None,
+                 noise_share: float | None = None) -> list[str]:
+    """What synced mode did (``result.synced``, ``time_offset_s``, ``time_offset_sigma_s``, the offset's prior
+    1 sigma and the share of its information that the readings' own noise makes), and the readings it did not use
+    (``result.readings_refused``); [] when no spin carried readings."""
     lines = [f"encoders: measurement {k}'s readings disagree with the spin its tracks show (likelihood ratio "
              f"{v['chi2']:.0f} for {v['dof']} frames): not used; check the joint's sense and scale in the readings, "
              "their clock, or their noise (CalibrationOptions.encoder_sigma_deg)"
              for k, v in sorted((refused or {}).items())]
-    return lines + _synced_lines(synced, offset_s, sigma_s, n_measurements, prior_sigma_s)
+    return lines + _synced_lines(synced, offset_s, sigma_s, n_measurements, prior_sigma_s, noise_share)
 
 
-def _synced_lines(synced, offset_s, sigma_s, n_measurements, prior_sigma_s) -> list[str]:
+def _synced_lines(synced, offset_s, sigma_s, n_measurements, prior_sigma_s, noise_share) -> list[str]:
     if not synced:
         return []
     which = "every spin" if len(synced) == n_measurements else "measurements " + ", ".join(str(k) for k in synced)
@@ -482,11 +484,16 @@ def _synced_lines(synced, offset_s, sigma_s, n_measurements, prior_sigma_s) -> l
         return [head]
     if sigma_s is None:
         return [head + f"; the encoder's clock taken as {1000.0 * offset_s:+.1f} ms from the camera's (held)"]
+    if noise_share is not None and noise_share > 0.25:
+        prior = "" if prior_sigma_s is None else f" ({1000.0 * prior_sigma_s:g} ms)"
+        return [head + f"; the readings cannot date the frames: their own noise makes {100.0 * noise_share:.0f} % of "
+                "what looks like the clocks' offset's information (a spin at one speed, or noisy readings), so the "
+                f"offset keeps its prior's 1 sigma{prior}; start and stop the spin within the video to measure it"]
     line = (head + f"; the encoder's clock runs {1000.0 * offset_s:+.2f} ms +- {1000.0 * sigma_s:.2f} ms (1 sigma) "
             "from the camera's")
     if prior_sigma_s is not None and sigma_s > 0.5 * prior_sigma_s:
-        line += (f" (mostly its prior's {1000.0 * prior_sigma_s:g} ms: the spins' speed hardly changes, so the "
-                 "readings cannot date the frames; start and stop the spin within the video to measure it)")
+        line += (f" (mostly its prior's {1000.0 * prior_sigma_s:g} ms: the spins' changes of speed hardly date the "
+                 "frames; start and stop the spin within the video to measure it)")
     return [line]
 
 

@@ -47,11 +47,13 @@ from .stage2 import (
     _with_axis_covariances,
 )
 from .tuning import (
+    DATING_NOISE_MAX,
     DISTINCT_Z,
     HELD_INTRINSIC_PX,
     INTRINSICS_KEY,
     MIN_STRONG,
     POSE_KEY,
+    READINGS_START_Z,
     READINGS_Z,
     RESTART_LEAVE_OUT,
     RESTART_P,
@@ -233,10 +235,25 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
             if better:
                 graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas,
                                                    circles, lines, rest=rest, intrinsics=intrinsics, sync=sync)
+        if _round == 0 and sync is not None:  # grossly wrong readings (see below), where the fit starts
+            refused = _disagreeing_readings(keys, values, sync, READINGS_START_Z)
+            if refused:
+                kept = [m if k not in refused else m.replace(spin_readings=None) for k, m in enumerate(measurements)]
+                out = _joint_fit(arm, camera, kept, setup, fit, options)
+                return replace(out, readings_refused={**refused, **out.readings_refused})
         start_pose = pose
         result, it, error, converged = _lm(
             graph, values, options.max_iterations, anchor=True, watch_tolerance=WATCH_POSE,
             watch=lambda v, start_pose=start_pose: start_pose.localCoordinates(v.atPose3(POSE_KEY)))
+        if _round == 0 and sync is not None:
+            # readings that disagree with the spin the tracks show, tested at the first synced fit against free
+            # angles started from stage 1's circles (which no reading moved: readings that never move drag the
+            # synced circles where no spin fits): those spins fitted without them
+            refused = _disagreeing_readings(keys, result, sync, READINGS_Z)
+            if refused:
+                kept = [m if k not in refused else m.replace(spin_readings=None) for k, m in enumerate(measurements)]
+                out = _joint_fit(arm, camera, kept, setup, fit, options)
+                return replace(out, readings_refused={**refused, **out.readings_refused})
         iterations += it
         pose = result.atPose3(POSE_KEY)
         if offsets is not None:
@@ -256,12 +273,6 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         sigmas = new_sigmas
         if stable:
             break
-    if sync is not None:  # readings that disagree with the spin the tracks show: that spin fitted without them
-        refused = _disagreeing_readings(keys, result, sync)
-        if refused:
-            kept = [m if k not in refused else m.replace(spin_readings=None) for k, m in enumerate(measurements)]
-            out = _joint_fit(arm, camera, kept, setup, fit, options)
-            return replace(out, readings_refused={**refused, **out.readings_refused})
     info = pose_information(graph, result, POSE_KEY)
     if intrinsics is not None:  # everything after the fit sees the refined camera (the others exactly as given)
         refined = Camera(intrinsics.now.K(), camera.width, camera.height).intrinsics
@@ -320,8 +331,8 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                       given_intrinsics={n: given[n] for n in options.refine_intrinsics})
     if sync is not None:
         out = replace(out, synced=sync.measurements, time_offset_s=sync.now,
-                      time_offset_sigma_s=_time_offset_sigma(graph, result, sync, correlated, out),
-                      time_offset_prior_sigma_s=sync.sigma)
+                      time_offset_prior_sigma_s=sync.sigma,
+                      **_time_offset_sigma(graph, result, sync, correlated, out, keys))
     if offsets is not None:
         c = out.axis_consistency
         if offsets_covariance is not None and c is not None and not c.consistent:
@@ -339,10 +350,10 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     return replace(out, alternatives=_outside(fit.alternatives, out))
 
 
-def _disagreeing_readings(keys, result: gtsam.Values, sync: _Sync) -> dict[int, dict]:
-    """The synced measurements whose readings disagree with their tracks' spin at the fit ``result``: the
-    likelihood ratio of the readings' prior (``RigidLineFactor.readings_test``) beyond its chi-square's READINGS_Z
-    point. measurement -> {"chi2", "dof"}."""
+def _disagreeing_readings(keys, result: gtsam.Values, sync: _Sync, z: float) -> dict[int, dict]:
+    """The synced measurements whose readings disagree with their tracks' spin at ``result``: the
+    likelihood ratio of the readings' prior (``RigidLineFactor.readings_test``) beyond its chi-square's point at
+    the normal's ``z``. measurement -> {"chi2", "dof"}."""
     out = {}
     for k in sync.measurements:
         factor = keys[k].coaxial if k in keys else None
@@ -350,26 +361,40 @@ def _disagreeing_readings(keys, result: gtsam.Values, sync: _Sync) -> dict[int, 
         if measured is None:
             continue
         chi2, dof = measured
-        if chi2 > chi2_quantile(max(dof, 1), READINGS_Z):
+        if chi2 > chi2_quantile(max(dof, 1), z):
             out[k] = {"chi2": chi2, "dof": dof}
     return out
 
 
-def _time_offset_sigma(graph, result: gtsam.Values, sync: _Sync, correlated: dict,
-                       out: CalibrationResult) -> float | None:
-    """The estimated time offset's 1 sigma (s): its cluster-robust marginal (as the pose's), scaled as the pose's
-    where the axes' scatter scaled it; None where held or indeterminate."""
+def _time_offset_sigma(graph, result: gtsam.Values, sync: _Sync, correlated: dict, out: CalibrationResult,
+                       keys) -> dict:
+    """The estimated time offset's 1 sigma (s, ``time_offset_sigma_s``) and the share of its information that the
+    readings' own noise makes (``time_offset_noise_share``): its cluster-robust marginal (as the pose's), scaled as
+    the pose's where the axes' scatter scaled it; where the noise makes more than DATING_NOISE_MAX of the
+    information, the prior's sigma (the readings cannot date the frames), else widened for the pull towards the
+    prior's mean that noise in the offset's column gives (errors in variables: the estimate moves from the mean by
+    1 - share of the true offset's distance). None where held or indeterminate."""
     if sync.sigma is None:
-        return None
+        return {"time_offset_sigma_s": None}
     try:
         variance = sandwich_marginal(graph, result, TIME_KEY, 1, correlated) if correlated else None
         if variance is None:
             variance = gtsam.Marginals(graph, result).marginalCovariance(TIME_KEY)
     except RuntimeError:
-        return None
+        return {"time_offset_sigma_s": None}
     c = out.axis_consistency
     scale = max(c.scale, 1.0) if c is not None and not c.consistent else 1.0
-    return float(np.sqrt(float(np.asarray(variance).reshape(-1)[0]) * scale))
+    variance = float(np.asarray(variance).reshape(-1)[0]) * scale
+    dated = [keys[k].coaxial.dating(result) for k in sync.measurements if k in keys and isinstance(
+        keys[k].coaxial, RigidLineFactor)]
+    dated = [d for d in dated if d is not None]
+    information = sum(d[0] for d in dated)
+    share = min(sum(d[1] for d in dated) / information, 1.0) if information > 0 else 1.0
+    if share > DATING_NOISE_MAX:
+        return {"time_offset_sigma_s": float(sync.sigma), "time_offset_noise_share": share}
+    pull = share / (1.0 - share) * (sync.now - sync.mean)
+    return {"time_offset_sigma_s": float(np.sqrt(variance / (1.0 - share) + pull**2)),
+            "time_offset_noise_share": share}
 
 
 def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: gtsam.Values, keys, sigmas, circles,

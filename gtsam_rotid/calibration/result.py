@@ -253,6 +253,9 @@ class CalibrationResult:
     time_offset_sigma_s: float | None = None
     #: its prior's 1 sigma (s, ``CalibrationOptions.time_offset_sigma_s``); None: held or not synced
     time_offset_prior_sigma_s: float | None = None
+    #: the share of the offset's information that the readings' own noise makes (above 0.25 the readings cannot
+    #: date the frames and ``time_offset_sigma_s`` is the prior's); None: held or not synced
+    time_offset_noise_share: float | None = None
     #: measurements whose readings disagreed with their tracks' spin and were not used: measurement -> {"chi2",
     #: "dof"} (the likelihood ratio of their prior at the synced fit, and its degrees of freedom)
     readings_refused: dict = field(default_factory=dict)
@@ -358,6 +361,7 @@ class CalibrationResult:
             "time_offset_s": self.time_offset_s,
             "time_offset_sigma_s": self.time_offset_sigma_s,
             "time_offset_prior_sigma_s": self.time_offset_prior_sigma_s,
+            "time_offset_noise_share": self.time_offset_noise_share,
             "readings_refused": {str(k): v for k, v in self.readings_refused.items()},
         }
 
@@ -408,6 +412,8 @@ class CalibrationResult:
             else float(data["time_offset_sigma_s"]),
             time_offset_prior_sigma_s=None if data.get("time_offset_prior_sigma_s") is None
             else float(data["time_offset_prior_sigma_s"]),
+            time_offset_noise_share=None if data.get("time_offset_noise_share") is None
+            else float(data["time_offset_noise_share"]),
             readings_refused={int(k): {"chi2": float(v["chi2"]), "dof": int(v["dof"])}
                               for k, v in (data.get("readings_refused") or {}).items()},
         )

@@ -13,12 +13,23 @@ POSE_KEY = gtsam.symbol("T", 0)
 INTRINSICS_KEY = gtsam.symbol("k", 0)
 #: The encoder clock's offset from the camera's (s) in a synced joint graph (CalibrationOptions.sync_encoders).
 TIME_KEY = gtsam.symbol("d", 0)
-#: A synced spin whose readings' prior chi-square exceeds this normal z's point (3.09: 99.9 %) about what readings
-#: that agree with its tracks give is fitted again without them (``result.readings_refused``): readings of the other
-#: sense, or 10 % off in scale, or the stamps off by more than their offset can take, would otherwise force the
-#: spin's angles where its tracks are not (flipped readings of a 12 s scene: pixel noise estimated 5.4 px instead of
-#: 1.2, a covariance four times too wide, and nothing said).
+#: A synced spin whose readings' likelihood ratio against free angles (``RigidLineFactor.readings_test``) at the
+#: first synced fit exceeds this normal z's point of its chi-square (3.09: 99.9 %) is fitted again without them
+#: (``result.readings_refused``): readings of the other sense, or 10 % off in scale, or the stamps off by more than
+#: their offset can take, would otherwise force the spin's angles where its tracks are not (flipped readings of a
+#: 12 s scene: pixel noise estimated 5.4 px instead of 1.2, a covariance four times too wide, and nothing said).
 READINGS_Z = 3.09
+#: ... and where the fit starts (stage 1's lines and circles, which no reading moved), beyond this z's point: the
+#: grossly wrong readings that a synced fit can hide (readings of the other sense that a line tilted to the ellipses'
+#: mirror image fits: z ~ 1e5; readings that never move, which drag the line: z 65-300), without refusing good
+#: readings at a start off its optimum (z 4 on the 6 s spins of a short scene, 12 on a spin of the test bags).
+READINGS_START_Z = 30.0
+#: Synced: where the readings' own noise (through their rates) makes more than this share of the time offset's
+#: information, the readings cannot date the frames: the offset's 1 sigma is its prior's. A steady spin has no other
+#: (the offset came out 16-139 ms off at a 1 sigma of 39-51 ms under a 1 s prior), and readings with 1 degree of
+#: noise at 100/s had put it 15-35 ms off at +-1.2 ms. Below it the 1 sigma is widened for the pull towards the
+#: prior's mean that the noise gives (the estimate covers 1 - share of the way from the mean).
+DATING_NOISE_MAX = 0.25
 #: Passes of a calibration with refined intrinsics: the first only refines the camera (one joint fit), each after it
 #: calibrates from the camera the last refined (its stage 1, starts and outlier tests see it: from a camera 3 % off, a
 #: good measurement was left out as wrong, and the restarts took 19 s) ...

@@ -122,3 +122,27 @@ def test_synced_with_joint_offsets_or_intrinsics_refined(ramped, refined):
     assert result.synced == tuple(range(len(dataset)))
     assert abs(result.time_offset_s - OFFSET) < 3 * result.time_offset_sigma_s
     assert chi2(result, truth) < 22.5
+
+
+def test_readings_too_noisy_to_date_the_frames_leave_the_offset_to_its_prior():
+    """Readings with 1 degree of noise (declared): the noise in their rates would count as the offset's
+    information (it came out 15-35 ms off at +-1.2 ms); their own noise now shows as most of it, and the offset
+    keeps its prior's 1 sigma, in words."""
+    dataset, _ = reference_scene(seed=13, duration=12.0, spin_ramp=2.0, encoder_rate=100.0, encoder_sigma_deg=1.0,
+                                 encoder_time_offset=OFFSET)
+    result = calibrate(dataset, options=CalibrationOptions(encoder_sigma_deg=1.0))
+    assert result.synced and result.time_offset_noise_share > 0.25
+    assert result.time_offset_sigma_s == 0.1 and abs(result.time_offset_s - OFFSET) < 0.1
+    assert "the readings cannot date the frames" in summary(result)
+
+
+def test_readings_that_never_move_are_refused(ramped):
+    """Readings of another joint (never moving): every spin's refused, the calibration that of the tracks alone."""
+    dataset, truth = ramped
+    still = Dataset(dataset.arm, dataset.camera, [m.replace(spin_readings=SpinReadings(
+        m.spin_readings.frame_times, m.spin_readings.times, np.full(len(m.spin_readings.times), 0.3)))
+        for m in dataset])
+    result = calibrate(still)
+    plain = calibrate(dataset, options=CalibrationOptions(sync_encoders=False))
+    assert sorted(result.readings_refused) == list(range(len(dataset))) and result.synced == ()
+    np.testing.assert_allclose(result.error_to(truth.arm_T_camera), plain.error_to(truth.arm_T_camera), atol=1e-9)
