@@ -285,6 +285,7 @@ def main(argv=None) -> int:
         timed = [(o["offset"], o["offset_sigma"]) for o in ok if o.get("offset_sigma") is not None]
         if synced_bound and method == "joint" and timed:
             offsets, sigmas = np.array(timed).T
+            offsets = -offsets  # (the result's offset is camera minus encoder; --time-offset the encoder's lead)
             off_rmse = float(np.sqrt(np.mean((offsets - args.time_offset) ** 2)))
             bound_offset = float(np.sqrt(np.mean([r["offset_bound"] ** 2 for r in results])))
             off_nees = float(np.mean(((offsets - args.time_offset) / sigmas) ** 2))

@@ -656,7 +656,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--encoder-sigma-deg", type=float, default=0.05, metavar="DEG",
                    help="synced: 1 sigma of each frame's spin angle from the readings in degrees (default 0.05)")
     p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
-                   help="synced: the encoder clock's offset from the camera's (s), the prior's mean (default 0)")
+                   help="synced: the clocks' offset, camera minus encoder (s; as track --time-offset), the prior's "
+                        "mean (default 0)")
     p.add_argument("--time-offset-sigma", type=float, default=0.1, metavar="S",
                    help="synced: the offset's prior 1 sigma (s; default 0.1; 0: held at --time-offset)")
     p.add_argument("-o", "--output", metavar="RESULT_JSON", help="write the result as JSON to this file")

@@ -273,10 +273,13 @@ class RotIdGraph:
         encoder_sigma_deg: synced mode: a measurement whose :class:`~gtsam_rotid.measurements.SpinReadings` are
             given has its rigid spin's per-frame angles under a prior from those readings, of this sigma (degrees;
             None, the default: readings are not used). Needs the ``"projected"`` model with the rigid spin.
-        time_offset_key: synced mode: the encoder clock's offset from the camera's (s) is a ``gtsam`` Vector1
-            variable at this key (insert it with :meth:`add_time_offset_prior` before the measurements), shared by
-            every synced measurement; None: the offset is ``time_offset_s`` (known).
-        time_offset_s: synced, without ``time_offset_key``: the encoder clock's known offset from the camera's (s).
+        time_offset_key: synced mode: the encoder clock's offset from the camera's (s, encoder minus camera: a
+            frame at camera time t is read at encoder time t + offset; ``CalibrationOptions.time_offset_s`` is its
+            negative, as bags state it) is a ``gtsam`` Vector1 variable at this key (insert it with
+            :meth:`add_time_offset_prior` before the measurements), shared by every synced measurement; None: the
+            offset is ``time_offset_s`` (known).
+        time_offset_s: synced, without ``time_offset_key``: the encoder clock's known offset from the camera's (s,
+            encoder minus camera).
     """
 
     def __init__(self, arm: Arm, camera: Camera, *, pose_key: int = gtsam.symbol("T", 0), line_symbol: str = "l",
@@ -579,8 +582,9 @@ class RotIdGraph:
                 raise InputError(f"measurement {k}: the spin readings ({readings.times[0]:.3f}-"
                                  f"{readings.times[-1]:.3f} s) do not cover the tracks' frames "
                                  f"({encoder.frame_times[0] + offset:.3f}-{encoder.frame_times[-1] + offset:.3f} s "
-                                 f"on the encoder's clock at the clocks' offset {offset:+.3f} s): give the offset "
-                                 "(time_offset_s, calibrate --time-offset) or leave the readings out (--no-sync)")
+                                 f"on the encoder's clock, {offset:+.3f} s from the camera's): give the clocks' "
+                                 "offset (camera minus encoder: CalibrationOptions.time_offset_s, calibrate "
+                                 "--time-offset) or leave the readings out")
         return make_rigid_line_factor(line_key, rigid, self.camera.K, circles, phi0, theta,
                                       sigma_px=float(np.median(sigmas)), robust=robust,
                                       intrinsics_key=self.intrinsics_key, encoder=encoder, time_key=time_key,

@@ -364,8 +364,7 @@ class CalibrationReport:
             "time_offset_sigma_s": None if self.time_offset_sigma_s is None else f(self.time_offset_sigma_s),
             "time_offset_prior_sigma_s": None if self.time_offset_prior_sigma_s is None
             else f(self.time_offset_prior_sigma_s),
-            "readings_refused": {str(k): {"chi2": f(v["chi2"]), "dof": v["dof"]}
-                                 for k, v in self.readings_refused.items()},
+            "readings_refused": {str(k): dict(v) for k, v in self.readings_refused.items()},
             "time_offset_noise_share": None if self.time_offset_noise_share is None
             else f(self.time_offset_noise_share),
             "untrusted": list(self.untrusted),

@@ -468,9 +468,14 @@ def synced_words(synced, offset_s: float | None, sigma_s: float | None, n_measur
     """What synced mode did (``result.synced``, ``time_offset_s``, ``time_offset_sigma_s``, the offset's prior
     1 sigma and the share of its information that the readings' own noise makes), and the readings it did not use
     (``result.readings_refused``); [] when no spin carried readings."""
-    lines = [f"encoders: measurement {k}'s readings disagree with the spin its tracks show (likelihood ratio "
-             f"{v['chi2']:.0f} for {v['dof']} frames): not used; check the joint's sense and scale in the readings, "
-             "their clock, or their noise (CalibrationOptions.encoder_sigma_deg)"
+    lines = [(f"encoders: measurement {k}'s readings ({v['readings'][0]:.3f} to {v['readings'][1]:.3f} s) do not "
+              f"cover its frames ({v['frames'][0]:.3f} to {v['frames'][1]:.3f} s on the encoder's clock): not used; "
+              "give the clocks' offset (CalibrationOptions.time_offset_s, calibrate --time-offset) if they are "
+              "stamped on another clock")
+             if v.get("why") == "cover" else
+             (f"encoders: measurement {k}'s readings disagree with the spin its tracks show (likelihood ratio "
+              f"{v['chi2']:.0f} for {v['dof']} frames): not used; check the joint's sense and scale in the readings, "
+              "their clock, or their noise (CalibrationOptions.encoder_sigma_deg)")
              for k, v in sorted((refused or {}).items())]
     return lines + _synced_lines(synced, offset_s, sigma_s, n_measurements, prior_sigma_s, noise_share)
 
@@ -483,14 +488,14 @@ def _synced_lines(synced, offset_s, sigma_s, n_measurements, prior_sigma_s, nois
     if offset_s is None:
         return [head]
     if sigma_s is None:
-        return [head + f"; the encoder's clock taken as {1000.0 * offset_s:+.1f} ms from the camera's (held)"]
+        return [head + f"; the clocks' offset (camera minus encoder) taken as {1000.0 * offset_s:+.1f} ms (held)"]
     if noise_share is not None and noise_share > 0.25:
         prior = "" if prior_sigma_s is None else f" ({1000.0 * prior_sigma_s:g} ms)"
         return [head + f"; the readings cannot date the frames: their own noise makes {100.0 * noise_share:.0f} % of "
                 "what looks like the clocks' offset's information (a spin at one speed, or noisy readings), so the "
                 f"offset keeps its prior's 1 sigma{prior}; start and stop the spin within the video to measure it"]
-    line = (head + f"; the encoder's clock runs {1000.0 * offset_s:+.2f} ms +- {1000.0 * sigma_s:.2f} ms (1 sigma) "
-            "from the camera's")
+    line = (head + f"; the clocks' offset (camera minus encoder) {1000.0 * offset_s:+.2f} ms +- "
+            f"{1000.0 * sigma_s:.2f} ms (1 sigma)")
     if prior_sigma_s is not None and sigma_s > 0.5 * prior_sigma_s:
         line += (f" (mostly its prior's {1000.0 * prior_sigma_s:g} ms: the spins' changes of speed hardly date the "
                  "frames; start and stop the spin within the video to measure it)")

@@ -288,17 +288,17 @@ def test_demo_from_video_runs_the_whole_pipeline(tmp_path):
 
 def test_calibrate_syncs_the_readings_a_dataset_carries(tmp_path):
     """A dataset whose spins carry their joint's readings (ramped spins, read 30 ms late) is calibrated synced by
-    default: the summary gives the clocks' offset, the JSON keeps it within 3 sigma of the truth; --no-sync ignores
-    the readings, --time-offset-sigma 0 holds the offset at --time-offset."""
+    default: the summary gives the clocks' offset (camera minus encoder: -30 ms), the JSON keeps it within 3 sigma
+    of the truth; --no-sync ignores the readings, --time-offset-sigma 0 holds the offset at --time-offset."""
     dataset, truth = simulate.reference_scene(seed=2, duration=6.0, n_measurements=5, spin_ramp=2.0,
                                               encoder_rate=100.0, encoder_sigma_deg=0.02, encoder_time_offset=0.03)
     root = dataset.save(tmp_path / "synced")
     truth.save(root / cli.TRUTH_FILE)
     out = tmp_path / "result.json"
     done = run("calibrate", str(root), "-o", str(out))
-    assert "every spin (synced); the encoder's clock runs" in done.stdout
+    assert "every spin (synced); the clocks' offset (camera minus encoder)" in done.stdout
     result = CalibrationResult.load(out)
-    assert result.synced == (0, 1, 2, 3, 4) and abs(result.time_offset_s - 0.03) < 3 * result.time_offset_sigma_s
+    assert result.synced == (0, 1, 2, 3, 4) and abs(result.time_offset_s + 0.03) < 3 * result.time_offset_sigma_s
     assert "encoders:" not in run("calibrate", str(root), "--no-sync").stdout
-    held = run("calibrate", str(root), "--time-offset", "0.03", "--time-offset-sigma", "0").stdout
-    assert "taken as +30.0 ms from the camera's (held)" in held
+    held = run("calibrate", str(root), "--time-offset=-0.03", "--time-offset-sigma", "0").stdout
+    assert "(camera minus encoder) taken as -30.0 ms (held)" in held

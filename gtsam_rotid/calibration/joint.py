@@ -206,6 +206,11 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     offsets = setup.offsets
     intrinsics = _IntrinsicsPrior.of(camera, setup, options)
     sync = _Sync.of(measurements, used, options)
+    uncovered = {} if sync is None else _uncovered_readings(measurements, sync)
+    if uncovered:  # readings that do not cover a spin's frames: that spin fitted without them
+        kept = [m if k not in uncovered else m.replace(spin_readings=None) for k, m in enumerate(measurements)]
+        out = _joint_fit(arm, camera, kept, setup, fit, options)
+        return replace(out, readings_refused={**uncovered, **out.readings_refused})
     builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model,
                        spin_model=options.spin_model, joint_offsets=None if offsets is None else offsets.names(arm),
                        intrinsics_key=None if intrinsics is None else INTRINSICS_KEY, **_sync_kwargs(sync))
@@ -330,7 +335,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                       intrinsics_covariance=intrinsics_covariance, intrinsics_prior_sigma=options.intrinsics_sigma,
                       given_intrinsics={n: given[n] for n in options.refine_intrinsics})
     if sync is not None:
-        out = replace(out, synced=sync.measurements, time_offset_s=sync.now,
+        out = replace(out, synced=sync.measurements, time_offset_s=-sync.now,
                       time_offset_prior_sigma_s=sync.sigma,
                       **_time_offset_sigma(graph, result, sync, correlated, out, keys))
     if offsets is not None:
@@ -348,6 +353,21 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                       joint_offsets_covariance=offsets_covariance, pose_offsets_covariance=cross,
                       joint_offset_sigma_deg=float(np.degrees(offsets.sigma[0])))
     return replace(out, alternatives=_outside(fit.alternatives, out))
+
+
+def _uncovered_readings(measurements, sync: _Sync) -> dict[int, dict]:
+    """The synced measurements whose readings do not cover their tracks' frames at the offset ``sync.now``:
+    measurement -> {"why": "cover", "readings": [first, last] (s, encoder's clock), "frames": [first, last] (s, on
+    the encoder's clock at that offset)}."""
+    out = {}
+    for k in sync.measurements:
+        m = measurements[k]
+        frames = np.concatenate([t.frames for t in m.tracks if t.frames is not None])
+        times = m.spin_readings.frame_times[frames] + sync.now
+        first, last = float(m.spin_readings.times[0]), float(m.spin_readings.times[-1])
+        if times.min() < first or times.max() > last:
+            out[k] = {"why": "cover", "readings": [first, last], "frames": [float(times.min()), float(times.max())]}
+    return out
 
 
 def _disagreeing_readings(keys, result: gtsam.Values, sync: _Sync, z: float) -> dict[int, dict]:
@@ -547,8 +567,9 @@ class _IntrinsicsPrior(NamedTuple):
 
 class _Sync(NamedTuple):
     """Synced mode (``CalibrationOptions.sync_encoders``): the measurements with spin readings among those fitted,
-    the readings' sigma, and the encoder clock's offset: its prior (mean, sigma; sigma None: held at the mean) and
-    its current value (s)."""
+    the readings' sigma, and the encoder clock's offset from the camera's (encoder minus camera, the graph's
+    variable: the options' and the result's offset with the other sign): its prior (mean, sigma; sigma None: held at
+    the mean) and its current value (s)."""
 
     measurements: tuple
     encoder_sigma_deg: float
@@ -564,8 +585,8 @@ class _Sync(NamedTuple):
         if (not synced or not options.sync_encoders or options.spin_model != "rigid"
                 or options.joint_model is not Model.PROJECTED):
             return None
-        return cls(synced, options.encoder_sigma_deg, options.time_offset_s, options.time_offset_sigma_s,
-                   options.time_offset_s)
+        return cls(synced, options.encoder_sigma_deg, -options.time_offset_s, options.time_offset_sigma_s,
+                   -options.time_offset_s)
 
     def builder_kwargs(self) -> dict:
         return {"encoder_sigma_deg": self.encoder_sigma_deg, "time_offset_s": self.now,

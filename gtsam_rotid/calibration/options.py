@@ -123,15 +123,17 @@ class CalibrationOptions:
     #: the camera file may be off
     intrinsics_sigma: tuple = DEFAULT_INTRINSICS_SIGMA
     #: joint, rigid spin: measurements that carry their spinning joint's readings (``Measurement.spin_readings``)
-    #: have every frame's angle under those readings' prior (synced mode), with the encoder clock's offset from the
-    #: camera's estimated (``time_offset_s``, ``time_offset_sigma_s``). False: the readings are not used.
+    #: have every frame's angle under those readings' prior (synced mode), with the clocks' offset estimated
+    #: (``time_offset_s``, ``time_offset_sigma_s``). False: the readings are not used.
     sync_encoders: bool = True
     #: synced: each frame's angle's 1 sigma from the readings (deg): the encoder's noise and its stamps' jitter
     #: times the spin's speed
     encoder_sigma_deg: float = 0.05
-    #: synced: the encoder clock's offset from the camera's (s), the mean of its Gaussian prior of 1 sigma
-    #: ``time_offset_sigma_s`` (None: known, held at ``time_offset_s``). A spin at constant speed cannot tell the
-    #: offset from the features' phases: the prior then holds it (a spin that speeds up and slows down dates it).
+    #: synced: the clocks' offset, camera minus encoder (s: a reading stamped t was taken when the camera's clock
+    #: read t + offset; the convention of ``gtsam-rotid track --time-offset`` and of bags), the mean of its Gaussian
+    #: prior of 1 sigma ``time_offset_sigma_s`` (None: known, held at ``time_offset_s``). A spin at constant speed
+    #: cannot tell the offset from the features' phases: the prior then holds it (a spin that speeds up and slows
+    #: down dates it).
     time_offset_s: float = 0.0
     time_offset_sigma_s: float | None = 0.1
 

@@ -246,8 +246,9 @@ class CalibrationResult:
     #: joint, synced (``CalibrationOptions.sync_encoders``): the measurements whose spin readings put a prior on
     #: their rigid spin's angles; () : none
     synced: tuple = ()
-    #: the encoder clock's offset from the camera's (s: a frame at camera time t was read at encoder time t +
-    #: offset), estimated (or held, ``time_offset_sigma_s`` None) in the synced fit; None: not synced
+    #: the clocks' offset, camera minus encoder (s: a reading stamped t was taken when the camera's clock read t +
+    #: offset; as ``CalibrationOptions.time_offset_s``), estimated (or held, ``time_offset_sigma_s`` None) in the
+    #: synced fit; None: not synced
     time_offset_s: float | None = None
     #: its 1 sigma (s; scaled with the pose's when the axes' scatter scaled it); None: held or not synced
     time_offset_sigma_s: float | None = None
@@ -256,8 +257,9 @@ class CalibrationResult:
     #: the share of the offset's information that the readings' own noise makes (above 0.25 the readings cannot
     #: date the frames and ``time_offset_sigma_s`` is the prior's); None: held or not synced
     time_offset_noise_share: float | None = None
-    #: measurements whose readings disagreed with their tracks' spin and were not used: measurement -> {"chi2",
-    #: "dof"} (the likelihood ratio of their prior at the synced fit, and its degrees of freedom)
+    #: measurements whose readings were not used: measurement -> {"chi2", "dof"} where they disagreed with their
+    #: tracks' spin (the likelihood ratio of their prior, and its degrees of freedom), {"why": "cover", "readings",
+    #: "frames"} where they did not cover its frames (first and last, s on the encoder's clock)
     readings_refused: dict = field(default_factory=dict)
 
     @property
@@ -414,8 +416,7 @@ class CalibrationResult:
             else float(data["time_offset_prior_sigma_s"]),
             time_offset_noise_share=None if data.get("time_offset_noise_share") is None
             else float(data["time_offset_noise_share"]),
-            readings_refused={int(k): {"chi2": float(v["chi2"]), "dof": int(v["dof"])}
-                              for k, v in (data.get("readings_refused") or {}).items()},
+            readings_refused={int(k): dict(v) for k, v in (data.get("readings_refused") or {}).items()},
         )
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:

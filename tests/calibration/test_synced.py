@@ -13,7 +13,8 @@ from gtsam_rotid.dataset import Dataset, Measurement, SpinReadings
 from gtsam_rotid.graph import chi2_quantile
 from gtsam_rotid.simulate import reference_scene
 
-OFFSET = 0.037  # s: the encoder's clock ahead of the camera's
+OFFSET = 0.037  # s: the encoder's clock ahead of the camera's (the simulator's encoder_time_offset)
+CAMERA_MINUS_ENCODER = -OFFSET  # the result's and the options' convention (as bags and track --time-offset)
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +38,7 @@ def test_synced_calibration_finds_the_clocks_offset_and_holds_its_covariance(ram
     assert synced.synced == tuple(range(len(dataset))) and plain.synced == ()
     assert plain.time_offset_s is None and plain.time_offset_sigma_s is None
     assert synced.covariance_usable and synced.time_offset_prior_sigma_s == 0.1
-    assert abs(synced.time_offset_s - OFFSET) < 3 * synced.time_offset_sigma_s
+    assert abs(synced.time_offset_s - CAMERA_MINUS_ENCODER) < 3 * synced.time_offset_sigma_s
     assert synced.time_offset_sigma_s < 1.0 / 30
     assert chi2(synced, truth) < 22.5
     assert np.all(np.diag(synced.covariance) < np.diag(plain.covariance))
@@ -54,8 +55,9 @@ def test_a_known_offset_is_held_and_a_steady_spin_leaves_it_to_its_prior(ramped)
     (exact readings: nothing but their rate's changes could): the offset's 1 sigma is then its prior's, and the
     words say why."""
     dataset, _ = ramped
-    held = calibrate(dataset, options=CalibrationOptions(time_offset_s=OFFSET, time_offset_sigma_s=None))
-    assert held.time_offset_s == OFFSET and held.time_offset_sigma_s is None and held.synced
+    held = calibrate(dataset, options=CalibrationOptions(time_offset_s=CAMERA_MINUS_ENCODER,
+                                                         time_offset_sigma_s=None))
+    assert held.time_offset_s == CAMERA_MINUS_ENCODER and held.time_offset_sigma_s is None and held.synced
     assert "(held)" in summary(held)
     steady, _ = reference_scene(seed=11, duration=8.0, encoder_rate=100.0, encoder_sigma_deg=0.0,
                                 encoder_time_offset=OFFSET)
@@ -120,7 +122,7 @@ def test_synced_with_joint_offsets_or_intrinsics_refined(ramped, refined):
     dataset, truth = ramped
     result = calibrate(dataset, options=CalibrationOptions(**refined))
     assert result.synced == tuple(range(len(dataset)))
-    assert abs(result.time_offset_s - OFFSET) < 3 * result.time_offset_sigma_s
+    assert abs(result.time_offset_s - CAMERA_MINUS_ENCODER) < 3 * result.time_offset_sigma_s
     assert chi2(result, truth) < 22.5
 
 
@@ -132,7 +134,7 @@ def test_readings_too_noisy_to_date_the_frames_leave_the_offset_to_its_prior():
                                  encoder_time_offset=OFFSET)
     result = calibrate(dataset, options=CalibrationOptions(encoder_sigma_deg=1.0))
     assert result.synced and result.time_offset_noise_share > 0.25
-    assert result.time_offset_sigma_s == 0.1 and abs(result.time_offset_s - OFFSET) < 0.1
+    assert result.time_offset_sigma_s == 0.1 and abs(result.time_offset_s - CAMERA_MINUS_ENCODER) < 0.1
     assert "the readings cannot date the frames" in summary(result)
 
 
@@ -146,3 +148,19 @@ def test_readings_that_never_move_are_refused(ramped):
     plain = calibrate(dataset, options=CalibrationOptions(sync_encoders=False))
     assert sorted(result.readings_refused) == list(range(len(dataset))) and result.synced == ()
     np.testing.assert_allclose(result.error_to(truth.arm_T_camera), plain.error_to(truth.arm_T_camera), atol=1e-9)
+
+
+def test_readings_that_miss_a_spins_frames_leave_that_spin_unsynced(ramped):
+    """Readings that stop 2 s before one spin's video ends: that spin is named and fitted without them (the others
+    synced), not the whole calibration refused."""
+    dataset, truth = ramped
+    measurements = list(dataset)
+    r = measurements[2].spin_readings
+    keep = r.times < r.times[-1] - 2.0
+    measurements[2] = measurements[2].replace(spin_readings=SpinReadings(r.frame_times, r.times[keep],
+                                                                         r.angles[keep]))
+    result = calibrate(Dataset(dataset.arm, dataset.camera, measurements))
+    assert list(result.readings_refused) == [2] and result.readings_refused[2]["why"] == "cover"
+    assert result.synced == (0, 1, 3, 4, 5) and chi2(result, truth) < 22.5
+    assert "measurement 2's readings" in summary(result) and "do not cover its frames" in summary(result)
+    assert CalibrationResult.from_dict(result.to_dict()).readings_refused == result.readings_refused
