@@ -57,7 +57,8 @@ def _simulate_scene(scene: str, seed: int, **changes):
 
 def _scene_changes(args) -> dict:
     changes = {}
-    for name in ("noise_var", "duration", "n_measurements", "outlier_fraction"):
+    for name in ("noise_var", "duration", "n_measurements", "outlier_fraction", "spin_ramp", "encoder_rate",
+                 "encoder_sigma_deg", "encoder_time_offset"):
         value = getattr(args, name, None)
         if value is not None:
             changes[name] = value
@@ -624,6 +625,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="dataset directory to write")
     p.add_argument("--overwrite", action="store_true", help="replace an existing dataset")
     _add_scene_options(p)
+    p.add_argument("--spin-ramp", type=float, metavar="S",
+                   help="seconds over which each spin speeds up from rest and slows to rest (default 0: one speed)")
+    p.add_argument("--encoder-rate", type=float, metavar="HZ",
+                   help="readings of the spinning joint per second, stored with each measurement for synced "
+                        "calibration (default 0: none)")
+    p.add_argument("--encoder-sigma-deg", type=float, metavar="DEG", help="the readings' noise (default 0)")
+    p.add_argument("--encoder-time-offset", type=float, metavar="S",
+                   help="how far the readings' clock runs ahead of the camera's (s; calibrate reports camera minus "
+                        "encoder, the negative)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("calibrate", help="estimate arm_T_camera from a dataset directory",

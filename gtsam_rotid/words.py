@@ -84,6 +84,9 @@ def summary(result: CalibrationResult) -> str:
     lines.extend("  " + line for line in synced_words(result.synced, result.time_offset_s, result.time_offset_sigma_s,
                                                       len(result.measurements), result.time_offset_prior_sigma_s,
                                                       result.readings_refused, result.time_offset_noise_share))
+    if result.readings_ignored:
+        lines.append(f"  encoders: the measurements' joint readings are not used by the {result.method} method "
+                     "(only joint with the rigid spin syncs them)")
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
         why = outlier_words(m, intrinsics_suspected(result.untrusted), kinematics_suspected(result.untrusted))

@@ -290,10 +290,10 @@ def test_calibrate_syncs_the_readings_a_dataset_carries(tmp_path):
     """A dataset whose spins carry their joint's readings (ramped spins, read 30 ms late) is calibrated synced by
     default: the summary gives the clocks' offset (camera minus encoder: -30 ms), the JSON keeps it within 3 sigma
     of the truth; --no-sync ignores the readings, --time-offset-sigma 0 holds the offset at --time-offset."""
-    dataset, truth = simulate.reference_scene(seed=2, duration=6.0, n_measurements=5, spin_ramp=2.0,
-                                              encoder_rate=100.0, encoder_sigma_deg=0.02, encoder_time_offset=0.03)
-    root = dataset.save(tmp_path / "synced")
-    truth.save(root / cli.TRUTH_FILE)
+    root = tmp_path / "synced"
+    run("simulate", "--seed", "2", "--duration", "6", "--n-measurements", "5", "--spin-ramp", "2", "--encoder-rate",
+        "100", "--encoder-sigma-deg", "0.02", "--encoder-time-offset", "0.03", "-o", str(root))
+    assert all(m.spin_readings is not None for m in Dataset.load(root))
     out = tmp_path / "result.json"
     done = run("calibrate", str(root), "-o", str(out))
     assert "every spin (synced); the clocks' offset (camera minus encoder)" in done.stdout

@@ -257,6 +257,8 @@ class CalibrationResult:
     #: the share of the offset's information that the readings' own noise makes (above 0.25 the readings cannot
     #: date the frames and ``time_offset_sigma_s`` is the prior's); None: held or not synced
     time_offset_noise_share: float | None = None
+    #: the measurements carry spin readings that this method does not use (only ``joint`` with the rigid spin does)
+    readings_ignored: bool = False
     #: measurements whose readings were not used: measurement -> {"chi2", "dof"} where they disagreed with their
     #: tracks' spin (the likelihood ratio of their prior, and its degrees of freedom), {"why": "cover", "readings",
     #: "frames"} where they did not cover its frames (first and last, s on the encoder's clock)
@@ -365,6 +367,7 @@ class CalibrationResult:
             "time_offset_prior_sigma_s": self.time_offset_prior_sigma_s,
             "time_offset_noise_share": self.time_offset_noise_share,
             "readings_refused": {str(k): v for k, v in self.readings_refused.items()},
+            "readings_ignored": self.readings_ignored,
         }
 
     @classmethod
@@ -417,6 +420,7 @@ class CalibrationResult:
             time_offset_noise_share=None if data.get("time_offset_noise_share") is None
             else float(data["time_offset_noise_share"]),
             readings_refused={int(k): dict(v) for k, v in (data.get("readings_refused") or {}).items()},
+            readings_ignored=bool(data.get("readings_ignored", False)),
         )
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:

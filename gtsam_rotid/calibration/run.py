@@ -100,8 +100,14 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
             dict(p.rejected), OutlierKind.FEW_TRACKS.value, axis_point=[float(v) for v in axis.point],
             axis_direction=[float(v) for v in axis.direction], arc_span_deg=max(spans) if spans else None, weak=True,
             spin_joint=measurements[k].spin_joint))
+    # (the synced measurements' indices back to the caller's, as the reports'; readings that only the joint method
+    # with the rigid spin uses are said to be unused by the others)
+    ignored = (options.sync_encoders and any(m.spin_readings is not None for m in measurements)
+               and (method is not Method.JOINT or options.spin_model != "rigid"))
     result = replace(result, measurements=sorted(reports, key=lambda r: r.index), robot=arm.description(),
-                     dataset=source)
+                     dataset=source, synced=tuple(kept[k] for k in result.synced),
+                     readings_refused={kept[k]: v for k, v in result.readings_refused.items()},
+                     readings_ignored=bool(ignored))
     return replace(result, untrusted=_untrusted(result, setup))
 
 

@@ -164,3 +164,19 @@ def test_readings_that_miss_a_spins_frames_leave_that_spin_unsynced(ramped):
     assert result.synced == (0, 1, 3, 4, 5) and chi2(result, truth) < 22.5
     assert "measurement 2's readings" in summary(result) and "do not cover its frames" in summary(result)
     assert CalibrationResult.from_dict(result.to_dict()).readings_refused == result.readings_refused
+
+
+def test_indices_are_the_datasets_and_other_methods_say_they_ignore_the_readings(ramped):
+    """With a measurement left out before the fit (one track: no image axis), the synced and refused indices are
+    still the dataset's; weighted says it does not use the readings."""
+    dataset, truth = ramped
+    measurements = list(dataset)
+    measurements[1] = measurements[1].replace(tracks=measurements[1].tracks[:1])
+    r = measurements[3].spin_readings
+    measurements[3] = measurements[3].replace(spin_readings=SpinReadings(r.frame_times, r.times, -r.angles))
+    result = calibrate(Dataset(dataset.arm, dataset.camera, measurements))
+    assert result.synced == (0, 2, 4, 5) and list(result.readings_refused) == [3]
+    assert "measurement 3's readings disagree" in summary(result) and not result.readings_ignored
+    weighted = calibrate(dataset, method="weighted")
+    assert weighted.readings_ignored and weighted.synced == ()
+    assert "not used by the weighted method" in summary(weighted)
