@@ -79,7 +79,7 @@ from .rigid import (
     spin_chunk_index,
     spin_priors,
 )
-from .rigid_line import EncoderPrior, RigidLineFactor, RigidTracks, make_rigid_line_factor
+from .rigid_line import EncoderPrior, RigidLineFactor, RigidTracks, closest_spin, make_rigid_line_factor
 
 __all__ = [
     "EncoderPrior",
@@ -98,6 +98,7 @@ __all__ = [
     "circle_point_residuals",
     "circle_points",
     "closest_phases",
+    "closest_spin",
     "image_line_from_rot3",
     "initial_spin",
     "line_distance_covariance",

@@ -46,7 +46,7 @@ from .coaxial_tracks import CoaxialTracks
 from .geometry import cal3_s2
 from .rigid import _track_components, initial_spin
 
-__all__ = ["EncoderPrior", "RigidLineFactor", "RigidTracks", "make_rigid_line_factor"]
+__all__ = ["EncoderPrior", "RigidLineFactor", "RigidTracks", "closest_spin", "make_rigid_line_factor"]
 
 #: Trust region of the inner steps: no track's circle ``(d, r)`` moves by more than this times its radius in one
 #: step (nor by the first-order prediction, which is then left out). Without it, a track whose circle is weakly
@@ -626,12 +626,11 @@ class RigidLineFactor(CoaxialLineFactor):
         """Degrees of freedom of the pixels' residuals at ``x``: ``2N`` less the inner parameters they fit (as
         :attr:`inner_dof`); synced, each frame's angle counts by the pixels' share of its information (the readings
         hold the rest)."""
-        tracks = self.tracks
-        dof = 2 * tracks.n_points - (3 * tracks.n_tracks - len(self._held))
+        dof = 2 * self.tracks.n_points - self.inner_dof
         if self.encoder is None:
-            return float(dof - tracks.n_frames)
-        information = self._at(x).normal.root ** 2  # the pixels' and the prior's
-        return float(dof - np.sum(1.0 - 1.0 / (self.encoder.sigma**2 * information)))
+            return float(dof)
+        information = self._at(x).normal.root ** 2  # the pixels' and the prior's: the prior's share is given back
+        return float(dof + np.sum(1.0 / (self.encoder.sigma**2 * information)))
 
     def error(self, x=None) -> float:
         """The factor's error (GTSAM's): the pixels' (half the whitened chi-square, or the robust losses), plus
@@ -684,15 +683,9 @@ class RigidLineFactor(CoaxialLineFactor):
         circles (not from this state's: readings that never move, say, drag the circles where no spin fits)."""
         tracks, m3 = self.tracks, 3 * self.tracks.n_tracks
         circles = np.column_stack([self._start[0:m3:3], self._start[1:m3:3]])
-        pixels = np.split(tracks.pixels, np.cumsum(tracks.counts)[:-1])
-        frames = np.split(tracks.frame_ids[tracks.frame], np.cumsum(tracks.counts)[:-1])
-        phases = CoaxialTracks(state.K, pixels).phases(state.R, circles[:, 0], circles[:, 1])
-        first = int(tracks.frame_ids[0])
-        spin = initial_spin(list(zip(frames, np.split(phases, np.cumsum(tracks.counts)[:-1]), strict=True)),
-                            int(tracks.frame_ids[-1]) - first + 1, first)
-        return RigidLineFactor(self.line_key, tracks, state.K, circles, spin.phi0,
-                               spin.theta[0][tracks.frame_ids - first], self.sigma_px, self._robust, tol=self.tol,
-                               max_evaluations=self.max_evaluations)
+        phi0, theta = closest_spin(tracks, state.K, state.R, circles)
+        return RigidLineFactor(self.line_key, tracks, state.K, circles, phi0, theta, self.sigma_px, self._robust,
+                               tol=self.tol, max_evaluations=self.max_evaluations)
 
     def encoder_residuals(self, x=None) -> np.ndarray | None:
         """(F,) the frames' angles less the encoder prior's (rad) at ``x``; None unsynced."""
@@ -755,6 +748,19 @@ class RigidLineFactor(CoaxialLineFactor):
             for k in range(i, 3):
                 out[:, i, k] = out[:, k, i] = self.tracks.track_sums(np.einsum("sn,sn->n", J[i], J[k]))
         return out
+
+
+def closest_spin(tracks: RigidTracks, K, R, circles) -> tuple[np.ndarray, np.ndarray]:
+    """A rigid spin's start from circles: ``(phi0 (m,), theta (F,))`` (:func:`.rigid.initial_spin` of the closest
+    phases of the tracks' pixels on the circles ``(m, 2)`` about the line ``R``), theta in ``tracks.frame_ids``'
+    order."""
+    split = np.cumsum(tracks.counts)[:-1]
+    circles = np.asarray(circles, dtype=float).reshape(-1, 2)
+    phases = CoaxialTracks(K, np.split(tracks.pixels, split)).phases(R, circles[:, 0], circles[:, 1])
+    first = int(tracks.frame_ids[0])
+    spin = initial_spin(list(zip(np.split(tracks.frame_ids[tracks.frame], split), np.split(phases, split),
+                                 strict=True)), int(tracks.frame_ids[-1]) - first + 1, first)
+    return spin.phi0, spin.theta[0][tracks.frame_ids - first]
 
 
 def make_rigid_line_factor(line_key: int, tracks, K, circles, phi0, theta, *, sigma_px: float = 1.0,

@@ -32,13 +32,12 @@ from .dataset import Measurement, Track
 from .errors import InputError
 from .factors import (
     CoaxialLineFactor,
-    CoaxialTracks,
     EncoderPrior,
     FKAxis,
     RigidLineFactor,
     RigidTracks,
     cal3_s2,
-    initial_spin,
+    closest_spin,
     make_axis_offsets_to_line_variable_factor,
     make_axis_to_line_variable_factor,
     make_circle_point_factor,
@@ -559,12 +558,8 @@ class RotIdGraph:
         if started is not None:
             rigid, circles, phi0, theta = started
         else:
-            phases = CoaxialTracks(self.camera.K, ideal).phases(line, circles[:, 0], circles[:, 1])
             rigid = RigidTracks(list(zip(ideal, frames, strict=True)))
-            first = int(rigid.frame_ids[0])
-            spin = initial_spin(list(zip(frames, np.split(phases, np.cumsum(rigid.counts)[:-1]), strict=True)),
-                                int(rigid.frame_ids[-1]) - first + 1, first)
-            phi0, theta = spin.phi0, spin.theta[0][rigid.frame_ids - first]
+            phi0, theta = closest_spin(rigid, self.camera.K, line, circles)
         robust = self.robust
         if callable(robust) and not isinstance(robust, gtsam.noiseModel.mEstimator.Base):
             robust = lambda n, per_residuals=self.robust: per_residuals(2 * n)  # noqa: E731  (2 residuals a point)

@@ -208,9 +208,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     sync = _Sync.of(measurements, used, options)
     uncovered = {} if sync is None else _uncovered_readings(measurements, sync)
     if uncovered:  # readings that do not cover a spin's frames: that spin fitted without them
-        kept = [m if k not in uncovered else m.replace(spin_readings=None) for k, m in enumerate(measurements)]
-        out = _joint_fit(arm, camera, kept, setup, fit, options)
-        return replace(out, readings_refused={**uncovered, **out.readings_refused})
+        return _without_readings(arm, camera, measurements, setup, fit, options, uncovered)
     builder = _builder(arm, camera, options, robust=track_huber, model=options.joint_model,
                        spin_model=options.spin_model, joint_offsets=None if offsets is None else offsets.names(arm),
                        intrinsics_key=None if intrinsics is None else INTRINSICS_KEY, **_sync_kwargs(sync))
@@ -243,9 +241,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         if _round == 0 and sync is not None:  # grossly wrong readings (see below), where the fit starts
             refused = _disagreeing_readings(keys, values, sync, READINGS_START_Z)
             if refused:
-                kept = [m if k not in refused else m.replace(spin_readings=None) for k, m in enumerate(measurements)]
-                out = _joint_fit(arm, camera, kept, setup, fit, options)
-                return replace(out, readings_refused={**refused, **out.readings_refused})
+                return _without_readings(arm, camera, measurements, setup, fit, options, refused)
         start_pose = pose
         result, it, error, converged = _lm(
             graph, values, options.max_iterations, anchor=True, watch_tolerance=WATCH_POSE,
@@ -256,9 +252,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
             # synced circles where no spin fits): those spins fitted without them
             refused = _disagreeing_readings(keys, result, sync, READINGS_Z)
             if refused:
-                kept = [m if k not in refused else m.replace(spin_readings=None) for k, m in enumerate(measurements)]
-                out = _joint_fit(arm, camera, kept, setup, fit, options)
-                return replace(out, readings_refused={**refused, **out.readings_refused})
+                return _without_readings(arm, camera, measurements, setup, fit, options, refused)
         iterations += it
         pose = result.atPose3(POSE_KEY)
         if offsets is not None:
@@ -353,6 +347,14 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                       joint_offsets_covariance=offsets_covariance, pose_offsets_covariance=cross,
                       joint_offset_sigma_deg=float(np.degrees(offsets.sigma[0])))
     return replace(out, alternatives=_outside(fit.alternatives, out))
+
+
+def _without_readings(arm, camera, measurements, setup, fit: _Stage2, options, refused: dict) -> CalibrationResult:
+    """:func:`_joint_fit` again with the readings of the measurements ``refused`` (measurement -> why) left out, and
+    those named in ``readings_refused``."""
+    kept = [m if k not in refused else m.replace(spin_readings=None) for k, m in enumerate(measurements)]
+    out = _joint_fit(arm, camera, kept, setup, fit, options)
+    return replace(out, readings_refused={**refused, **out.readings_refused})
 
 
 def _uncovered_readings(measurements, sync: _Sync) -> dict[int, dict]:
