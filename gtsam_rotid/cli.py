@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 import time
 from collections.abc import Callable
@@ -124,6 +125,14 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+#: ``calibrate``'s flags by the CalibrationOptions field each sets (its errors name the flag)
+CALIBRATE_FLAGS = {"joint_sigma_deg": "--joint-sigma-deg", "axis_floor_px": "--axis-floor-px",
+                   "joint_offsets": "--joint-offsets", "joint_offset_sigma_deg": "--joint-offset-sigma-deg",
+                   "refine_intrinsics": "--refine-intrinsics", "intrinsics_sigma": "--intrinsics-sigma",
+                   "sync_encoders": "--no-sync", "encoder_sigma_deg": "--encoder-sigma-deg",
+                   "time_offset_s": "--time-offset", "time_offset_sigma_s": "--time-offset-sigma"}
+
+
 def cmd_calibrate(args) -> int:
     path = Path(args.dataset)
     output = Path(args.output) if args.output else None
@@ -137,12 +146,20 @@ def cmd_calibrate(args) -> int:
 
     offsets = None if args.joint_offsets is None else (args.joint_offsets or True)  # no names: every joint
     intrinsics = () if args.refine_intrinsics is None else (tuple(args.refine_intrinsics) or True)
-    result = _calibrate_timed(dataset, args.method, CalibrationOptions(
-        joint_sigma_deg=args.joint_sigma_deg, axis_floor_px=args.axis_floor_px, joint_offsets=offsets,
-        joint_offset_sigma_deg=args.joint_offset_sigma_deg, refine_intrinsics=intrinsics,
-        intrinsics_sigma=tuple(args.intrinsics_sigma), sync_encoders=not args.no_sync,
-        encoder_sigma_deg=args.encoder_sigma_deg, time_offset_s=args.time_offset,
-        time_offset_sigma_s=None if args.time_offset_sigma == 0 else args.time_offset_sigma))
+    if not args.time_offset_sigma >= 0:  # (0 holds the offset: None below)
+        raise InputError(f"--time-offset-sigma must be a number of seconds >= 0 (0 holds the offset at "
+                         f"--time-offset), got {args.time_offset_sigma:g}")
+    try:
+        options = CalibrationOptions(
+            joint_sigma_deg=args.joint_sigma_deg, axis_floor_px=args.axis_floor_px, joint_offsets=offsets,
+            joint_offset_sigma_deg=args.joint_offset_sigma_deg, refine_intrinsics=intrinsics,
+            intrinsics_sigma=tuple(args.intrinsics_sigma), sync_encoders=not args.no_sync,
+            encoder_sigma_deg=args.encoder_sigma_deg, time_offset_s=args.time_offset,
+            time_offset_sigma_s=None if args.time_offset_sigma == 0 else args.time_offset_sigma)
+    except InputError as error:  # the flag the user typed, not the option's field
+        raise InputError(re.sub(r"CalibrationOptions\.(\w+)", lambda m: CALIBRATE_FLAGS.get(m[1], m[0]),
+                                str(error))) from None
+    result = _calibrate_timed(dataset, args.method, options)
     print(summary(result))
     if truth is not None:
         _print_lines(error_vs_truth_lines(result, truth.arm_T_camera))

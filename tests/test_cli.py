@@ -233,7 +233,17 @@ def test_calibrate_joint_sigma_widens_the_covariance(noise_free_dataset, tmp_pat
     assert translation < 1e-6  # the estimate itself is unchanged: the readings are exact here
     assert np.all(loaded.sigma_mm_arm > 0.1) and np.all(loaded.sigma_mm_arm < 20.0), loaded.sigma_mm_arm
     bad = run("calibrate", str(noise_free_dataset), "--joint-sigma-deg", "-1", check=False)
-    assert bad.returncode != 0 and "joint_sigma_deg must be a finite value >= 0" in bad.stderr
+    assert bad.returncode != 0 and "--joint-sigma-deg must be a finite value >= 0" in bad.stderr
+
+
+def test_calibrate_errors_name_the_flags_not_the_options_fields(noise_free_dataset):
+    for flags, said in ((["--encoder-sigma-deg", "-1"], "--encoder-sigma-deg must be a positive number of degrees"),
+                        (["--time-offset-sigma", "-2"], "--time-offset-sigma must be a number of seconds >= 0"),
+                        (["--time-offset", "nan"], "--time-offset must be a finite number of seconds"),
+                        (["--intrinsics-sigma", "0", "1"], "--intrinsics-sigma must be (focal fraction"),
+                        (["--joint-offset-sigma-deg", "0"], "--joint-offset-sigma-deg must be a positive")):
+        bad = run("calibrate", str(noise_free_dataset), *flags, check=False)
+        assert bad.returncode == 1 and said in bad.stderr and "CalibrationOptions" not in bad.stderr, bad.stderr
 
 
 def test_calibrate_joint_offsets_prints_and_saves_them(noise_free_dataset, tmp_path):
