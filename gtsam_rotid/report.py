@@ -53,6 +53,7 @@ from .words import (
     kinematics_words,
     observability_words,
     outlier_words,
+    readings_ignored_words,
     refined_intrinsics_words,
     synced_words,
     tracking_words,
@@ -155,6 +156,8 @@ class CalibrationReport:
     time_offset_prior_sigma_s: float | None = None
     readings_refused: dict = field(default_factory=dict)
     time_offset_noise_share: float | None = None
+    #: the measurements carry joint readings that this method does not use (only joint with the rigid spin)
+    readings_ignored: bool = False
     #: intrinsics as given: what the tracks' shapes say of them (``result.intrinsics_shapes``); None: not checked
     intrinsics_shapes: dict | None = None
     #: why a determined calibration's covariance is still not trusted (``result.untrusted``'s kinds)
@@ -224,6 +227,7 @@ class CalibrationReport:
                 *filter(None, [intrinsics_assumed_words(self.intrinsics_shapes)]),
                 *synced_words(self.synced, self.time_offset_s, self.time_offset_sigma_s, len(self.measurements),
                               self.time_offset_prior_sigma_s, self.readings_refused, self.time_offset_noise_share),
+                *readings_ignored_words(self.readings_ignored, self.method),
                 tracking_words(self.axis_floor_px)]
 
     def _uncertainty_lines(self) -> list[str]:
@@ -367,6 +371,7 @@ class CalibrationReport:
             "readings_refused": {str(k): dict(v) for k, v in self.readings_refused.items()},
             "time_offset_noise_share": None if self.time_offset_noise_share is None
             else f(self.time_offset_noise_share),
+            "readings_ignored": self.readings_ignored,
             "untrusted": list(self.untrusted),
             "axis_consistency": None if self.axis_consistency is None
             else {k: (f(v) if isinstance(v, float) else v) for k, v in self.axis_consistency.to_dict().items()},
@@ -601,6 +606,7 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         time_offset_prior_sigma_s=getattr(result, "time_offset_prior_sigma_s", None),
         readings_refused=dict(getattr(result, "readings_refused", {})),
         time_offset_noise_share=getattr(result, "time_offset_noise_share", None),
+        readings_ignored=bool(getattr(result, "readings_ignored", False)),
     )
 
 

@@ -84,9 +84,7 @@ def summary(result: CalibrationResult) -> str:
     lines.extend("  " + line for line in synced_words(result.synced, result.time_offset_s, result.time_offset_sigma_s,
                                                       len(result.measurements), result.time_offset_prior_sigma_s,
                                                       result.readings_refused, result.time_offset_noise_share))
-    if result.readings_ignored:
-        lines.append(f"  encoders: the measurements' joint readings are not used by the {result.method} method "
-                     "(only joint with the rigid spin syncs them)")
+    lines.extend("  " + line for line in readings_ignored_words(result.readings_ignored, result.method))
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
         why = outlier_words(m, intrinsics_suspected(result.untrusted), kinematics_suspected(result.untrusted))
@@ -463,6 +461,14 @@ def refined_intrinsics_words(intrinsics: dict[str, float], sigma: dict[str, floa
     lines.append("  refining intrinsics costs precision along the camera's depth (a focal length and the distance "
                  "trade off): add arm poses at other distances from the camera to win it back")
     return lines
+
+
+def readings_ignored_words(ignored: bool, method: str) -> list[str]:
+    """The line that says the measurements' joint readings went unused by ``method`` ([] where they did not)."""
+    if not ignored:
+        return []
+    return [f"encoders: the measurements' joint readings are not used by the {method} method (only joint with the "
+            "rigid spin syncs them)"]
 
 
 def synced_words(synced, offset_s: float | None, sigma_s: float | None, n_measurements: int,

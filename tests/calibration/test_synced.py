@@ -11,6 +11,7 @@ from gtsam_rotid import CalibrationOptions, InputError, calibrate, summary
 from gtsam_rotid.calibration.result import CalibrationResult
 from gtsam_rotid.dataset import Dataset, Measurement, SpinReadings
 from gtsam_rotid.graph import chi2_quantile
+from gtsam_rotid.report import make_report
 from gtsam_rotid.simulate import reference_scene
 
 OFFSET = 0.037  # s: the encoder's clock ahead of the camera's (the simulator's encoder_time_offset)
@@ -180,3 +181,6 @@ def test_indices_are_the_datasets_and_other_methods_say_they_ignore_the_readings
     weighted = calibrate(dataset, method="weighted")
     assert weighted.readings_ignored and weighted.synced == ()
     assert "not used by the weighted method" in summary(weighted)
+    report = make_report(weighted, dataset)  # the report says so too, and keeps it in its JSON
+    assert "not used by the weighted method" in report.to_text() and report.to_dict()["readings_ignored"] is True
+    assert "not used by" not in make_report(result).to_text()
