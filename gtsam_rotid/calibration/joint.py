@@ -13,9 +13,11 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import RotIdError
-from ..factors import RigidLineFactor, axis_point_residuals, cal3_s2, image_line_from_rot3
+from ..factors import RigidLineFactor, axis_point_residuals, cal3_s2, image_line_from_rot3, rot3_from_line
 from ..graph import (
     Model,
+    SpinModel,
+    align_line,
     axis_test_points,
     chi2_quantile,
     track_huber,
@@ -49,6 +51,7 @@ from .stage2 import (
 from .tuning import (
     DATING_NOISE_MAX,
     DISTINCT_Z,
+    FK_START_TILT_DEG,
     HELD_INTRINSIC_PX,
     INTRINSICS_KEY,
     MIN_STRONG,
@@ -216,18 +219,37 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     sigmas = {k: float(np.sqrt(stage1[k].sigma2)) for k in used}
     circles = {k: None if builder.model is Model.POSE else dict(stage1[k].circles) for k in used}
     lines = {k: stage1[k].rotation for k in used}
-    converged = True
+    converged, solved = True, None
+    # Rigid spins start about the FK axis seen from the stage-2 pose (their circles from their tracks' rays) where
+    # that fits them better than stage 1's line and circles: the line's tilt within its projection plane, which the
+    # tie leaves to the circles alone, is where stage 1's free phases and the rigid spin differ most (up to 9
+    # degrees on simulated poses seen obliquely, where a first step from stage 1's tilt overshot until LM had
+    # damped it: five tries of every measurement's inner solve at 48 poses), while a stage-2 pose far off (short
+    # arcs) puts the FK axis where no spin fits. Not synced: the readings' tests at the start (READINGS_START_Z) read
+    # stage 1's line and circles (readings that never move pull a spin started about the FK axis less).
+    start = [k for k in used if sync is None and builder.spin_model is SpinModel.RIGID and lines[k] is not None
+             and all(t.frames is not None for t in setup.prepared[k].usable.values())
+             and _tilt_apart_deg(arm, measurements[k], pose, lines[k]) > FK_START_TILT_DEG]
+    if start:
+        _, fk_values, fk_keys = _joint_graph(builder, camera, measurements, setup, stage1, start, pose, sigmas,
+                                             circles, lines, fk_start=start, rest=rest, intrinsics=intrinsics,
+                                             sync=sync)
+        _, s1_values, s1_keys = _joint_graph(builder, camera, measurements, setup, stage1, start, pose, sigmas,
+                                             circles, lines, rest=rest, intrinsics=intrinsics, sync=sync)
+        start = [k for k in start if fk_keys[k].coaxial.error(fk_values) < s1_keys[k].coaxial.error(s1_values)]
+        solved = _solved(fk_keys, fk_values, start)  # (the others are built again as they were: the same start)
     for _round in range(3):
         graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas, circles,
-                                           lines, rest=rest, intrinsics=intrinsics, sync=sync)
-        # A rigid spin whose inner solve does not converge about its start line is started again about the FK axis
-        # seen from the pose where that fits it better. Stage 1's free phases can fit thin ellipses (minor semi-axes
-        # of 2-4 px at 1.2 px noise) about a line whose tilt is far off (14 degrees on a Panda pose), where no rigid
-        # spin fits: its residuals ran to hundreds of px, its weight (their variance) vanished, and the pose was
-        # left wherever LM stalled, between the stage-2 pose and the other measurements' fit, under a covariance
-        # that no longer counted it (8.5 sigma off, "usable").
-        unfit = [k for k in used if lines[k] is not None and isinstance(keys[k].coaxial, RigidLineFactor)
-                 and not np.all(keys[k].coaxial.converged(values))]
+                                           lines, fk_start=start, rest=rest, intrinsics=intrinsics, sync=sync,
+                                           solved=solved)
+        # A rigid spin whose inner solve does not converge about its start line (stage 1's or the last round's) is
+        # started again about the FK axis seen from the pose where that fits it better. Stage 1's free phases can
+        # fit thin ellipses (minor semi-axes of 2-4 px at 1.2 px noise) about a line whose tilt is far off (14
+        # degrees on a Panda pose), where no rigid spin fits: its residuals ran to hundreds of px, its weight (their
+        # variance) vanished, and the pose was left wherever LM stalled, between the stage-2 pose and the other
+        # measurements' fit, under a covariance that no longer counted it (8.5 sigma off, "usable").
+        unfit = [k for k in used if lines[k] is not None and k not in start
+                 and isinstance(keys[k].coaxial, RigidLineFactor) and not np.all(keys[k].coaxial.converged(values))]
         if unfit:
             _, fk_values, fk_keys = _joint_graph(builder, camera, measurements, setup, stage1, unfit, pose, sigmas,
                                                  circles, lines, fk_start=unfit, rest=rest, intrinsics=intrinsics,
@@ -237,7 +259,10 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                 lines[k] = circles[k] = None
             if better:
                 graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas,
-                                                   circles, lines, rest=rest, intrinsics=intrinsics, sync=sync)
+                                                   circles, lines, fk_start=start, rest=rest, intrinsics=intrinsics,
+                                                   sync=sync, solved={k: v for k, v in (solved or {}).items()
+                                                                      if k not in better})
+        start, solved = (), None
         if _round == 0 and sync is not None:  # grossly wrong readings (see below), where the fit starts
             refused = _disagreeing_readings(keys, values, sync, READINGS_START_Z)
             if refused:
@@ -443,7 +468,7 @@ def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: g
     extra = _with_floor(correlated, camera, setup, keys, used, result)
     try:
         graph, values, _ = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas, circles,
-                                        lines, rest=rest, intrinsics=prior, sync=sync, solved=(keys, result))
+                                        lines, rest=rest, intrinsics=prior, sync=sync, solved=_solved(keys, result))
         step = np.asarray(graph.linearize(values).optimize().at(INTRINSICS_KEY))
         covariance = sandwich_marginal(graph, values, INTRINSICS_KEY, 5, extra)
         both = joint_marginal_covariance(graph, values, [POSE_KEY, INTRINSICS_KEY], 11)
@@ -612,16 +637,30 @@ def intrinsics_prior_sigmas(K: np.ndarray, names, sigma: tuple[float, float]) ->
     return np.array([free[n] if n in names else HELD_INTRINSIC_PX for n in CAL3_S2_ORDER])
 
 
+def _tilt_apart_deg(arm, measurement, pose: gtsam.Pose3, line: gtsam.Rot3) -> float:
+    """How far (deg) a line variable, turned minimally onto the image of the FK axis seen from ``pose``, lies from
+    that FK axis (its tilt within the projection plane, which the tie leaves free)."""
+    axis = arm.wrist_axis(measurement.joint_angles, measurement.spin_joint)
+    camera_T_arm = pose.inverse()
+    fk, _ = rot3_from_line(camera_T_arm.transformFrom(axis.point), camera_T_arm.rotation().matrix() @ axis.direction)
+    return float(np.degrees(np.linalg.norm(fk.localCoordinates(align_line(line, fk.matrix()[:, 2])))))
+
+
+def _solved(keys: dict, values: gtsam.Values, ks=None) -> dict:
+    """:func:`_joint_graph`'s ``solved`` for measurements ``ks`` (default all) of a graph's ``keys`` at ``values``."""
+    return {k: (keys[k], values) for k in (keys if ks is None else ks)}
+
+
 def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas, circles, lines, fk_start=(),
                  rest=None, intrinsics: _IntrinsicsPrior | None = None, sync: _Sync | None = None,
-                 solved: tuple | None = None):
+                 solved: dict | None = None):
     """The joint graph of measurements ``ks`` at ``pose`` (each at its pixel sigma): those in ``fk_start`` started
     about the FK axis seen from it (their circles from their tracks' rays), the others from ``lines`` and ``circles``
     (stage 1's or the last round's). With ``setup.offsets``, the offsets beyond those the readings were shifted by
     are a variable starting at ``rest`` (rad) under the prior of the total offsets; with ``intrinsics`` the camera's
     intrinsics are a variable too (at ``intrinsics.now``); synced (``sync``, its offset estimated), the encoder clock's
-    offset too (at ``sync.now``, under its prior). ``solved``: (keys by measurement, values) of a graph of the same
-    tracks solved where this one is built: its rigid spins start from their solutions there. Returns (graph,
+    offset too (at ``sync.now``, under its prior). ``solved``: measurement -> (its keys, values) in a graph of the same
+    tracks solved where this one is built: those rigid spins start from their solutions there. Returns (graph,
     values, keys by measurement)."""
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(POSE_KEY, pose)
@@ -638,7 +677,8 @@ def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas,
                 initial_line=None if k in fk_start else lines[k],
                 refine_circles=k in fk_start or circles[k] is None, tie_covariance=setup.tie_covariance(
                     camera, k, stage1[k].image_axis, pose),
-                spin_start=None if solved is None else (solved[0][k].coaxial, solved[1])) for k in ks}
+                spin_start=None if solved is None or k not in solved else (solved[k][0].coaxial, solved[k][1]))
+            for k in ks}
     return graph, values, keys
 
 

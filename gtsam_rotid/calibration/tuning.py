@@ -51,6 +51,12 @@ ANCHOR_SIGMA = 1.0
 #: pixel of residual RMS.
 WATCH_LINE_PX = 1e-4
 WATCH_POSE = 1e-7
+
+#: The joint fit starts a rigid spin about the FK axis seen from the stage-2 pose where that fits it better than
+#: stage 1's line, tried only where the two lines' tilts within their projection plane differ by more than this
+#: (deg): a first step from a tilt several degrees off overshoots (lines moved 2-11 degrees on simulated poses seen
+#: obliquely), while long spins' free-phase tilts lie within 0.5 degree of the FK axis' and need no second start.
+FK_START_TILT_DEG = 1.0
 #: A twin pose (see :func:`twin_pose`) is kept as a second start when LM leaves it at least this far (deg)
 #: from the best start and its image-axis error is below this multiple of the best (+ 1 px^2).
 TWIN_MIN_ANGLE_DEG = 10.0
