@@ -222,7 +222,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     converged, solved = True, None
     # Rigid spins start about the FK axis seen from the stage-2 pose (their circles from their tracks' rays) where
     # that fits them better than stage 1's line and circles: the line's tilt within its projection plane, which the
-    # tie leaves to the circles alone, is where stage 1's free phases and the rigid spin differ most (up to 9
+    # tie leaves to the circles alone, is where stage 1's free phases and the rigid spin differ most (2-11
     # degrees on simulated poses seen obliquely, where a first step from stage 1's tilt overshot until LM had
     # damped it: five tries of every measurement's inner solve at 48 poses), while a stage-2 pose far off (short
     # arcs) puts the FK axis where no spin fits. Not synced: the readings' tests at the start (READINGS_START_Z) read
