@@ -59,7 +59,8 @@ def main(argv=None) -> int:
             except np.linalg.LinAlgError:  # (a singular covariance: an undetermined result)
                 chi2 = float("inf")
             rows[name].append((chi2, result.covariance_usable))
-            why = ", ".join(result.untrusted) or ("undetermined" if not result.covariance_usable else "")
+            why = ", ".join(result.untrusted) or ("ambiguous" if result.ambiguous else "undetermined"
+                                                  if not result.observability.is_observable else "")
             cells.append(f"χ² {chi2:.3g}, " + ("usable" if result.covariance_usable else f"not usable ({why})"))
         print(f"| {seed} | " + " | ".join(cells) + " |", flush=True)
     print()
