@@ -23,28 +23,18 @@ from gtsam_rotid.calibration import CalibrationOptions, calibrate
 from gtsam_rotid.simulate import simulate
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "calibration"))
-from test_thin_ellipses import POSES  # noqa: E402 (the poses are the test's)
+from test_thin_ellipses import thin_config  # noqa: E402 (the scene is the test's)
 
 CHI2_999 = 22.46
 METHODS = {"weighted": dict(method="weighted"), "free phase": dict(options=CalibrationOptions(spin_model="free")),
            "rigid spin": {}, "paper": dict(method="paper")}
 
 
-def scene():
-    from gtsam_rotid.camera import Camera
-    from gtsam_rotid.simulate import SceneConfig
-
-    config = SceneConfig(robot="panda", camera=Camera.from_fov(640, 480, 60.0), camera_eye=(1.1, -0.4, 0.8),
-                         camera_target=(0.4, 0.0, 0.4), duration=20.0, noise_var=1.5)
-    return config.with_(image_margin=-1e6, axis_view_angle_deg=(0.0, 90.0), depth_range=(0.0, 1e6),
-                        min_height=-1e6, joint_angles=POSES)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--draws", type=int, default=8)
     args = parser.parse_args(argv)
-    config, arm = scene(), Arm.from_robot("panda")
+    config, arm = thin_config(), Arm.from_robot("panda")
     rows = {name: [] for name in METHODS}
     print("| draw | " + " | ".join(METHODS) + " |")
     print("| --- |" + " --- |" * len(METHODS))

@@ -24,13 +24,17 @@ POSES = (
 )
 
 
-@pytest.fixture(scope="module")
-def thin_scene():
+def thin_config() -> SceneConfig:
+    """The scene at POSES (20 s spins, 1.5 px² noise; benchmarks/thin_ellipses.py draws its noise again)."""
     config = SceneConfig(robot="panda", camera=Camera.from_fov(640, 480, 60.0), camera_eye=(1.1, -0.4, 0.8),
                          camera_target=(0.4, 0.0, 0.4), duration=20.0, noise_var=1.5)
-    scene = config.with_(image_margin=-1e6, axis_view_angle_deg=(0.0, 90.0), depth_range=(0.0, 1e6),
-                         min_height=-1e6, joint_angles=POSES)
-    return simulate(scene, seed=12_003, arm=Arm.from_robot("panda"))
+    return config.with_(image_margin=-1e6, axis_view_angle_deg=(0.0, 90.0), depth_range=(0.0, 1e6),
+                        min_height=-1e6, joint_angles=POSES)
+
+
+@pytest.fixture(scope="module")
+def thin_scene():
+    return simulate(thin_config(), seed=12_003, arm=Arm.from_robot("panda"))
 
 
 @pytest.fixture
