@@ -289,10 +289,15 @@ def intrinsics_words(result: CalibrationResult) -> str:
                 "and principal point may change: the camera's intrinsics are the likelier cause, and the estimate is "
                 "not trusted. Check the intrinsics first (is the camera file this camera's, at this resolution? "
                 "recalibrate them)" + then)
+    likely = i.get("likely", True) or i.get("one_out_chi2") is None
+    closer = ("" if likely else
+              f"; not all the way, the axes having been fitted through the camera given, but closer than without any "
+              f"one measurement, χ² = {i['one_out_chi2']:.3g}")
     return (f"the image axes of all {len(i['measurements'])} measurements (the left-out ones too) disagree with any "
             f"one pose seen through this camera (χ² = {i['exact_chi2']:.3g} for {i['exact_dof']} dof, P = "
-            f"{i['exact_p']:.2g}) but agree once its focal length and principal point may change (χ² = "
-            f"{i['chi2']:.3g} for {i['dof']} dof, P = {i['p_value']:.2g}), changed by about "
+            f"{i['exact_p']:.2g}) but {'agree' if likely else 'come far closer'} once its focal length and principal "
+            f"point may change (χ² = {i['chi2']:.3g} for {i['dof']} dof, P = {i['p_value']:.2g}{closer}), changed "
+            "by about "
             f"{i['focal_percent']:+.2g} % in focal length, {i['cx_px']:+.3g} px in cx and {i['cy_px']:+.3g} px in cy "
             "(a first-order reading; the principal point and the focal length trade off). Wrong intrinsics move every "
             "axis together and leave an estimate wrong by far more than its covariance says, so it is not trusted. "
