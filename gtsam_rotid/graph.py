@@ -197,6 +197,13 @@ def initial_circle(camera_point: np.ndarray, camera_direction: np.ndarray, rays:
     return float(s), radius
 
 
+def axis_in_camera(axis, arm_T_camera: gtsam.Pose3) -> tuple[np.ndarray, np.ndarray]:
+    """An FK axis (``point``, ``direction`` in the arm frame) in the camera frame of ``arm_T_camera``: (point,
+    direction); :func:`rot3_from_line` of them is the line variable on that axis."""
+    camera_T_arm = arm_T_camera.inverse()
+    return camera_T_arm.transformFrom(axis.point), camera_T_arm.rotation().matrix() @ axis.direction
+
+
 def align_line(line: gtsam.Rot3, plane_normal: np.ndarray) -> gtsam.Rot3:
     """The smallest rotation of a line variable that makes its projection-plane normal ``+-plane_normal``."""
     c2 = line.matrix()[:, 2]
@@ -473,9 +480,7 @@ class RotIdGraph:
                                                           measurement.spin_joint)[0]
         else:
             axis = self.arm.wrist_axis(measurement.joint_angles, measurement.spin_joint)
-        camera_T_arm = arm_T_camera.inverse()
-        point_cam = camera_T_arm.transformFrom(axis.point)
-        direction_cam = camera_T_arm.rotation().matrix() @ axis.direction
+        point_cam, direction_cam = axis_in_camera(axis, arm_T_camera)
         line_cam, scale = _start_line(point_cam, direction_cam, initial_line, tie, bound)
         foot_offset = point_cam @ direction_cam  # foot = point_cam - foot_offset * direction
         K = self.camera.K

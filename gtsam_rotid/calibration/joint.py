@@ -18,6 +18,7 @@ from ..graph import (
     Model,
     SpinModel,
     align_line,
+    axis_in_camera,
     axis_test_points,
     chi2_quantile,
     track_huber,
@@ -640,9 +641,7 @@ def intrinsics_prior_sigmas(K: np.ndarray, names, sigma: tuple[float, float]) ->
 def _tilt_apart_deg(arm, measurement, pose: gtsam.Pose3, line: gtsam.Rot3) -> float:
     """How far (deg) a line variable, turned minimally onto the image of the FK axis seen from ``pose``, lies from
     that FK axis (its tilt within the projection plane, which the tie leaves free)."""
-    axis = arm.wrist_axis(measurement.joint_angles, measurement.spin_joint)
-    camera_T_arm = pose.inverse()
-    fk, _ = rot3_from_line(camera_T_arm.transformFrom(axis.point), camera_T_arm.rotation().matrix() @ axis.direction)
+    fk, _ = rot3_from_line(*axis_in_camera(arm.wrist_axis(measurement.joint_angles, measurement.spin_joint), pose))
     return float(np.degrees(np.linalg.norm(fk.localCoordinates(align_line(line, fk.matrix()[:, 2])))))
 
 

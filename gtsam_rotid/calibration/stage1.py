@@ -22,6 +22,7 @@ from ..graph import (
     Model,
     RotIdGraph,
     align_line,
+    axis_in_camera,
     chi2_quantile,
     initial_circle,
     track_huber,
@@ -499,7 +500,5 @@ def _start_line(camera: Camera, axis, image_axis: np.ndarray, pose: gtsam.Pose3)
     pose sees it (a pose fitted to stage 1's lines: the axis through the centres of short arcs' ellipses can be
     far off).
     """
-    camera_T_arm = pose.inverse()
-    line, _ = rot3_from_line(camera_T_arm.transformFrom(axis.point),
-                             camera_T_arm.rotation().matrix() @ axis.direction)
+    line, _ = rot3_from_line(*axis_in_camera(axis, pose))
     return line if image_axis is None else align_line(line, plane_normal(camera.K, image_axis))
