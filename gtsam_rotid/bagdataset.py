@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +19,7 @@ from .bags import Bag, BagError, estimate_time_offset, is_rectified
 from .camera import Camera
 from .camerafiles import load_camera
 from .dataset import Dataset, Measurement, SpinReadings
-from .errors import ValidationError
+from .errors import ArmError, InputError, ValidationError
 from .recordings import MIN_SPIN_DEG, STILL_TOLERANCE_DEG, JointFile, _spin_runs, _still_pose
 from .trackrun import default_tracker, tracked_frames, tracker_description
 
@@ -40,8 +40,9 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
                      tracker_params: Any = None, still_tolerance_deg: float = STILL_TOLERANCE_DEG,
                      min_spin_deg: float = MIN_SPIN_DEG, max_offset_s: float = 1.0,
                      time_offset_s: float | None = None, progress: bool = True,
-                     metadata: Mapping | None = None) -> Dataset:
-    """One measurement per spin of ``arm.wrist_joint`` found in the bag's joint states.
+                     metadata: Mapping | None = None, spin_joints: Sequence[str] | None = None) -> Dataset:
+    """One measurement per spin of ``arm.wrist_joint`` (or of each of ``spin_joints``) found in the bag's joint
+    states.
 
     Args:
         path: a ROS 1 ``.bag`` file or a ROS 2 bag directory (sqlite3 or mcap storage; its storage file works too).
@@ -53,6 +54,9 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
         max_offset_s: the largest camera-to-joint-state time offset searched.
         time_offset_s: the offset (camera clock minus joint-state clock, s) when it is known: then it is applied as
             given, and only measured for the record.
+        spin_joints: the joints whose spins are measurements (names; default the wrist alone): a spin of another
+            joint (the one before the wrist, at the same arm pose) swings the hand about that joint's axis and makes
+            the offsets of more joints observable (``Measurement.spin_joint``).
 
     The offset is read off when the images start and stop moving against when the joints do
     (:func:`gtsam_rotid.bags.estimate_time_offset`); it is applied, and recorded with its score in
@@ -64,6 +68,7 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
     ``image_rect*`` topics get CameraInfo's projection matrix without distortion. Raises :class:`BagError` naming
     the bag and topic: no spin, a spin without images, images of another size.
     """
+    joints = _spin_joints(arm, spin_joints)
     with Bag(path) as bag:
         topics = bag.choose_topics(image_topic, joint_topic, camera_info_topic, with_camera_info=camera is None)
         where = f"{bag.path}, topic {topics.image}"
@@ -79,11 +84,21 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
             camera = load_camera(camera)
         stamps, positions = bag.joint_states(topics.joints, arm.joint_names)
         unwrapped = np.unwrap(positions, axis=0)
-        runs = _spin_runs(unwrapped, arm.wrist_index, still_tolerance_deg, min_spin_deg)
+        found = {joint: _spin_runs(unwrapped, arm.spin_index(joint), still_tolerance_deg, min_spin_deg)
+                 for joint in arm.joint_names}
+        runs = sorted((a, b, joint) for joint in joints for a, b in found[joint])
+        others = {joint: len(r) for joint, r in found.items() if joint not in joints and r}
         if not runs:
-            raise BagError(f"{bag.path}, topic {topics.joints}: no spin of {arm.wrist_joint!r} (at least "
-                           f"{min_spin_deg:g} deg while no other joint moves by more than {still_tolerance_deg:g} deg)"
-                           " in the joint states")
+            also = ("; " + ", ".join(f"{j!r} turned alone {n} time(s)" for j, n in others.items())
+                    + ": name the joints that spun with --spin-joints") if others else ""
+            raise BagError(f"{bag.path}, topic {topics.joints}: no spin of {' or '.join(map(repr, joints))} (at "
+                           f"least {min_spin_deg:g} deg while no other joint moves by more than "
+                           f"{still_tolerance_deg:g} deg) in the joint states{also}")
+        if others:  # (a move between poses may turn one joint alone too)
+            print(f"note: {bag.path}, topic {topics.joints}: " + ", ".join(f"{j!r} turned alone {n} time(s)"
+                                                                          for j, n in others.items())
+                  + f" by at least {min_spin_deg:g} deg: not measurements (only the spins of "
+                  + ", ".join(map(repr, joints)) + " are; name the joints to use with --spin-joints)", file=sys.stderr)
         image_stamps, motion = bag.image_motion(topics.image)
         offset, correlation, rival = estimate_time_offset(image_stamps, motion, stamps, positions, max_offset_s)
         at_edge = bool(np.isfinite(offset) and abs(offset) > max_offset_s - 0.5 * _period(image_stamps))
@@ -104,10 +119,12 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
         tracker, described, corner_tracks = default_tracker(tracker, tracker_params)
         measurements, spans = [], []
         with tqdm(total=len(runs), desc="spins", unit="spin", disable=not progress, file=sys.stderr) as bar:
-            for k, (a, b) in enumerate(runs):
-                label = f"spin {k} (joint stamps {stamps[a]:.3f} to {stamps[b - 1]:.3f} s)"
+            for k, (a, b, joint) in enumerate(runs):
+                spin_joint = None if arm.spins_wrist(joint) else joint
+                label = (f"spin {k}" + ("" if spin_joint is None else f" of {joint!r}")
+                         + f" (joint stamps {stamps[a]:.3f} to {stamps[b - 1]:.3f} s)")
                 angles = _still_pose(joint_file, unwrapped, np.arange(a, b), arm, label, still_tolerance_deg,
-                                     min_spin_deg)
+                                     min_spin_deg, spin_joint)
                 start, stop = stamps[a] + shift + SPIN_MARGIN_S, stamps[b - 1] + shift - SPIN_MARGIN_S
                 inside = np.flatnonzero((image_stamps >= start) & (image_stamps <= stop))
                 if len(inside) < 2:
@@ -120,8 +137,10 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
                 frames = (image for _, _, image in bag.images(topics.image, first, last))
                 tracks = tracked_frames(frames, last - first + 1, first, Path(where), camera, tracker,
                                         tracker_params, k, label, progress)
-                readings = _spin_readings(image_stamps - shift, stamps, unwrapped[:, arm.wrist_index], a, b, label)
-                measurements.append(Measurement(angles, tracks, name=f"spin {k}", spin_readings=readings))
+                readings = _spin_readings(image_stamps - shift, stamps, unwrapped[:, arm.spin_index(spin_joint)], a,
+                                          b, label)
+                measurements.append(Measurement(angles, tracks, name=f"spin {k}", spin_readings=readings,
+                                                spin_joint=spin_joint))
                 spans.append([float(stamps[a]), float(stamps[b - 1])])
                 bar.update(1)
     recording = {
@@ -129,6 +148,7 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
         "topics": {"image": topics.image, "joints": topics.joints, "camera_info": topics.camera_info},
         "camera_from": camera_from,
         "spans": spans,
+        "spin_joints": [run[2] for run in runs],
         "time_offset_s": None if not np.isfinite(offset) else float(offset),
         "time_offset_correlation": float(correlation),
         "time_offset_rival_s": rival,
@@ -141,6 +161,21 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
         from .trackparams import tracker_metadata
         extra["tracker"] = tracker_metadata(tracker_params, sum(corner_tracks))
     return Dataset(arm, camera, measurements, metadata={**extra, **dict(metadata or {})})
+
+
+def _spin_joints(arm: Arm, spin_joints: Sequence[str] | None) -> list[str]:
+    """The names of the joints whose spins are measurements (default the wrist), each once; an InputError naming
+    one the arm cannot spin."""
+    if spin_joints is None:
+        return [arm.wrist_joint]
+    if isinstance(spin_joints, str) or not len(spin_joints):
+        raise InputError(f"spin_joints must be a list of joint names (at least one), got {spin_joints!r}")
+    for joint in spin_joints:
+        try:
+            arm.spin_index(joint)
+        except ArmError as exc:
+            raise InputError(f"spin_joints: {exc}") from None
+    return list(dict.fromkeys(spin_joints))
 
 
 def _spin_readings(frame_times: np.ndarray, stamps: np.ndarray, wrist: np.ndarray, a: int, b: int,

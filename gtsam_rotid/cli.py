@@ -493,8 +493,7 @@ def cmd_track(args: argparse.Namespace) -> int:
 def _track_bag(args: argparse.Namespace, arm: Arm, params) -> Dataset:
     """``track --bag``: the spins, joints and camera from a ROS bag."""
     given = [flag for flag, value in (("--joints", args.joints), ("--frames", args.frames), ("--spans", args.spans),
-                                      ("--degrees", args.degrees), ("--ignore-joints", args.ignore_joints),
-                                      ("--spin-joints", args.spin_joints))
+                                      ("--degrees", args.degrees), ("--ignore-joints", args.ignore_joints))
              if value]
     for flag, value in (("--time-offset", args.time_offset), ("--max-time-offset", args.max_time_offset)):
         if value is not None and not np.isfinite(value):
@@ -509,13 +508,15 @@ def _track_bag(args: argparse.Namespace, arm: Arm, params) -> Dataset:
                                camera_info_topic=args.camera_info_topic, camera=args.camera, tracker_params=params,
                                still_tolerance_deg=args.still_tolerance, min_spin_deg=args.min_spin,
                                max_offset_s=args.max_time_offset, time_offset_s=args.time_offset,
-                               progress=not args.no_progress)
+                               progress=not args.no_progress, spin_joints=args.spin_joints)
     recording = dataset.metadata["recording"]
     offset = recording["time_offset_s"]
     applied = ("applied" if recording["time_offset_applied"] else "NOT applied" if args.time_offset is None
                else f"not used: {1000 * args.time_offset:+.1f} ms given")
     print(f"topics: images {recording['topics']['image']}, joint states {recording['topics']['joints']}, camera "
-          f"{recording['camera_from']}; {len(dataset)} spin(s); camera-to-joint-state time offset "
+          f"{recording['camera_from']}; {len(dataset)} spin(s)"
+          + (" (" + ", ".join(f"{recording['spin_joints'].count(j)} of {j}" for j in dict.fromkeys(
+              recording["spin_joints"])) + ")" if args.spin_joints else "") + "; camera-to-joint-state time offset "
           + ("not measured" if offset is None else f"{1000 * offset:+.1f} ms (correlation "
              f"{recording['time_offset_correlation']:.2f}, {applied})"))
     return dataset
@@ -584,8 +585,9 @@ def add_track_parser(subparsers) -> argparse.ArgumentParser:
     robot.add_argument("--urdf", metavar="FILE", help="the arm's URDF")
     p.add_argument("--wrist-joint", metavar="NAME", help="the spinning joint (default: the last revolute joint)")
     p.add_argument("--spin-joints", nargs="+", metavar="NAME",
-                   help="videos only: the joint that spun in each video, one per video, where they differ (default: "
-                        "the wrist joint in every video)")
+                   help="videos: the joint that spun in each video, one per video, where they differ (default: the "
+                        "wrist joint in every video); a bag: the joints whose spins are measurements (default: the "
+                        "wrist joint)")
     p.add_argument("--frames", nargs="+", metavar="START:STOP",
                    help="frame range per video (stop exclusive; ':' = all frames)")
     p.add_argument("--spans", nargs="+", metavar="T0:T1",

@@ -33,19 +33,21 @@ def scene(n_poses: int = 4, duration: float = 3.0, seed: int = 3):
 def timeline(dataset, spins, offset_s: float = 0.0):
     """(joint stamps, joint positions (N, dof)) on the joint clock, and [(camera stamp, spin k, frame i)]: each
     pose held STILL_S before and after its spin (its first and last image repeated), the arm moving MOVE_S between
-    poses (no images)."""
+    poses (no images). A spin of another joint than the wrist (``Measurement.spin_joint``) turns that joint; after
+    it the base swings 3 degrees out and back while that joint turns back (else the turn back would extend its spin:
+    only one joint moving)."""
     arm = dataset.arm
-    wrist = arm.wrist_index
     joint_t, joint_q, images = [], [], []
     t = 1.0
     for k, spin in enumerate(spins):
         q = np.array(dataset[k].joint_angles, dtype=float)
+        spinning = arm.spin_index(dataset[k].spin_joint)
         angles = spin.spin_angles - spin.spin_angles[0]
         frame_t = t + STILL_S + np.arange(spin.n_frames) / FPS
         end = frame_t[-1] + STILL_S
         for s in np.arange(t, end, 1.0 / JOINT_RATE):
             row = q.copy()
-            row[wrist] += np.interp(s, frame_t, angles)
+            row[spinning] += np.interp(s, frame_t, angles)
             joint_t.append(s)
             joint_q.append(row)
         for s in np.arange(t, frame_t[0], 1.0 / FPS):
@@ -58,7 +60,10 @@ def timeline(dataset, spins, offset_s: float = 0.0):
             nxt = np.array(dataset[k + 1].joint_angles, dtype=float)
             for s in np.arange(end, end + MOVE_S, 1.0 / JOINT_RATE):
                 joint_t.append(s)
-                joint_q.append(last + (nxt - last) * (s - end) / MOVE_S)
+                row = last + (nxt - last) * (s - end) / MOVE_S
+                if spinning != arm.wrist_index:  # (another joint turns back too: the turn back is no spin)
+                    row[0] += np.radians(3.0) * np.sin(np.pi * (s - end) / MOVE_S)
+                joint_q.append(row)
         t = end + MOVE_S
     return np.array(joint_t), np.array(joint_q), images
 
