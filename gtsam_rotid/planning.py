@@ -35,11 +35,12 @@ from .camera import Camera
 from .collisions import ArmCollisions
 from .dataset import Dataset
 from .errors import ArmError, InputError
+from .factors import cal3_s2
 from .graph import MIN_TRACK_EXTENT_PX, RotIdGraph
 from .initialise import MIN_ELLIPSE_POINTS
 from .simulate import SceneConfig, SpinScene
 from .trackparams import AXIS_FLOOR_PX
-from .uncertainty import Observability, analyse_observability, pose_information
+from .uncertainty import Observability, _hessian_key_first, _schur, analyse_observability, pose_information
 
 #: A camera guess farther than this (m) from the arm's base is taken for a mistake of units.
 MAX_GUESS_DISTANCE_M = 20.0
@@ -51,6 +52,15 @@ AIM_TRIES = 200
 SEARCH_SPIN_MODEL = "free"
 #: the turn (degrees) between the collision checks of a spin of another joint than the wrist
 SWING_STEP_DEG = 30.0
+#: ``PlanOptions.refine_intrinsics``: the intrinsics the prediction frees with the pose, in Cal3_S2's tangent order
+#: (fx, fy, s, cx, cy) less the skew (held, as the joint fit holds it): the information is (6+4)x(6+4)
+PLAN_INTRINSICS = ("fx", "fy", "cx", "cy")
+#: ``calibration.options.DEFAULT_INTRINSICS_SIGMA`` (literal: importing the calibration package here is not needed)
+DEFAULT_INTRINSICS_SIGMA = (0.05, 20.0)
+#: the key of the intrinsics variable in the prediction's graph
+_INTRINSICS_KEY = gtsam.symbol("k", 0)
+#: Cal3_S2's tangent index of each intrinsic (``calibration.joint.CAL3_S2_ORDER``)
+CAL3_S2_INDEX = {"fx": 0, "fy": 1, "s": 2, "cx": 3, "cy": 4}
 
 #: (deg, deg, deg, mm, mm, mm) per unit of the Pose3 tangent (rad, m)
 UNITS = np.array([math.degrees(1.0)] * 3 + [1000.0] * 3)
@@ -124,6 +134,12 @@ class PlanOptions:
     #: ``min_height`` and, with collisions, clear of the arm and the floor (checked every SWING_STEP_DEG); it is
     #: predicted as the simulator's unlimited spin
     spin_joints: tuple = ()
+    #: the calibration will refine the camera's intrinsics (``CalibrationOptions(refine_intrinsics=True)``: fx, fy,
+    #: cx, cy under a prior of ``intrinsics_sigma`` = (focal lengths' fraction, principal point px) about the camera
+    #: given): the information is that of the pose and the intrinsics, and every choice and prediction uses the
+    #: pose's marginal (the intrinsics under their prior). Needs the rigid spin; the search then ranks by it too
+    refine_intrinsics: bool = False
+    intrinsics_sigma: tuple = DEFAULT_INTRINSICS_SIGMA
     seed: int = 0
 
     def with_(self, **changes) -> PlanOptions:
@@ -168,6 +184,13 @@ class PlanOptions:
             raise PlanningError(f"search_seconds must be a positive number or None (no deadline), got {seconds!r}")
         if self.spin_model not in ("rigid", "free"):
             raise PlanningError(f"spin_model must be 'rigid' or 'free', got {self.spin_model!r}")
+        if self.refine_intrinsics:
+            if self.spin_model != "rigid":
+                raise PlanningError("refine_intrinsics needs spin_model='rigid' (as the calibration does)")
+            sigma = self.intrinsics_sigma
+            if (len(sigma) != 2 or not all(isinstance(v, int | float) and math.isfinite(v) and v > 0 for v in sigma)):
+                raise PlanningError(f"intrinsics_sigma must be two positive numbers (focal fraction, principal point "
+                                    f"px), got {sigma!r}")
         if isinstance(self.spin_joints, str) or not all(isinstance(j, str) for j in self.spin_joints):
             raise PlanningError(f"spin_joints must be a tuple of joint names, got {self.spin_joints!r}")
         if self.n_features < 2 or self.guess_samples < 1 or self.candidates < 1:
@@ -262,13 +285,31 @@ def guess_samples(guess: gtsam.Pose3, options: PlanOptions) -> list[gtsam.Pose3]
 def _criterion(covariances: np.ndarray, options: PlanOptions) -> np.ndarray:
     """Worst axis' 1σ in units of (``worst_axis_deg``, ``worst_axis_mm``), averaged over guess samples; any batch
     shape (..., S, 6, 6) -> (...)."""
-    variances = np.diagonal(covariances, axis1=-2, axis2=-1) / _unit_scale(options) ** 2
+    variances = np.diagonal(covariances, axis1=-2, axis2=-1)[..., :6] / _unit_scale(options) ** 2
     return np.sqrt(np.maximum(variances, 0.0).max(axis=-1)).mean(axis=-1)
 
 
 #: A weak prior (1σ of 1000 rad and 1000 m) that keeps the exchanges' information invertible; far below any
 #: spin's, it never enters a reported prediction.
 REGULARISER = 1e-6 * np.eye(6)
+
+
+def _pose_marginal(information: np.ndarray) -> np.ndarray:
+    """(..., d, d) information of the pose and the intrinsics (their prior included) -> (..., 6, 6) the pose's
+    marginal (Schur complement); a 6x6 information is returned as it is."""
+    if information.shape[-1] == 6:
+        return information
+    A, B, C = information[..., :6, :6], information[..., :6, 6:], information[..., 6:, 6:]
+    S = A - B @ np.linalg.solve(C, np.swapaxes(B, -1, -2))
+    return 0.5 * (S + np.swapaxes(S, -1, -2))
+
+
+def _full_prior(predictor: _Predictor, pose_prior: np.ndarray) -> np.ndarray:
+    """The prior information in the predictor's dimension: ``pose_prior`` (6x6) and, refining the intrinsics, their
+    prior (``pose_prior`` itself without them)."""
+    if predictor.dim == 6:
+        return pose_prior
+    return predictor.embed(pose_prior) + predictor.intrinsics_prior()
 
 
 def _unit_scale(options: PlanOptions) -> np.ndarray:
@@ -301,6 +342,27 @@ class _Predictor:
         self.features = typical_features(options)
         self.tie_covariance = 2.0 * options.axis_floor_px**2 * np.eye(2)
         self._rng = np.random.default_rng(0)
+        #: the information's dimension: the pose's, and the intrinsics' (PLAN_INTRINSICS) when they are refined
+        self.dim = 6 + (len(PLAN_INTRINSICS) if options.refine_intrinsics else 0)
+
+    def intrinsics_prior(self) -> np.ndarray:
+        """(dim, dim): the intrinsics' prior information (zero on the pose's block; all zero without them)."""
+        out = np.zeros((self.dim, self.dim))
+        if self.dim > 6:
+            from .calibration.joint import CAL3_S2_ORDER, intrinsics_prior_sigmas
+
+            sigmas = intrinsics_prior_sigmas(self.camera.K, PLAN_INTRINSICS, self.options.intrinsics_sigma)
+            chosen = sigmas[[CAL3_S2_ORDER.index(n) for n in PLAN_INTRINSICS]]
+            out[6:, 6:] = np.diag(1.0 / chosen**2)
+        return out
+
+    def embed(self, pose_information: np.ndarray) -> np.ndarray:
+        """A 6x6 pose information in the (dim, dim) information (unchanged without the intrinsics)."""
+        if self.dim == 6:
+            return pose_information
+        out = np.zeros((self.dim, self.dim))
+        out[:6, :6] = pose_information
+        return out
 
     def scene(self, arm_T_camera: gtsam.Pose3) -> SpinScene:
         return SpinScene(self.config, self.arm, self._rng, arm_T_camera=arm_T_camera, features=self.features)
@@ -316,11 +378,18 @@ class _Predictor:
 
     def information(self, scene: SpinScene, joint_angles, spin_model: str | None = None) -> np.ndarray:
         """The 6x6 information of the spins at ``joint_angles`` in ``scene`` (one per ``spin_joints``, the wrist's
-        alone by default), with the options' spin model or ``spin_model``."""
+        alone by default), with the options' spin model or ``spin_model``. With ``refine_intrinsics``: the (6+4)^2
+        information of the pose and fx, fy, cx, cy (the data's alone, without their prior; the skew held), always
+        with the rigid spin (the free phase leaves the intrinsics nearly free)."""
+        intrinsics = self.dim > 6
+        if intrinsics:
+            spin_model = "rigid"
+
         def builder(sigma_px: float) -> RotIdGraph:
             return RotIdGraph(self.arm, self.camera, model="projected", track_sigma_px=sigma_px,
                               min_track_points=MIN_ELLIPSE_POINTS, min_track_extent_px=MIN_TRACK_EXTENT_PX,
-                              spin_model=spin_model or self.options.spin_model)
+                              spin_model=spin_model or self.options.spin_model,
+                              intrinsics_key=_INTRINSICS_KEY if intrinsics else None)
 
         wrist_builder = builder(self.sigma_px)
         # (the wrist's limited arc and its repeats do not apply to another joint's spin: the simulator's spin)
@@ -328,6 +397,8 @@ class _Predictor:
             builder(self.options.pixel_sigma / math.sqrt(self.options.fps / self.fps))
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         values.insert(wrist_builder.pose_key, scene.arm_T_camera)
+        if intrinsics:
+            values.insert(_INTRINSICS_KEY, cal3_s2(self.camera.K))
         for k, joint in enumerate(self.options.spin_joints or (None,)):
             q, spin_builder = np.array(joint_angles, dtype=float), wrist_builder
             if self.arm.spins_wrist(joint):
@@ -341,7 +412,11 @@ class _Predictor:
             except InputError:  # fewer than two usable arcs: this spin tells nothing
                 continue
         if graph.size() == 0:
-            return np.zeros((6, 6))
+            return np.zeros((self.dim, self.dim))
+        if intrinsics:  # pose and Cal3_S2 (fx, fy, s, cx, cy) first, the rest marginalised; the skew held
+            H, _ = _hessian_key_first(graph, values, [wrist_builder.pose_key, _INTRINSICS_KEY])
+            keep = list(range(6)) + [6 + CAL3_S2_INDEX[n] for n in PLAN_INTRINSICS]
+            return _schur(H, 11)[np.ix_(keep, keep)]
         return pose_information(graph, values, wrist_builder.pose_key)
 
 
@@ -522,22 +597,32 @@ def predict_accuracy(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, joint_
     predictor = _Predictor(arm, camera, options)
     constraints = _Constraints(predictor, arm_T_camera, collisions)
     prior = np.zeros((6, 6)) if prior_information is None else np.asarray(prior_information, dtype=float)
+    prior = _full_prior(predictor, prior)
     scenes = predictor.sample_scenes(arm_T_camera)
     infos = np.array([[predictor.information(scene, q) for scene in scenes] for q in poses])
-    return _prediction(arm_T_camera, poses, infos.reshape(len(poses), len(scenes), 6, 6), prior, options,
+    return _prediction(arm_T_camera, poses, infos.reshape(len(poses), len(scenes), predictor.dim, predictor.dim),
+                       prior, options,
                        [constraints.problem(q) for q in poses], predictor)
 
 
 def _prediction(guess, poses, infos: np.ndarray, prior: np.ndarray, options: PlanOptions, problems,
                 predictor: _Predictor | None = None) -> Prediction:
-    """``infos`` (poses, samples, 6, 6) -> the Prediction (the covariance averaged over the samples)."""
+    """``infos`` (poses, samples, 6, 6) -> the Prediction (the covariance averaged over the samples). Refining the
+    intrinsics: ``infos`` and ``prior`` are (6+4)^2 (the prior with the intrinsics'), the Prediction the pose's
+    marginal; ``per_pose`` then each pose's marginal under the intrinsics' prior alone."""
     total = prior[None] + infos.sum(axis=0) if len(poses) else np.repeat(prior[None], infos.shape[1], axis=0)
+    per_pose = [infos[k, 0] for k in range(len(poses))]
+    if prior.shape[-1] > 6:
+        total = _pose_marginal(total)
+        intrinsics_prior = prior.copy()
+        intrinsics_prior[:6, :6] = 0.0
+        per_pose = [_pose_marginal(info + intrinsics_prior) for info in per_pose]
     at_guess = total[0]
     observability = analyse_observability(at_guess, guess)
     covariances = [analyse_observability(t, guess).covariance(t) for t in total]
     span = None if predictor is None or predictor.limited_span is None else math.degrees(predictor.limited_span)
     return Prediction(guess, poses, at_guess, np.mean(covariances, axis=0), observability,
-                      [infos[k, 0] for k in range(len(poses))], options, list(problems), bool(np.any(prior)), span)
+                      per_pose, options, list(problems), bool(np.any(prior[:6, :6])), span)
 
 
 def plan_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: int = 6, options: PlanOptions | None = None,
@@ -566,8 +651,10 @@ def plan_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: int = 6, 
     if len(candidates) < n:
         raise _too_few(len(candidates), draws, refused, n)
     prior = np.zeros((6, 6)) if prior_information is None else np.asarray(prior_information, dtype=float)
-    chosen = _choose(infos, prior + REGULARISER, n, options)
-    poses, chosen_infos = _refine([candidates[c] for c in chosen], infos[chosen], prior + REGULARISER, predictor,
+    prior = _full_prior(predictor, prior)
+    regularised = prior + predictor.embed(REGULARISER)
+    chosen = _choose(infos, regularised, n, options)
+    poses, chosen_infos = _refine([candidates[c] for c in chosen], infos[chosen], regularised, predictor,
                                   constraints, ranking, rng=np.random.default_rng(options.seed + 1), options=options)
     if options.spin_model != SEARCH_SPIN_MODEL or len(ranking) < len(scenes):
         chosen_infos = np.array([[predictor.information(scene, q) for scene in scenes] for q in poses])
@@ -594,7 +681,7 @@ def _search_share(part: int, shared: dict | None = None):
     count = s["counts"][part]
     candidates, draws, refused = _sample(arm, s["constraints"], count, s["need"], options, rng,
                                          progress=progress, strict=False, in_view=True)
-    infos = np.empty((len(candidates), len(scenes), 6, 6))
+    infos = np.empty((len(candidates), len(scenes), predictor.dim, predictor.dim))
     for c, q in enumerate(candidates):
         infos[c] = [predictor.information(scene, q, SEARCH_SPIN_MODEL) for scene in scenes]
         if progress is not None:
@@ -633,7 +720,8 @@ def _search(arm: Arm, predictor: _Predictor, constraints: _Constraints, scenes: 
     else:
         parts = [_search_share(k, shared) for k in range(jobs)]
     candidates = [q for part in parts for q in part[0]]
-    infos = np.concatenate([part[1] for part in parts]) if candidates else np.empty((0, len(scenes), 6, 6))
+    infos = np.concatenate([part[1] for part in parts]) if candidates else \
+        np.empty((0, len(scenes), predictor.dim, predictor.dim))
     refused = Counter()
     for part in parts:
         refused.update(part[3])
@@ -742,11 +830,16 @@ def _choose(infos: np.ndarray, prior: np.ndarray, n: int, options: PlanOptions) 
         return _criterion(np.linalg.inv(base[None] + infos), options)
 
     D = _unit_scale(options)
+    extra = infos.shape[-1] - 6  # the intrinsics' dimensions (refine_intrinsics): the pose's marginal log-determinant
+    if extra:
+        D = np.concatenate([D, np.ones(extra)])
     base = np.repeat(prior[None], infos.shape[1], axis=0)
     chosen: list[int] = []
     for _ in range(n):
         scaled = (base[None] + infos) * np.outer(D, D)
         gains = -np.linalg.slogdet(scaled)[1].sum(axis=-1)
+        if extra:  # log det of the pose's Schur complement = log det(all) - log det(intrinsics' block)
+            gains += np.linalg.slogdet(scaled[..., 6:, 6:])[1].sum(axis=-1)
         gains[chosen] = np.inf
         best = int(np.argmin(gains))
         chosen.append(best)

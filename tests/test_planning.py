@@ -69,6 +69,50 @@ def test_prediction_matches_an_independent_cramer_rao_bound(scene, spin_model):
     assert len(prediction.problems) == 6
 
 
+def test_prediction_with_the_intrinsics_free_matches_an_independent_bound(scene):
+    """``refine_intrinsics``: the pose's marginal with fx, fy, cx, cy free under their prior against the benchmark's
+    bound of the same problem (``benchmarks/refinement.py``, the simulated tracks at the truth); wider than the exact
+    model's on every axis; the free phase refused."""
+    from refinement import _offset_bound
+
+    from gtsam_rotid.dataset import Dataset
+
+    dataset, truth = scene
+    poses = [m.joint_angles for m in truth.measurements]
+    readings = Dataset(dataset.arm, dataset.camera, list(dataset))
+    bound, _, _ = _offset_bound(dataset, truth, readings, [], np.zeros(0), 1.0, (0.05, 20.0))
+    options = QUICK.with_(guess_samples=1, spin_model="rigid")
+    free = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses,
+                            options.with_(refine_intrinsics=True))
+    exact = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses, options)
+    ratio = np.sqrt(np.diag(free.covariance)) / np.sqrt(np.diag(bound))
+    print("prediction / bound", ratio)
+    assert np.all((ratio > 0.85) & (ratio < 1.15)), ratio
+    assert np.all(free.sigma > exact.sigma)
+    assert free.information.shape == (6, 6) and free.per_pose[0].shape == (6, 6)
+    with pytest.raises(PlanningError, match="rigid"):
+        predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses,
+                         options.with_(refine_intrinsics=True, spin_model="free"))
+
+
+def test_refine_intrinsics_plans_for_the_pose_marginal(kinova):
+    """A plan with the intrinsics free predicts the pose's marginal; it is no worse under that model than the plan
+    for the exact model (same candidates: the same seed and search)."""
+    camera = simulate.SceneConfig().camera
+    config = simulate.SceneConfig()
+    from gtsam_rotid.geometry import look_at
+
+    guess = look_at(config.camera_eye, config.camera_target, config.camera_up)
+    options = QUICK.with_(candidates=60, search_seconds=None, jobs=1, spin_model="rigid", refine_intrinsics=True)
+    plan = plan_poses(kinova, camera, guess, 6, options, collisions=None)
+    other = plan_poses(kinova, camera, guess, 6, options.with_(refine_intrinsics=False), collisions=None)
+    again = predict_accuracy(kinova, camera, guess, other.joint_angles, options)
+    assert np.allclose(predict_accuracy(kinova, camera, guess, plan.joint_angles, options).sigma,
+                       plan.prediction.sigma)
+    assert max(plan.prediction.worst[0] / options.worst_axis_deg, plan.prediction.worst[1] / options.worst_axis_mm) \
+        <= 1.001 * max(again.worst[0] / options.worst_axis_deg, again.worst[1] / options.worst_axis_mm)
+
+
 def test_prediction_scales_with_noise_and_spin_length(scene, kinova):
     dataset, truth = scene
     poses = [m.joint_angles for m in truth.measurements]
