@@ -11,6 +11,7 @@ import gtsam
 import numpy as np
 
 from .arm import Arm
+from .calibration.options import DEFAULT_INTRINSICS_SIGMA
 from .camerafiles import load_camera
 from .dataset import Dataset
 from .errors import InputError
@@ -41,6 +42,13 @@ def _add_common(p: argparse.ArgumentParser, *, dataset: bool) -> None:
     p.add_argument("--spin-joints", nargs="+", default=(), metavar="NAME",
                    help="spin each of these joints at every pose, one spin each (default: the wrist only); a spin "
                         "of another joint must keep the whole swing of the hand in view and clear of the arm")
+    p.add_argument("--refine-intrinsics", action="store_true",
+                   help="the calibration will refine the intrinsics (calibrate --refine-intrinsics): predict and "
+                        "choose for the pose with fx, fy, cx, cy free under the prior of --intrinsics-sigma")
+    p.add_argument("--intrinsics-sigma", type=float, nargs=2, default=list(DEFAULT_INTRINSICS_SIGMA),
+                   metavar=("FOCAL_FRACTION", "PX"),
+                   help="with --refine-intrinsics: their prior 1 sigma about the camera file's, focal length as a "
+                        "fraction of it and principal point in px (default %(default)s, as calibrate's)")
     p.add_argument("--camera", metavar="CAMERA_YAML", required=not dataset,
                    help="OpenCV calibration YAML or ROS camera_info YAML")
     p.add_argument("--camera-guess", nargs=6, type=float, required=True,
@@ -112,13 +120,18 @@ def _options(args, **extra) -> PlanOptions:
         strictly = flag in ("--spin-seconds", "--fps", "--pixel-sigma", "--features")
         if not math.isfinite(value) or value < 0 or (strictly and value == 0):
             raise InputError(f"{flag} must be a {'positive number' if strictly else 'number >= 0'}, got {value:g}")
+    if args.refine_intrinsics and not all(math.isfinite(v) and v > 0 for v in args.intrinsics_sigma):
+        raise InputError(f"--intrinsics-sigma FOCAL_FRACTION PX must be two positive numbers, got "
+                         f"{args.intrinsics_sigma}")
     if not 0 <= args.depth_range[0] < args.depth_range[1]:
         raise InputError(f"--depth-range NEAR FAR must have 0 <= NEAR < FAR (m), got {args.depth_range}")
     options = PlanOptions(spin_seconds=args.spin_seconds, fps=args.fps, wrist_speed=args.wrist_speed,
                           pixel_sigma=args.pixel_sigma, axis_floor_px=args.axis_floor_px, n_features=args.features,
                           floor_height=None if args.no_floor else args.floor_height,
                           depth_range=tuple(args.depth_range), guess_sigma_mm=args.guess_sigma[0],
-                          guess_sigma_deg=args.guess_sigma[1], spin_joints=tuple(args.spin_joints), **extra)
+                          guess_sigma_deg=args.guess_sigma[1], spin_joints=tuple(args.spin_joints),
+                          refine_intrinsics=bool(args.refine_intrinsics),
+                          intrinsics_sigma=tuple(args.intrinsics_sigma), **extra)
     options.check()
     return options
 

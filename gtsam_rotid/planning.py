@@ -31,6 +31,8 @@ import gtsam
 import numpy as np
 
 from .arm import Arm
+from .calibration.joint import CAL3_S2_ORDER, intrinsics_prior_sigmas
+from .calibration.options import DEFAULT_INTRINSICS_SIGMA
 from .camera import Camera
 from .collisions import ArmCollisions
 from .dataset import Dataset
@@ -55,12 +57,8 @@ SWING_STEP_DEG = 30.0
 #: ``PlanOptions.refine_intrinsics``: the intrinsics the prediction frees with the pose, in Cal3_S2's tangent order
 #: (fx, fy, s, cx, cy) less the skew (held, as the joint fit holds it): the information is (6+4)x(6+4)
 PLAN_INTRINSICS = ("fx", "fy", "cx", "cy")
-#: ``calibration.options.DEFAULT_INTRINSICS_SIGMA`` (literal: importing the calibration package here is not needed)
-DEFAULT_INTRINSICS_SIGMA = (0.05, 20.0)
 #: the key of the intrinsics variable in the prediction's graph
 _INTRINSICS_KEY = gtsam.symbol("k", 0)
-#: Cal3_S2's tangent index of each intrinsic (``calibration.joint.CAL3_S2_ORDER``)
-CAL3_S2_INDEX = {"fx": 0, "fy": 1, "s": 2, "cx": 3, "cy": 4}
 
 #: (deg, deg, deg, mm, mm, mm) per unit of the Pose3 tangent (rad, m)
 UNITS = np.array([math.degrees(1.0)] * 3 + [1000.0] * 3)
@@ -349,8 +347,6 @@ class _Predictor:
         """(dim, dim): the intrinsics' prior information (zero on the pose's block; all zero without them)."""
         out = np.zeros((self.dim, self.dim))
         if self.dim > 6:
-            from .calibration.joint import CAL3_S2_ORDER, intrinsics_prior_sigmas
-
             sigmas = intrinsics_prior_sigmas(self.camera.K, PLAN_INTRINSICS, self.options.intrinsics_sigma)
             chosen = sigmas[[CAL3_S2_ORDER.index(n) for n in PLAN_INTRINSICS]]
             out[6:, 6:] = np.diag(1.0 / chosen**2)
@@ -415,7 +411,7 @@ class _Predictor:
             return np.zeros((self.dim, self.dim))
         if intrinsics:  # pose and Cal3_S2 (fx, fy, s, cx, cy) first, the rest marginalised; the skew held
             H, _ = _hessian_key_first(graph, values, [wrist_builder.pose_key, _INTRINSICS_KEY])
-            keep = list(range(6)) + [6 + CAL3_S2_INDEX[n] for n in PLAN_INTRINSICS]
+            keep = list(range(6)) + [6 + CAL3_S2_ORDER.index(n) for n in PLAN_INTRINSICS]
             return _schur(H, 11)[np.ix_(keep, keep)]
         return pose_information(graph, values, wrist_builder.pose_key)
 

@@ -660,7 +660,10 @@ def prediction_words(prediction: Prediction) -> list[str]:
                  f"{100 * o.offset_range[0]:.1f} to {100 * o.offset_range[1]:.1f} cm along it from the joint, "
                  f"{o.pixel_sigma:g} px noise per tracked point{floor}, and the camera about where the guess puts "
                  f"it (the 1σ is averaged over {o.guess_samples} camera poses drawn around the guess with 1σ "
-                 f"{o.guess_sigma_mm:g} mm and {o.guess_sigma_deg:g}°, each with its own texture)")
+                 f"{o.guess_sigma_mm:g} mm and {o.guess_sigma_deg:g}°, each with its own texture)"
+                 + (f"; the intrinsics refined with the pose (fx, fy, cx, cy free under a prior of "
+                    f"{100 * o.intrinsics_sigma[0]:g} % and {o.intrinsics_sigma[1]:g} px)"
+                    if o.refine_intrinsics else "; the camera file's intrinsics exact"))
     for k, problem in enumerate(p.problems):
         if problem is not None:
             lines.append(f"pose {k}: {problem}")

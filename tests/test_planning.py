@@ -4,6 +4,7 @@ next best poses, and the command line."""
 
 import math
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -341,7 +342,18 @@ def test_cli_plan_then_predict(tmp_path, capsys):
     assert main(["plan", *common, "--candidates", "30", "-o", str(poses)]) == 1
     assert "exists" in capsys.readouterr().err
     assert main(["predict", *common, "--poses", str(poses)]) == 0
-    assert "PREDICTED 1σ" in capsys.readouterr().out
+    exact = capsys.readouterr().out
+    assert "PREDICTED 1σ" in exact and "the camera file's intrinsics exact" in exact
+    # the intrinsics to be refined: a wider 1σ, and the words say what it assumes
+    assert main(["predict", *common, "--poses", str(poses), "--refine-intrinsics", "--intrinsics-sigma", "0.02",
+                 "5"]) == 0
+    freed = capsys.readouterr().out
+    assert "the intrinsics refined with the pose (fx, fy, cx, cy free under a prior of 2 % and 5 px)" in freed
+    sigmas = [re.search(r"translation ([\d.]+), ([\d.]+), ([\d.]+) mm", text).groups() for text in (exact, freed)]
+    assert all(float(b) > float(a) for a, b in zip(*sigmas, strict=True))
+    assert main(["predict", *common, "--poses", str(poses), "--refine-intrinsics", "--intrinsics-sigma", "0",
+                 "5"]) == 1
+    assert "--intrinsics-sigma FOCAL_FRACTION PX must be two positive numbers" in capsys.readouterr().err
     # one pose is never enough: plan says so (exit 3), predict calls it degenerate
     assert main(["plan", *common, "-n", "1", "--candidates", "20", "-o", str(tmp_path / "one_planned.csv")]) == 3
     assert "NOT ENOUGH" in capsys.readouterr().out
