@@ -302,12 +302,28 @@ def _pose_marginal(information: np.ndarray) -> np.ndarray:
     return 0.5 * (S + np.swapaxes(S, -1, -2))
 
 
-def _full_prior(predictor: _Predictor, pose_prior: np.ndarray) -> np.ndarray:
-    """The prior information in the predictor's dimension: ``pose_prior`` (6x6) and, refining the intrinsics, their
-    prior (``pose_prior`` itself without them)."""
+def _information(graph, values, pose_key: int, intrinsics: bool) -> np.ndarray:
+    """A graph's information on the pose (6x6) or, with ``intrinsics`` (its Cal3_S2 at ``_INTRINSICS_KEY``), on the
+    pose and PLAN_INTRINSICS ((6+4)^2: the skew held), everything else marginalised."""
+    if not intrinsics:
+        return pose_information(graph, values, pose_key)
+    H, _ = _hessian_key_first(graph, values, [pose_key, _INTRINSICS_KEY])
+    keep = list(range(6)) + [6 + CAL3_S2_ORDER.index(n) for n in PLAN_INTRINSICS]
+    return _schur(H, 11)[np.ix_(keep, keep)]
+
+
+def _full_prior(predictor: _Predictor, prior: np.ndarray) -> np.ndarray:
+    """The prior information in the predictor's dimension: ``prior`` (6x6 on the pose, or, refining the intrinsics,
+    (6+4)^2 on the pose and PLAN_INTRINSICS: :func:`dataset_information` with the same options) and, refining the
+    intrinsics, their prior."""
     if predictor.dim == 6:
-        return pose_prior
-    return predictor.embed(pose_prior) + predictor.intrinsics_prior()
+        if prior.shape != (6, 6):
+            raise PlanningError(f"prior_information must be 6x6 (the pose's), got {prior.shape}")
+        return prior
+    if prior.shape not in ((6, 6), (predictor.dim, predictor.dim)):
+        raise PlanningError(f"prior_information must be 6x6 (the pose's) or {predictor.dim}x{predictor.dim} (the "
+                            f"pose's and the intrinsics', refine_intrinsics), got {prior.shape}")
+    return (predictor.embed(prior) if prior.shape == (6, 6) else prior) + predictor.intrinsics_prior()
 
 
 def _unit_scale(options: PlanOptions) -> np.ndarray:
@@ -409,11 +425,7 @@ class _Predictor:
                 continue
         if graph.size() == 0:
             return np.zeros((self.dim, self.dim))
-        if intrinsics:  # pose and Cal3_S2 (fx, fy, s, cx, cy) first, the rest marginalised; the skew held
-            H, _ = _hessian_key_first(graph, values, [wrist_builder.pose_key, _INTRINSICS_KEY])
-            keep = list(range(6)) + [6 + CAL3_S2_ORDER.index(n) for n in PLAN_INTRINSICS]
-            return _schur(H, 11)[np.ix_(keep, keep)]
-        return pose_information(graph, values, wrist_builder.pose_key)
+        return _information(graph, values, wrist_builder.pose_key, intrinsics)
 
 
 class _Constraints:
@@ -584,8 +596,9 @@ def predict_accuracy(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, joint_
                      prior_information: np.ndarray | None = None) -> Prediction:
     """The predicted 1σ of a calibration from these arm poses, before any recording (see the module's words).
 
-    ``prior_information`` (6x6): an existing calibration's information, added to the poses'. Each pose's
-    constraint problems at the guess are listed in ``problems`` (a pose that breaks one is still predicted).
+    ``prior_information`` (6x6, or (6+4)^2 with ``refine_intrinsics``: :func:`dataset_information`): an existing
+    calibration's information, added to the poses'. Each pose's constraint problems at the guess are listed in
+    ``problems`` (a pose that breaks one is still predicted).
     """
     options = (PlanOptions() if options is None else options).with_texture(arm, collisions)
     _check_inputs(arm, camera, arm_T_camera, options)
@@ -628,9 +641,10 @@ def plan_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: int = 6, 
     OpenCV optical frame in the arm's root frame), subject to the constraints of :class:`PlanOptions`.
 
     ``collisions``: True (default) loads the arm's collision meshes, an :class:`ArmCollisions` reuses one, None
-    checks no collision (say so to your users). ``prior_information`` (6x6): an existing calibration's, for the
-    next best poses. ``progress(stage, done, total)`` is called as candidates are found and evaluated. Raises
-    :class:`PlanningError` when fewer than ``n`` poses satisfy the constraints.
+    checks no collision (say so to your users). ``prior_information`` (6x6, or (6+4)^2 with ``refine_intrinsics``:
+    :func:`dataset_information`): an existing calibration's, for the next best poses. ``progress(stage, done,
+    total)`` is called as candidates are found and evaluated. Raises :class:`PlanningError` when fewer than ``n``
+    poses satisfy the constraints.
     """
     options = PlanOptions() if options is None else options
     _check_inputs(arm, camera, arm_T_camera, options)
@@ -877,12 +891,17 @@ def predicted_spins(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, joint_a
 def dataset_information(dataset: Dataset, arm_T_camera: gtsam.Pose3, options: PlanOptions | None = None
                         ) -> np.ndarray:
     """The information (6x6) of an existing dataset's tracks at ``arm_T_camera``, with the plan's pixel noise and
-    axis floor: what new poses add to."""
+    axis floor: what new poses add to. With ``options.refine_intrinsics``, (6+4)^2 on the pose and fx, fy, cx, cy
+    (the rigid spin; without their prior, which the plan adds)."""
     options = PlanOptions() if options is None else options
+    intrinsics = options.refine_intrinsics
     builder = RotIdGraph(dataset.arm, dataset.camera, model="projected", track_sigma_px=options.pixel_sigma,
-                         spin_model=options.spin_model)
+                         spin_model="rigid" if intrinsics else options.spin_model,
+                         intrinsics_key=_INTRINSICS_KEY if intrinsics else None)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(builder.pose_key, arm_T_camera)
+    if intrinsics:
+        values.insert(_INTRINSICS_KEY, cal3_s2(dataset.camera.K))
     floor = 2.0 * options.axis_floor_px**2 * np.eye(2)
     for k, measurement in enumerate(dataset):
         try:
@@ -891,4 +910,4 @@ def dataset_information(dataset: Dataset, arm_T_camera: gtsam.Pose3, options: Pl
             continue
     if graph.size() == 0:
         raise PlanningError("no measurement of the dataset has two usable tracks")
-    return pose_information(graph, values, builder.pose_key)
+    return _information(graph, values, builder.pose_key, intrinsics)

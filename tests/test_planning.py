@@ -96,6 +96,29 @@ def test_prediction_with_the_intrinsics_free_matches_an_independent_bound(scene)
                          options.with_(refine_intrinsics=True, spin_model="free"))
 
 
+def test_a_recorded_dataset_adds_its_intrinsics_information_to_a_plan_that_refines_them(scene):
+    """``dataset_information`` with ``refine_intrinsics``: the pose's and the intrinsics' information of the recorded
+    tracks (its pose block the exact model's), so that what the recording already knows of the pose is counted with
+    the intrinsics free: less than with them exact."""
+    from gtsam_rotid.planning import PlanningError, dataset_information
+
+    dataset, truth = scene
+    options = QUICK.with_(guess_samples=1, spin_model="rigid")
+    exact = dataset_information(dataset, truth.arm_T_camera, options)
+    free = dataset_information(dataset, truth.arm_T_camera, options.with_(refine_intrinsics=True))
+    assert exact.shape == (6, 6) and free.shape == (10, 10)
+    np.testing.assert_allclose(free[:6, :6], exact, rtol=1e-6)
+    one = [truth.measurements[0].joint_angles]
+    with_exact = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, one, options,
+                                  prior_information=exact)
+    with_free = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, one,
+                                 options.with_(refine_intrinsics=True), prior_information=free)
+    assert with_exact.with_prior and with_free.with_prior
+    assert np.all(with_free.sigma > with_exact.sigma)
+    with pytest.raises(PlanningError, match="prior_information must be 6x6"):
+        predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, one, options, prior_information=free)
+
+
 def test_refine_intrinsics_plans_for_the_pose_marginal(kinova):
     """A plan with the intrinsics free predicts the pose's marginal; it is no worse under that model than the plan
     for the exact model (same candidates: the same seed and search)."""
