@@ -94,11 +94,18 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
             raise BagError(f"{bag.path}, topic {topics.joints}: no spin of {' or '.join(map(repr, joints))} (at "
                            f"least {min_spin_deg:g} deg while no other joint moves by more than "
                            f"{still_tolerance_deg:g} deg) in the joint states{also}")
+        missing = [joint for joint in joints if not found[joint]]
+        if missing:  # (asked for, e.g. to make more offsets observable: say so rather than leave them out quietly)
+            print(f"warning: {bag.path}, topic {topics.joints}: no spin of " + ", ".join(map(repr, missing))
+                  + f" (at least {min_spin_deg:g} deg while no other joint moves by more than "
+                  f"{still_tolerance_deg:g} deg): the dataset holds the spins of "
+                  + ", ".join(repr(j) for j in joints if found[j]) + " only", file=sys.stderr)
         if others:  # (a move between poses may turn one joint alone too)
             print(f"note: {bag.path}, topic {topics.joints}: " + ", ".join(f"{j!r} turned alone {n} time(s)"
                                                                           for j, n in others.items())
                   + f" by at least {min_spin_deg:g} deg: not measurements (only the spins of "
-                  + ", ".join(map(repr, joints)) + " are; name the joints to use with --spin-joints)", file=sys.stderr)
+                  + ", ".join(repr(j) for j in joints if found[j]) + " are; name the joints to use with --spin-joints)",
+                  file=sys.stderr)
         image_stamps, motion = bag.image_motion(topics.image)
         offset, correlation, rival = estimate_time_offset(image_stamps, motion, stamps, positions, max_offset_s)
         at_edge = bool(np.isfinite(offset) and abs(offset) > max_offset_s - 0.5 * _period(image_stamps))
@@ -175,7 +182,10 @@ def _spin_joints(arm: Arm, spin_joints: Sequence[str] | None) -> list[str]:
             arm.spin_index(joint)
         except ArmError as exc:
             raise InputError(f"spin_joints: {exc}") from None
-    return list(dict.fromkeys(spin_joints))
+    if len(set(spin_joints)) < len(spin_joints):
+        raise InputError(f"spin_joints names a joint more than once: {list(spin_joints)} (a bag's spins of each "
+                         "joint named are found once)")
+    return list(spin_joints)
 
 
 def _spin_readings(frame_times: np.ndarray, stamps: np.ndarray, wrist: np.ndarray, a: int, b: int,

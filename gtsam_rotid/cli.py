@@ -516,7 +516,8 @@ def _track_bag(args: argparse.Namespace, arm: Arm, params) -> Dataset:
     print(f"topics: images {recording['topics']['image']}, joint states {recording['topics']['joints']}, camera "
           f"{recording['camera_from']}; {len(dataset)} spin(s)"
           + (" (" + ", ".join(f"{recording['spin_joints'].count(j)} of {j}" for j in dict.fromkeys(
-              recording["spin_joints"])) + ")" if args.spin_joints else "") + "; camera-to-joint-state time offset "
+              recording["spin_joints"])) + ")" if recording.get("spin_joints") else "")
+          + "; camera-to-joint-state time offset "
           + ("not measured" if offset is None else f"{1000 * offset:+.1f} ms (correlation "
              f"{recording['time_offset_correlation']:.2f}, {applied})"))
     return dataset

@@ -45,10 +45,10 @@ def _add_common(p: argparse.ArgumentParser, *, dataset: bool) -> None:
     p.add_argument("--refine-intrinsics", action="store_true",
                    help="the calibration will refine the intrinsics (calibrate --refine-intrinsics): predict and "
                         "choose for the pose with fx, fy, cx, cy free under the prior of --intrinsics-sigma")
-    p.add_argument("--intrinsics-sigma", type=float, nargs=2, default=list(DEFAULT_INTRINSICS_SIGMA),
-                   metavar=("FOCAL_FRACTION", "PX"),
+    p.add_argument("--intrinsics-sigma", type=float, nargs=2, default=None, metavar=("FOCAL_FRACTION", "PX"),
                    help="with --refine-intrinsics: their prior 1 sigma about the camera file's, focal length as a "
-                        "fraction of it and principal point in px (default %(default)s, as calibrate's)")
+                        "fraction of it and principal point in px (default {} {}, as calibrate's)".format(
+                            *DEFAULT_INTRINSICS_SIGMA))
     p.add_argument("--camera", metavar="CAMERA_YAML", required=not dataset,
                    help="OpenCV calibration YAML or ROS camera_info YAML")
     p.add_argument("--camera-guess", nargs=6, type=float, required=True,
@@ -113,6 +113,10 @@ def add_plan_parsers(subparsers) -> None:
     p.set_defaults(func=cmd_predict)
 
 
+#: --intrinsics-sigma's focal fraction above this is taken for a percentage typed by mistake
+MAX_FOCAL_FRACTION = 0.5
+
+
 def _options(args, **extra) -> PlanOptions:
     flags = {"--guess-sigma": min(args.guess_sigma), "--spin-seconds": args.spin_seconds, "--fps": args.fps,
              "--pixel-sigma": args.pixel_sigma, "--axis-floor-px": args.axis_floor_px, "--features": args.features}
@@ -120,9 +124,15 @@ def _options(args, **extra) -> PlanOptions:
         strictly = flag in ("--spin-seconds", "--fps", "--pixel-sigma", "--features")
         if not math.isfinite(value) or value < 0 or (strictly and value == 0):
             raise InputError(f"{flag} must be a {'positive number' if strictly else 'number >= 0'}, got {value:g}")
-    if args.refine_intrinsics and not all(math.isfinite(v) and v > 0 for v in args.intrinsics_sigma):
-        raise InputError(f"--intrinsics-sigma FOCAL_FRACTION PX must be two positive numbers, got "
-                         f"{args.intrinsics_sigma}")
+    if args.intrinsics_sigma is not None and not args.refine_intrinsics:
+        raise InputError("--intrinsics-sigma applies with --refine-intrinsics only (without it the camera file's "
+                         "intrinsics are taken as exact)")
+    sigma = DEFAULT_INTRINSICS_SIGMA if args.intrinsics_sigma is None else tuple(args.intrinsics_sigma)
+    if not all(math.isfinite(v) and v > 0 for v in sigma):
+        raise InputError(f"--intrinsics-sigma FOCAL_FRACTION PX must be two positive numbers, got {list(sigma)}")
+    if sigma[0] > MAX_FOCAL_FRACTION:
+        raise InputError(f"--intrinsics-sigma's FOCAL_FRACTION is a fraction of the focal length (0.05 for 5 %), got "
+                         f"{sigma[0]:g}")
     if not 0 <= args.depth_range[0] < args.depth_range[1]:
         raise InputError(f"--depth-range NEAR FAR must have 0 <= NEAR < FAR (m), got {args.depth_range}")
     options = PlanOptions(spin_seconds=args.spin_seconds, fps=args.fps, wrist_speed=args.wrist_speed,
@@ -130,8 +140,7 @@ def _options(args, **extra) -> PlanOptions:
                           floor_height=None if args.no_floor else args.floor_height,
                           depth_range=tuple(args.depth_range), guess_sigma_mm=args.guess_sigma[0],
                           guess_sigma_deg=args.guess_sigma[1], spin_joints=tuple(args.spin_joints),
-                          refine_intrinsics=bool(args.refine_intrinsics),
-                          intrinsics_sigma=tuple(args.intrinsics_sigma), **extra)
+                          refine_intrinsics=bool(args.refine_intrinsics), intrinsics_sigma=sigma, **extra)
     options.check()
     return options
 

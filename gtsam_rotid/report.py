@@ -196,8 +196,15 @@ class CalibrationReport:
             if ok:
                 rows.append((name, shown, f"{sigma:.3g}", f"±{Z95 * sigma:.3g}"))
             else:
-                rows.append((name, shown, "not determined", "not determined"))
+                rows.append((name, shown, *[self._not_shown] * 2))
         return rows
+
+    @property
+    def _not_shown(self) -> str:
+        """What the estimate's table says where it gives no 1σ: why."""
+        if self.untrusted and not self.ambiguous:  # (result.untrusted is empty where not determined)
+            return "not trusted"
+        return "not determined"
 
     def _observability_lines(self) -> list[str]:
         lines = list(self.observability)
@@ -264,7 +271,8 @@ class CalibrationReport:
             lines += [f"  {LABELS[i]:<4}" + "".join(f"{v:+7.2f}" for v in row)
                       for i, row in enumerate(self.correlation)]
         if not self.covariance_usable:
-            summary += " (the undetermined direction dominates: not meaningful)"
+            summary += (" (the covariance is not trusted: not meaningful)" if self._not_shown == "not trusted"
+                        else " (the undetermined direction dominates: not meaningful)")
         return [*lines, "", summary]
 
     def to_text(self) -> str:
@@ -423,6 +431,18 @@ def _strongest(block: np.ndarray) -> tuple[np.ndarray, float]:
     return (v if v[np.argmax(np.abs(v))] > 0 else -v), float(np.sqrt(max(w[-1], 0.0)))
 
 
+def _untrusted_suggestion(untrusted: list) -> str:
+    """What to do about a calibration that is determined but not trusted, by the reasons it is not."""
+    if intrinsics_suspected(untrusted):
+        return ("check the camera file (is it this camera's, at this resolution?) and calibrate the intrinsics again, "
+                "or refine them with the pose (calibrate --refine-intrinsics: more arm poses, `plan "
+                "--refine-intrinsics`, keep the precision)")
+    if kinematics_suspected(untrusted):
+        return ("check the robot's zero positions, or refine the joint offsets with the pose (calibrate "
+                "--joint-offsets; a spin of the joint before the wrist at each pose makes more of them observable)")
+    return "spin the wrist longer (a full turn), give the hand more texture, or add arm poses"
+
+
 def _observability(result, cov: np.ndarray, geometry: AxisGeometry | None) -> tuple[list[str], str]:
     """(words, suggestion) of the observability verdict; ``cov`` in COVARIANCE_ORDER."""
     obs = result.observability
@@ -562,7 +582,7 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         determined = np.zeros(6, dtype=bool)
         for sentence in reversed(untrusted_words(result)):
             words.insert(0, "NOT TRUSTED: " + sentence)
-        suggestion = suggestion or "spin the wrist longer (a full turn), give the hand more texture, or add arm poses"
+        suggestion = suggestion or _untrusted_suggestion(untrusted)
     planned = None
     if next_pose and dataset is not None and (ambiguous or not result.observability.is_observable):
         planned = next_best_pose(result, dataset)

@@ -291,18 +291,34 @@ def intrinsics_words(result: CalibrationResult) -> str:
                 "recalibrate them)" + then)
     likely = i.get("likely", True) or i.get("one_out_chi2") is None
     closer = ("" if likely else
-              f"; not all the way, the axes having been fitted through the camera given, but closer than without any "
-              f"one measurement, χ² = {i['one_out_chi2']:.3g}")
+              "; a first-order check that keeps the image axes as measured through the camera file, so a wrong "
+              "camera is not fitted all the way, but far better than by leaving out any one measurement, whose best "
+              f"χ² is {i['one_out_chi2']:.3g}")
+    k = c.kinematics or {}
+    rival = ""
+    if "kinematics" in result.untrusted and k.get("p_value") is not None and k["p_value"] < i["p_value"]:
+        rival = (f" Offsets of the joints' zero positions explain the axes less well (P = {k['p_value']:.2g}); "
+                 "the camera is the likelier cause.")
     return (f"the image axes of all {len(i['measurements'])} measurements (the left-out ones too) disagree with any "
             f"one pose seen through this camera (χ² = {i['exact_chi2']:.3g} for {i['exact_dof']} dof, P = "
-            f"{i['exact_p']:.2g}) but {'agree' if likely else 'come far closer'} once its focal length and principal "
-            f"point may change (χ² = {i['chi2']:.3g} for {i['dof']} dof, P = {i['p_value']:.2g}{closer}), changed "
-            "by about "
-            f"{i['focal_percent']:+.2g} % in focal length, {i['cx_px']:+.3g} px in cx and {i['cy_px']:+.3g} px in cy "
-            "(a first-order reading; the principal point and the focal length trade off). Wrong intrinsics move every "
-            "axis together and leave an estimate wrong by far more than its covariance says, so it is not trusted. "
-            "Check the intrinsics first (is the camera file this camera's, at this resolution? recalibrate them)"
-            + then)
+            f"{i['exact_p']:.2g}) but {'agree' if likely else 'come far closer'} with a camera whose "
+            f"{_camera_change(i)} (χ² = {i['chi2']:.3g} for {i['dof']} dof, P = {i['p_value']:.2g}{closer}; a "
+            "first-order reading: the principal point and the focal length trade off). Wrong intrinsics move every "
+            "axis together and leave an estimate wrong by far more than its covariance says, so it is not trusted."
+            + rival + " Check the intrinsics first (is the camera file this camera's, at this resolution? recalibrate "
+            "them), or refine them with the pose (calibrate --refine-intrinsics; it costs precision at these poses: "
+            "plan --refine-intrinsics)" + then)
+
+
+def _camera_change(i: dict) -> str:
+    """The intrinsics' change that a model check reads (``focal_percent``, ``cx_px``, ``cy_px``: new minus the
+    camera file's), in words that say which way."""
+    focal, cx, cy = i["focal_percent"], i["cx_px"], i["cy_px"]
+    across = f"{abs(cx):.3g} px {'left' if cx < 0 else 'right'}"
+    down = f"{abs(cy):.3g} px {'up' if cy < 0 else 'down'}"
+    return (f"focal length is about {abs(focal):.2g} % {'shorter' if focal < 0 else 'longer'} than the camera "
+            f"file's and whose principal point is about {across} and {down} of the file's (cx {cx:+.3g}, cy "
+            f"{cy:+.3g} px)")
 
 
 def intrinsics_shapes_words(shapes: dict | None) -> str:
@@ -401,6 +417,10 @@ def joint_offset_words(result: CalibrationResult) -> str:
                 "before the spinning one may be offset: " + advice)
     offsets = ", ".join(f"{name} {deg:+.2f}°" for name, deg in k["offsets_deg"].items())
     agree = "agree" if k.get("likely", True) else "come far closer (not all the way: more is off)"
+    i = c.intrinsics or {}
+    if "intrinsics" in result.untrusted and i.get("p_value") is not None and i["p_value"] > k["p_value"]:
+        advice = (f"A camera error explains the axes better (P = {i['p_value']:.2g}): see the intrinsics first. "
+                  + advice)
     return (f"the image axes of all {len(k['measurements'])} measurements (the left-out ones too) disagree with any "
             f"one pose through the kinematics as given (χ² = {k['exact_chi2']:.3g} for {k['exact_dof']} dof, P = "
             f"{k['exact_p']:.2g}) but {agree} once the joints before the spinning one may be offset (χ² = "

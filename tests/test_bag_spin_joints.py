@@ -76,6 +76,12 @@ def test_the_track_command_reads_spins_of_named_joints_and_refuses_a_joint_the_a
     assert [m.spin_joint for m in Dataset.load(out)] == [j5, None] * 4
     with pytest.raises(InputError, match="spin_joints: spinning joint 'elbow' is not a revolute joint"):
         dataset_from_bag(path, dataset.arm, spin_joints=["elbow"], progress=False)
+    with pytest.raises(InputError, match="names a joint more than once"):
+        dataset_from_bag(path, dataset.arm, spin_joints=[j5, j5], progress=False)
+    j3 = dataset.arm.joint_names[2]  # named, but it never spins in this bag: said, not left out quietly
+    assert [m.spin_joint for m in dataset_from_bag(path, dataset.arm, spin_joints=[j3, j5], progress=False)] == [j5] * 4
+    err = capsys.readouterr().err
+    assert f"no spin of {j3!r}" in err and f"the dataset holds the spins of {j5!r} only" in err
     assert main(["track", "--bag", str(path), "--robot", "kinova", "--spin-joints", "elbow", "-o",
                  str(tmp_path / "e"), "--no-progress"]) == 1
     assert "'elbow' is not a revolute joint" in capsys.readouterr().err

@@ -377,6 +377,11 @@ def test_cli_plan_then_predict(tmp_path, capsys):
     assert main(["predict", *common, "--poses", str(poses), "--refine-intrinsics", "--intrinsics-sigma", "0",
                  "5"]) == 1
     assert "--intrinsics-sigma FOCAL_FRACTION PX must be two positive numbers" in capsys.readouterr().err
+    assert main(["predict", *common, "--poses", str(poses), "--refine-intrinsics", "--intrinsics-sigma", "5",
+                 "20"]) == 1  # 5 % typed as 5
+    assert "a fraction of the focal length (0.05 for 5 %)" in capsys.readouterr().err
+    assert main(["predict", *common, "--poses", str(poses), "--intrinsics-sigma", "0.02", "5"]) == 1
+    assert "--intrinsics-sigma applies with --refine-intrinsics only" in capsys.readouterr().err
     # one pose is never enough: plan says so (exit 3), predict calls it degenerate
     assert main(["plan", *common, "-n", "1", "--candidates", "20", "-o", str(tmp_path / "one_planned.csv")]) == 3
     assert "NOT ENOUGH" in capsys.readouterr().out

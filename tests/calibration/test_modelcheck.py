@@ -39,7 +39,11 @@ def test_wrong_intrinsics_are_flagged_not_blamed_on_one_measurement(scene, focal
     name, value, tolerance = expected
     assert check[name] == pytest.approx(value, abs=tolerance)
     words = " ".join(untrusted_words(result))
-    assert "Check the intrinsics first" in words and f"{check['focal_percent']:+.2g} % in focal length" in words
+    assert "Check the intrinsics first" in words
+    assert "or refine them with the pose (calibrate --refine-intrinsics" in words
+    shorter = "shorter" if check["focal_percent"] < 0 else "longer"
+    assert f"focal length is about {abs(check['focal_percent']):.2g} % {shorter} than the camera file's" in words
+    assert f"(cx {check['cx_px']:+.3g}, cy {check['cy_px']:+.3g} px)" in words
     text = summary(result)
     assert "COVARIANCE UNUSABLE" in text
     left_out = [m for m in result.measurements if m.outlier]  # not blamed on its joints before the camera
@@ -197,8 +201,33 @@ def test_a_camera_error_that_explains_most_of_the_axes_disagreement_is_not_scale
         assert check["estimate_moved_chi2"] > 22.46  # the camera's explanation, apart from the estimate's
     assert "intrinsics" in result.untrusted and not result.covariance_usable
     words = " ".join(untrusted_words(result))
-    assert "come far closer once its focal length and principal point may change" in words
-    assert f"closer than without any one measurement, χ² = {check['one_out_chi2']:.3g}" in words
+    assert "come far closer with a camera whose focal length is about" in words
+    assert f"better than by leaving out any one measurement, whose best χ² is {check['one_out_chi2']:.3g}" in words
+    assert "shorter than the camera file's" in words  # the file's focal length is 3 % long
+    from gtsam_rotid.report import make_report
+
+    text = make_report(result, with_intrinsics(dataset, 1.03, 10.0)).to_text()
+    assert "not trusted" in text and "not determined" not in text  # (all six are determined: the camera is off)
+    assert "SUGGESTION: check the camera file" in text
+
+
+def test_a_camera_error_and_offsets_both_read_in_the_axes_are_ranked():
+    """The same twelve poses' seed 0: the camera's change (P = 5e-4) and offsets of 0.04-0.08 degrees (P = 3e-6)
+    both explain most of the disagreement, and both are flagged; the words say the camera is the likelier cause, in
+    its paragraph and in the offsets'."""
+    from gtsam_rotid.simulate import SceneConfig
+
+    dataset, truth = simulate.simulate(SceneConfig(robot="kinova", duration=12.0, noise_var=1.5, n_measurements=12),
+                                       seed=0)
+    result = calibrate(with_intrinsics(dataset, 1.03, 10.0))
+    assert {"intrinsics", "kinematics"} <= set(result.untrusted) and not result.covariance_usable
+    c = result.axis_consistency
+    assert c.intrinsics["p_value"] > c.kinematics["p_value"]
+    words = untrusted_words(result)
+    camera = next(w for w in words if "come far closer with a camera whose" in w)
+    offsets = next(w for w in words if "joints before the spinning one may be offset" in w)
+    assert "the camera is the likelier cause" in camera
+    assert f"A camera error explains the axes better (P = {c.intrinsics['p_value']:.2g})" in offsets
 
 
 def test_joint_offsets_that_pass_the_axes_test_rival_the_measurement_the_estimate_left_out():
