@@ -146,6 +146,9 @@ def cmd_calibrate(args) -> int:
 
     offsets = None if args.joint_offsets is None else (args.joint_offsets or True)  # no names: every joint
     intrinsics = () if args.refine_intrinsics is None else (tuple(args.refine_intrinsics) or True)
+    if args.intrinsics_sigma is not None and args.refine_intrinsics is None:
+        raise InputError("--intrinsics-sigma applies with --refine-intrinsics only (without it the camera file's "
+                         "intrinsics are taken as exact)")
     if not args.time_offset_sigma >= 0:  # (0 holds the offset: None below)
         raise InputError(f"--time-offset-sigma must be a number of seconds >= 0 (0 holds the offset at "
                          f"--time-offset), got {args.time_offset_sigma:g}")
@@ -153,7 +156,7 @@ def cmd_calibrate(args) -> int:
         options = CalibrationOptions(
             joint_sigma_deg=args.joint_sigma_deg, axis_floor_px=args.axis_floor_px, joint_offsets=offsets,
             joint_offset_sigma_deg=args.joint_offset_sigma_deg, refine_intrinsics=intrinsics,
-            intrinsics_sigma=tuple(args.intrinsics_sigma), sync_encoders=not args.no_sync,
+            intrinsics_sigma=tuple(args.intrinsics_sigma or DEFAULT_INTRINSICS_SIGMA), sync_encoders=not args.no_sync,
             encoder_sigma_deg=args.encoder_sigma_deg, time_offset_s=args.time_offset,
             time_offset_sigma_s=None if args.time_offset_sigma == 0 else args.time_offset_sigma)
     except InputError as error:  # the flag the user typed, not the option's field
@@ -676,10 +679,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--refine-intrinsics", nargs="*", default=None, metavar="NAME", choices=list(INTRINSICS),
                    help="refine these camera intrinsics (fx, fy, cx, cy) with the pose, from the circles' shapes; no "
                         "names: all four (joint method, rigid spin: tracks with frame indices)")
-    p.add_argument("--intrinsics-sigma", type=float, nargs=2, default=list(DEFAULT_INTRINSICS_SIGMA),
-                   metavar=("FOCAL_FRACTION", "PX"),
-                   help="prior 1 sigma of the refined intrinsics about the camera file's: focal length as a "
-                        "fraction of it, principal point in px (default %(default)s)")
+    p.add_argument("--intrinsics-sigma", type=float, nargs=2, default=None, metavar=("FOCAL_FRACTION", "PX"),
+                   help="with --refine-intrinsics: prior 1 sigma of the refined intrinsics about the camera file's: "
+                        "focal length as a fraction of it, principal point in px (default {} {})".format(
+                            *DEFAULT_INTRINSICS_SIGMA))
     p.add_argument("--no-sync", action="store_true",
                    help="ignore the spinning joint's readings that measurements carry (bags: the joint states); by "
                         "default they set each frame's spin angle and the encoder clock's offset is estimated")

@@ -240,7 +240,9 @@ def test_calibrate_errors_name_the_flags_not_the_options_fields(noise_free_datas
     for flags, said in ((["--encoder-sigma-deg", "-1"], "--encoder-sigma-deg must be a positive number of degrees"),
                         (["--time-offset-sigma", "-2"], "--time-offset-sigma must be a number of seconds >= 0"),
                         (["--time-offset", "nan"], "--time-offset must be a finite number of seconds"),
-                        (["--intrinsics-sigma", "0", "1"], "--intrinsics-sigma must be (focal fraction"),
+                        (["--refine-intrinsics", "--intrinsics-sigma", "0", "1"],
+                         "--intrinsics-sigma must be (focal fraction"),
+                        (["--intrinsics-sigma", "0.02", "5"], "--intrinsics-sigma applies with --refine-intrinsics"),
                         (["--joint-offset-sigma-deg", "0"], "--joint-offset-sigma-deg must be a positive")):
         bad = run("calibrate", str(noise_free_dataset), *flags, check=False)
         assert bad.returncode == 1 and said in bad.stderr and "CalibrationOptions" not in bad.stderr, bad.stderr
