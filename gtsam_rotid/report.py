@@ -435,8 +435,8 @@ def _untrusted_suggestion(untrusted: list) -> str:
     """What to do about a calibration that is determined but not trusted, by the reasons it is not."""
     if intrinsics_suspected(untrusted):
         return ("check the camera file (is it this camera's, at this resolution?) and calibrate the intrinsics again, "
-                "or refine them with the pose (calibrate --refine-intrinsics: more arm poses, `plan "
-                "--refine-intrinsics`, keep the precision)")
+                "or refine them with the pose (calibrate --refine-intrinsics), recording more arm poses planned for "
+                "that (plan --refine-intrinsics) to keep the precision")
     if kinematics_suspected(untrusted):
         return ("check the robot's zero positions, or refine the joint offsets with the pose (calibrate "
                 "--joint-offsets; a spin of the joint before the wrist at each pose makes more of them observable)")
