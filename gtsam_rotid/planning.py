@@ -42,7 +42,7 @@ from .graph import MIN_TRACK_EXTENT_PX, RotIdGraph
 from .initialise import MIN_ELLIPSE_POINTS
 from .simulate import SceneConfig, SpinScene
 from .trackparams import AXIS_FLOOR_PX
-from .uncertainty import Observability, _hessian_key_first, _schur, analyse_observability, pose_information
+from .uncertainty import Observability, analyse_observability, marginal_information, pose_information
 
 #: A camera guess farther than this (m) from the arm's base is taken for a mistake of units.
 MAX_GUESS_DISTANCE_M = 20.0
@@ -57,6 +57,8 @@ SWING_STEP_DEG = 30.0
 #: ``PlanOptions.refine_intrinsics``: the intrinsics the prediction frees with the pose, in Cal3_S2's tangent order
 #: (fx, fy, s, cx, cy) less the skew (held, as the joint fit holds it): the information is (6+4)x(6+4)
 PLAN_INTRINSICS = ("fx", "fy", "cx", "cy")
+#: ... their places in Cal3_S2's tangent
+_PLAN_INDICES = [CAL3_S2_ORDER.index(n) for n in PLAN_INTRINSICS]
 #: the key of the intrinsics variable in the prediction's graph
 _INTRINSICS_KEY = gtsam.symbol("k", 0)
 
@@ -307,9 +309,8 @@ def _information(graph, values, pose_key: int, intrinsics: bool) -> np.ndarray:
     pose and PLAN_INTRINSICS ((6+4)^2: the skew held), everything else marginalised."""
     if not intrinsics:
         return pose_information(graph, values, pose_key)
-    H, _ = _hessian_key_first(graph, values, [pose_key, _INTRINSICS_KEY])
-    keep = list(range(6)) + [6 + CAL3_S2_ORDER.index(n) for n in PLAN_INTRINSICS]
-    return _schur(H, 11)[np.ix_(keep, keep)]
+    keep = list(range(6)) + [6 + i for i in _PLAN_INDICES]
+    return marginal_information(graph, values, [pose_key, _INTRINSICS_KEY], 11)[np.ix_(keep, keep)]
 
 
 def _full_prior(predictor: _Predictor, prior: np.ndarray) -> np.ndarray:
@@ -364,7 +365,7 @@ class _Predictor:
         out = np.zeros((self.dim, self.dim))
         if self.dim > 6:
             sigmas = intrinsics_prior_sigmas(self.camera.K, PLAN_INTRINSICS, self.options.intrinsics_sigma)
-            chosen = sigmas[[CAL3_S2_ORDER.index(n) for n in PLAN_INTRINSICS]]
+            chosen = sigmas[_PLAN_INDICES]
             out[6:, 6:] = np.diag(1.0 / chosen**2)
         return out
 

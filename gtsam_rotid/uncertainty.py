@@ -64,8 +64,10 @@ def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.V
     return 0.5 * (C + C.T)
 
 
-def marginal_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, key: int, dim: int) -> np.ndarray:
-    """Information (dim x dim) of one variable with every other variable marginalised (Schur complement).
+def marginal_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, key: int | list[int],
+                         dim: int) -> np.ndarray:
+    """Information (dim x dim) of one variable (or of a list of them together, in its order, their dimensions
+    summing to ``dim``) with every other variable marginalised (Schur complement).
 
     Unlike ``gtsam.Marginals`` this never throws on an indeterminate nuisance variable: directions of the
     other variables with (numerically) zero information are dropped, so a degenerate pose shows up as

@@ -294,11 +294,10 @@ def intrinsics_words(result: CalibrationResult) -> str:
               "; a first-order check that keeps the image axes as measured through the camera file, so a wrong "
               "camera is not fitted all the way, but far better than by leaving out any one measurement, whose best "
               f"χ² is {i['one_out_chi2']:.3g}")
-    k = c.kinematics or {}
     rival = ""
-    if "kinematics" in result.untrusted and k.get("p_value") is not None and k["p_value"] < i["p_value"]:
-        rival = (f" Offsets of the joints' zero positions explain the axes less well (P = {k['p_value']:.2g}); "
-                 "the camera is the likelier cause.")
+    if _camera_over_offsets(result):
+        rival = (f" Offsets of the joints' zero positions explain the axes less well (P = "
+                 f"{c.kinematics['p_value']:.2g}); the camera is the likelier cause.")
     return (f"the image axes of all {len(i['measurements'])} measurements (the left-out ones too) disagree with any "
             f"one pose seen through this camera (χ² = {i['exact_chi2']:.3g} for {i['exact_dof']} dof, P = "
             f"{i['exact_p']:.2g}) but {'agree' if likely else 'come far closer'} with a camera whose "
@@ -308,6 +307,15 @@ def intrinsics_words(result: CalibrationResult) -> str:
             + rival + " Check the intrinsics first (is the camera file this camera's, at this resolution? recalibrate "
             "them), or refine them with the pose (calibrate --refine-intrinsics; it costs precision at these poses: "
             "plan --refine-intrinsics)" + then)
+
+
+def _camera_over_offsets(result: CalibrationResult) -> bool:
+    """Whether both a camera error and joint offsets are flagged (``untrusted["intrinsics"]`` and ``["kinematics"]``)
+    and the camera's change explains the axes better (the higher P of the two fits)."""
+    c = result.axis_consistency
+    i, k = (c.intrinsics or {}, c.kinematics or {}) if c is not None else ({}, {})
+    return ("intrinsics" in result.untrusted and "kinematics" in result.untrusted
+            and i.get("p_value") is not None and k.get("p_value") is not None and i["p_value"] > k["p_value"])
 
 
 def _camera_change(i: dict) -> str:
@@ -417,10 +425,9 @@ def joint_offset_words(result: CalibrationResult) -> str:
                 "before the spinning one may be offset: " + advice)
     offsets = ", ".join(f"{name} {deg:+.2f}°" for name, deg in k["offsets_deg"].items())
     agree = "agree" if k.get("likely", True) else "come far closer (not all the way: more is off)"
-    i = c.intrinsics or {}
-    if "intrinsics" in result.untrusted and i.get("p_value") is not None and i["p_value"] > k["p_value"]:
-        advice = (f"A camera error explains the axes better (P = {i['p_value']:.2g}): see the intrinsics first. "
-                  + advice)
+    if _camera_over_offsets(result):
+        advice = (f"A camera error explains the axes better (P = {c.intrinsics['p_value']:.2g}): see the intrinsics "
+                  "first. " + advice)
     return (f"the image axes of all {len(k['measurements'])} measurements (the left-out ones too) disagree with any "
             f"one pose through the kinematics as given (χ² = {k['exact_chi2']:.3g} for {k['exact_dof']} dof, P = "
             f"{k['exact_p']:.2g}) but {agree} once the joints before the spinning one may be offset (χ² = "
