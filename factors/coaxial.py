@@ -401,15 +401,17 @@ class CoaxialLineFactor:
         scale = self._scales(state)[1]
         return float(0.5 * np.sum(state.sse * scale**2))
 
-    def track_scores(self, x=None) -> np.ndarray:
+    def track_scores(self, x=None, intrinsics: bool = False) -> np.ndarray:
         """(m, 3) each track's score ``J_j^T e_j`` (whitened and robust-weighted, as GTSAM sees the factor): its
         part of the gradient at the line variable.
 
         ``sum_j s_j s_j^T`` estimates the information the pixels carry when different tracks' errors are
         independent but one track's may be correlated (a tracker's sub-pixel bias that follows a dot): the
         "meat" of a cluster-robust (sandwich) covariance. With white pixel noise of the assumed sigma its
-        expectation is :meth:`information`.
+        expectation is :meth:`information`. (``intrinsics``: the intrinsics' columns too, which only the rigid
+        spin's factor has.)
         """
+        _line_only(self, intrinsics)
         state = self._at(x)
         irls = self._scales(state)[0]
         Je = self._jacobian(state, irls) * self._residual(state, irls)[:, None]
@@ -418,9 +420,10 @@ class CoaxialLineFactor:
         return np.stack([np.bincount(flat_track, weights=Je[:, k], minlength=tracks.n_tracks) for k in range(3)],
                         axis=1)
 
-    def track_information(self, x=None) -> np.ndarray:
+    def track_information(self, x=None, intrinsics: bool = False) -> np.ndarray:
         """(m, 3, 3) each track's ``J_j^T J_j`` (weighted, its circle projected out): its part of
         :meth:`information`, from the per-track sums (no N-sized work)."""
+        _line_only(self, intrinsics)
         state = self._at(x)
         w = self._scales(state)[0] ** 2
         G = state.gram
@@ -431,6 +434,11 @@ class CoaxialLineFactor:
         """(3, 3) ``J^T J`` of the (weighted) factor: the Schur complement of the full graph's Gauss-Newton
         Hessian, from the per-track sums (no N-sized work)."""
         return self.track_information(x).sum(axis=0)
+
+
+def _line_only(factor, intrinsics: bool) -> None:
+    if intrinsics and factor.intrinsics_key is not None:
+        raise NotImplementedError(f"{type(factor).__name__} has no per-track intrinsics columns")
 
 
 def _robust_setup(robust, counts):

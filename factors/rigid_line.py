@@ -729,23 +729,33 @@ class RigidLineFactor(CoaxialLineFactor):
         phi = inner[3 * tracks.n_tracks:][tracks.frame] + inner[2:3 * tracks.n_tracks:3][tracks.track]
         return np.mod(phi + np.pi, 2.0 * np.pi) - np.pi
 
-    def track_scores(self, x=None) -> np.ndarray:
-        """(m, 3) each track's part ``J_j^T e_j`` of the gradient at the line variable (whitened, robust-weighted)."""
+    def _pixel_columns(self, intrinsics: bool) -> int:
+        """How many outer columns the tracks' scores and information span: the line's 3, with ``intrinsics`` (and
+        an intrinsics variable) its 5 too (the time offset, which moves no pixel, never)."""
+        return 8 if intrinsics and self.intrinsics_key is not None else 3
+
+    def track_scores(self, x=None, intrinsics: bool = False) -> np.ndarray:
+        """(m, 3) each track's part ``J_j^T e_j`` of the gradient at the line variable (whitened, robust-weighted);
+        with ``intrinsics`` (m, 8): at the line and the intrinsics variable (``gtsam.Cal3_S2``'s tangent), where the
+        factor has one."""
         state = self._at(x)
         irls = self._scales(state)[0]
         row = self._per_row(irls)
-        Je = np.einsum("lsn,sn->ln", self._projected(state)[:3], state.ev.e) * row * row
+        q = self._pixel_columns(intrinsics)
+        Je = np.einsum("lsn,sn->ln", self._projected(state)[:q], state.ev.e) * row * row
         return self.tracks.track_sums(Je).T
 
-    def track_information(self, x=None) -> np.ndarray:
-        """(m, 3, 3) each track's ``J_j^T J_j`` (weighted, the spin projected out)."""
+    def track_information(self, x=None, intrinsics: bool = False) -> np.ndarray:
+        """(m, 3, 3) each track's ``J_j^T J_j`` (weighted, the spin projected out); with ``intrinsics`` (m, 8, 8),
+        as :meth:`track_scores`."""
         state = self._at(x)
         row = self._per_row(self._scales(state)[0])
-        J = self._projected(state)[:3] * row
+        q = self._pixel_columns(intrinsics)
+        J = self._projected(state)[:q] * row
         m = self.tracks.n_tracks
-        out = np.empty((m, 3, 3))
-        for i in range(3):
-            for k in range(i, 3):
+        out = np.empty((m, q, q))
+        for i in range(q):
+            for k in range(i, q):
                 out[:, i, k] = out[:, k, i] = self.tracks.track_sums(np.einsum("sn,sn->n", J[i], J[k]))
         return out
 

@@ -99,15 +99,21 @@ def _schur(H: np.ndarray, dim: int) -> np.ndarray:
 
 
 def sandwich_marginal(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, key: int, dim: int,
-                      extra: dict[int, np.ndarray]) -> np.ndarray | None:
+                      extra: dict[int | tuple[int, ...], np.ndarray]) -> np.ndarray | None:
     """``key``'s block of ``H^-1 (H + D) H^-1``: the covariance when the data carry less information than the
-    graph's noise models say, ``D`` (per variable, ``extra[variable] = D_block``) being the excess of the
-    estimated meat (e.g. summed per-cluster scores) over ``H``. None when ``H`` is singular."""
+    graph's noise models say, ``D`` (per variable, ``extra[variable] = D_block``, or per tuple of variables a block
+    over them together, in the tuple's order) being the excess of the estimated meat (e.g. summed per-cluster
+    scores) over ``H``. None when ``H`` is singular."""
     H, offsets = _hessian_key_first(graph, values, key)
+    starts = sorted(offsets.values()) + [len(H)]
+    ends = dict(zip(starts[:-1], starts[1:], strict=True))
     D = np.zeros_like(H)
-    for variable, block in extra.items():
-        o = offsets[variable]
-        D[o:o + len(block), o:o + len(block)] += block
+    for variables, block in extra.items():
+        index = np.concatenate([np.arange(offsets[v], ends[offsets[v]])
+                                for v in (variables if isinstance(variables, tuple) else (variables,))])
+        if len(index) != len(block):
+            raise ValueError(f"a {len(block)}x{len(block)} block for variables {variables} of dimension {len(index)}")
+        D[np.ix_(index, index)] += block
     try:
         X = np.linalg.solve(H, np.eye(len(H))[:, :dim])  # the key's columns of H^-1
     except np.linalg.LinAlgError:

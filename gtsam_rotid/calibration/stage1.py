@@ -183,8 +183,9 @@ def _noise_variance(stats: dict[int, tuple[float, int]], line_dof: int, options:
     return max(sse / dof, options.min_sigma_px**2)
 
 
-def _track_correlation(factor, values, sigma2: float = 1.0) -> np.ndarray:
-    """(3, 3) information ``D`` that the line's pixels lack when their errors are correlated within a track.
+def _track_correlation(factor, values, sigma2: float = 1.0, intrinsics: bool = False) -> np.ndarray:
+    """(3, 3) information ``D`` that the line's pixels lack when their errors are correlated within a track; with
+    ``intrinsics`` (8, 8), at the line and the factor's intrinsics variable together, where it has one.
 
     ``H = sum_j H_j`` (the factor's information, per track) assumes independent pixel errors of the factor's
     sigma. The per-track scores ``s_j`` give the cluster-robust meat ``B = sum_j s_j s_j^T`` (independent tracks,
@@ -202,9 +203,9 @@ def _track_correlation(factor, values, sigma2: float = 1.0) -> np.ndarray:
     line's information). ``D = H^1/2 (M / sigma2 - (1 + 3 sd))_+ H^1/2``, so that the covariance becomes
     ``H^-1 (H + D) H^-1``; it only grows (the noise model is the floor).
     """
-    per_track = factor.track_information(values)
+    per_track = factor.track_information(values, intrinsics=intrinsics)
     H = per_track.sum(axis=0)
-    S = factor.track_scores(values)
+    S = factor.track_scores(values, intrinsics=intrinsics)
     S = S - per_track @ np.linalg.lstsq(H, S.sum(axis=0), rcond=None)[0]
     w, V = np.linalg.eigh(0.5 * (H + H.T))
     keep = w > 1e-12 * max(w.max(), 1e-300)

@@ -77,6 +77,11 @@ def with_track_offsets(dataset, sigma_px: float, seed: int) -> Dataset:
     return Dataset(dataset.arm, dataset.camera, measurements)
 
 
+def no_track_correlation(factor, values, sigma2=1.0, intrinsics=False) -> np.ndarray:
+    """:func:`stage1._track_correlation` when the tracks' errors are taken as white."""
+    return np.zeros((8, 8) if intrinsics else (3, 3))
+
+
 def generalised_eigenvalues(wide, narrow) -> np.ndarray:
     L = np.linalg.cholesky(narrow)
     Li = np.linalg.inv(L)
@@ -98,7 +103,7 @@ def test_errors_shared_along_a_track_widen_the_covariance(method, monkeypatch):
     biased = calibrate(with_track_offsets(dataset, 0.2, seed=7), method=method, options=options)
     white = calibrate(dataset, method=method, options=options)
     for module in (stage1, joint_stage):
-        monkeypatch.setattr(module, "_track_correlation", lambda factor, values, sigma2=1.0: np.zeros((3, 3)))
+        monkeypatch.setattr(module, "_track_correlation", no_track_correlation)
     white_model = calibrate(dataset, method=method, options=options)
     # white pixel noise: the scores agree with the white-noise information (the noise model is the floor)
     ratio = generalised_eigenvalues(white.covariance, white_model.covariance)
@@ -116,10 +121,10 @@ class _TracksOf:
     def __init__(self, information, scores):
         self.information, self.scores = np.asarray(information, float), np.asarray(scores, float)
 
-    def track_information(self, values):
+    def track_information(self, values, intrinsics=False):
         return self.information
 
-    def track_scores(self, values):
+    def track_scores(self, values, intrinsics=False):
         return self.scores
 
 

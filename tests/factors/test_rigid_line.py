@@ -313,3 +313,29 @@ def test_intrinsics_variable(measurement):
     noisy, fixed = with_intrinsics(m.noisy), factor_for(m, m.noisy)
     np.testing.assert_allclose(noisy.factor.unwhitenedError(values), fixed.factor.unwhitenedError(line_values(m.line)),
                                atol=1e-9)
+
+
+def test_per_track_scores_and_information_span_the_intrinsics(measurement):
+    """With an intrinsics variable, each track's score and information can span it too (the cluster-robust meat
+    over the line and the intrinsics together): summed, they are the linearised factor's gradient and Gauss-Newton
+    Hessian over both variables; without ``intrinsics`` they are the line's block of the same."""
+    from gtsam.symbol_shorthand import K
+
+    from gtsam_rotid.factors import cal3_s2
+
+    m = measurement
+    tracks, phi0, theta = start(m, m.noisy)
+    factor = make_rigid_line_factor(L(0), tracks, m.K, m.circles, phi0, theta, sigma_px=SIGMA, tol=1e-14,
+                                    intrinsics_key=K(0))
+    values = line_values(m.line)
+    values.insert(K(0), cal3_s2(m.K))
+    A, b = factor.factor.linearize(values).jacobian()
+    scores = factor.track_scores(values, intrinsics=True)
+    information = factor.track_information(values, intrinsics=True)
+    assert scores.shape == (len(m.noisy), 8) and information.shape == (len(m.noisy), 8, 8)
+    np.testing.assert_allclose(scores.sum(axis=0), -A.T @ b, rtol=1e-9, atol=1e-9 * np.abs(scores).max())
+    np.testing.assert_allclose(information.sum(axis=0), A.T @ A, rtol=1e-9, atol=1e-9 * np.abs(A.T @ A).max())
+    np.testing.assert_allclose(factor.track_scores(values), scores[:, :3], rtol=1e-12, atol=0)
+    np.testing.assert_allclose(factor.track_information(values), information[:, :3, :3], rtol=1e-12, atol=0)
+    # a fixed-intrinsics factor has only the line's columns
+    assert factor_for(m, m.noisy).track_scores(line_values(m.line), intrinsics=True).shape == (len(m.noisy), 3)
