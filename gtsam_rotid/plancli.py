@@ -11,7 +11,7 @@ import gtsam
 import numpy as np
 
 from .arm import Arm
-from .calibration.options import DEFAULT_INTRINSICS_SIGMA
+from .calibration.options import DEFAULT_INTRINSICS_SIGMA, checked_intrinsics_sigma
 from .camerafiles import load_camera
 from .dataset import Dataset
 from .errors import InputError
@@ -113,10 +113,6 @@ def add_plan_parsers(subparsers) -> None:
     p.set_defaults(func=cmd_predict)
 
 
-#: --intrinsics-sigma's focal fraction above this is taken for a percentage typed by mistake
-MAX_FOCAL_FRACTION = 0.5
-
-
 def _options(args, **extra) -> PlanOptions:
     flags = {"--guess-sigma": min(args.guess_sigma), "--spin-seconds": args.spin_seconds, "--fps": args.fps,
              "--pixel-sigma": args.pixel_sigma, "--axis-floor-px": args.axis_floor_px, "--features": args.features}
@@ -127,12 +123,8 @@ def _options(args, **extra) -> PlanOptions:
     if args.intrinsics_sigma is not None and not args.refine_intrinsics:
         raise InputError("--intrinsics-sigma applies with --refine-intrinsics only (without it the camera file's "
                          "intrinsics are taken as exact)")
-    sigma = DEFAULT_INTRINSICS_SIGMA if args.intrinsics_sigma is None else tuple(args.intrinsics_sigma)
-    if not all(math.isfinite(v) and v > 0 for v in sigma):
-        raise InputError(f"--intrinsics-sigma FOCAL_FRACTION PX must be two positive numbers, got {list(sigma)}")
-    if sigma[0] > MAX_FOCAL_FRACTION:
-        raise InputError(f"--intrinsics-sigma's FOCAL_FRACTION is a fraction of the focal length (0.05 for 5 %), got "
-                         f"{sigma[0]:g}")
+    sigma = checked_intrinsics_sigma(DEFAULT_INTRINSICS_SIGMA if args.intrinsics_sigma is None
+                                     else tuple(args.intrinsics_sigma), "--intrinsics-sigma FOCAL_FRACTION PX")
     if not 0 <= args.depth_range[0] < args.depth_range[1]:
         raise InputError(f"--depth-range NEAR FAR must have 0 <= NEAR < FAR (m), got {args.depth_range}")
     options = PlanOptions(spin_seconds=args.spin_seconds, fps=args.fps, wrist_speed=args.wrist_speed,

@@ -32,7 +32,7 @@ import numpy as np
 
 from .arm import Arm
 from .calibration.joint import CAL3_S2_ORDER, intrinsics_prior_sigmas
-from .calibration.options import DEFAULT_INTRINSICS_SIGMA
+from .calibration.options import DEFAULT_INTRINSICS_SIGMA, checked_intrinsics_sigma
 from .camera import Camera
 from .collisions import ArmCollisions
 from .dataset import Dataset
@@ -187,10 +187,10 @@ class PlanOptions:
         if self.refine_intrinsics:
             if self.spin_model != "rigid":
                 raise PlanningError("refine_intrinsics needs spin_model='rigid' (as the calibration does)")
-            sigma = self.intrinsics_sigma
-            if (len(sigma) != 2 or not all(isinstance(v, int | float) and math.isfinite(v) and v > 0 for v in sigma)):
-                raise PlanningError(f"intrinsics_sigma must be two positive numbers (focal fraction, principal point "
-                                    f"px), got {sigma!r}")
+            try:
+                checked_intrinsics_sigma(self.intrinsics_sigma)
+            except InputError as error:
+                raise PlanningError(str(error)) from None
         if isinstance(self.spin_joints, str) or not all(isinstance(j, str) for j in self.spin_joints):
             raise PlanningError(f"spin_joints must be a tuple of joint names, got {self.spin_joints!r}")
         if self.n_features < 2 or self.guess_samples < 1 or self.candidates < 1:

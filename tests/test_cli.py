@@ -241,7 +241,9 @@ def test_calibrate_errors_name_the_flags_not_the_options_fields(noise_free_datas
                         (["--time-offset-sigma", "-2"], "--time-offset-sigma must be a number of seconds >= 0"),
                         (["--time-offset", "nan"], "--time-offset must be a finite number of seconds"),
                         (["--refine-intrinsics", "--intrinsics-sigma", "0", "1"],
-                         "--intrinsics-sigma must be (focal fraction"),
+                         "--intrinsics-sigma must be two positive numbers (focal length fraction"),
+                        (["--refine-intrinsics", "--intrinsics-sigma", "5", "20"],  # 5 % typed as 5
+                         "a fraction of the focal length (0.05 for 5 %)"),
                         (["--intrinsics-sigma", "0.02", "5"], "--intrinsics-sigma applies with --refine-intrinsics"),
                         (["--joint-offset-sigma-deg", "0"], "--joint-offset-sigma-deg must be a positive")):
         bad = run("calibrate", str(noise_free_dataset), *flags, check=False)

@@ -22,6 +22,8 @@ MIN_MEASUREMENTS = 3
 INTRINSICS = ("fx", "fy", "cx", "cy")
 #: The default prior 1 sigma of refined intrinsics: (focal length fraction, principal point px).
 DEFAULT_INTRINSICS_SIGMA = (0.05, 20.0)
+#: A focal fraction of the intrinsics' prior above this is taken for a percentage typed by mistake (5 for 5 %).
+MAX_FOCAL_FRACTION = 0.5
 #: Fewest tracks (all measurements) from which stage 1 estimates how much their noise levels differ.
 MIN_TRACKS_FOR_SPREAD = 8
 
@@ -189,11 +191,7 @@ class CalibrationOptions:
             raise InputError(f"CalibrationOptions.refine_intrinsics must be True or names among {INTRINSICS}, got "
                              f"{self.refine_intrinsics!r}")
         self.refine_intrinsics = tuple(n for n in INTRINSICS if n in self.refine_intrinsics)
-        sigma = np.asarray(self.intrinsics_sigma, dtype=float).reshape(-1)
-        if sigma.shape != (2,) or not np.all(np.isfinite(sigma) & (sigma > 0)):
-            raise InputError("CalibrationOptions.intrinsics_sigma must be (focal fraction, principal point px), both "
-                             f"positive, got {self.intrinsics_sigma!r}")
-        self.intrinsics_sigma = (float(sigma[0]), float(sigma[1]))
+        self.intrinsics_sigma = checked_intrinsics_sigma(self.intrinsics_sigma, "CalibrationOptions.intrinsics_sigma")
         if not isinstance(self.sync_encoders, bool | np.bool_):
             raise InputError(f"CalibrationOptions.sync_encoders must be True or False, got {self.sync_encoders!r}")
         for name, low in (("encoder_sigma_deg", 0.0), ("time_offset_s", -np.inf), ("time_offset_sigma_s", 0.0)):
@@ -212,3 +210,19 @@ class CalibrationOptions:
         if not (np.isfinite(self.joint_sigma_deg) and self.joint_sigma_deg >= 0.0):
             raise InputError(f"CalibrationOptions.joint_sigma_deg must be a finite value >= 0 (deg), got "
                              f"{self.joint_sigma_deg}")
+
+
+def checked_intrinsics_sigma(sigma, name: str = "intrinsics_sigma") -> tuple[float, float]:
+    """The intrinsics' prior 1 sigma ``(focal length fraction, principal point px)`` as two floats, or an InputError
+    naming ``name``: two positive finite numbers, the fraction at most ``MAX_FOCAL_FRACTION`` (5 % is 0.05)."""
+    try:
+        values = np.asarray(sigma, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        values = np.array([])
+    if isinstance(sigma, str) or values.shape != (2,) or not np.all(np.isfinite(values) & (values > 0)):
+        raise InputError(f"{name} must be two positive numbers (focal length fraction, principal point px), got "
+                         f"{sigma!r}")
+    if values[0] > MAX_FOCAL_FRACTION:
+        raise InputError(f"{name}'s focal length sigma is a fraction of the focal length (0.05 for 5 %), at most "
+                         f"{MAX_FOCAL_FRACTION:g}, got {values[0]:g}")
+    return float(values[0]), float(values[1])

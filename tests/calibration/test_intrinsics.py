@@ -94,6 +94,8 @@ def test_intrinsics_options_name_what_is_wrong(scene):
         CalibrationOptions(refine_intrinsics=True, spin_model="free")
     with pytest.raises(InputError, match="intrinsics_sigma must be"):
         CalibrationOptions(refine_intrinsics=True, intrinsics_sigma=(0.05, -1.0))
+    with pytest.raises(InputError, match=r"a fraction of the focal length \(0.05 for 5 %\)"):
+        CalibrationOptions(refine_intrinsics=True, intrinsics_sigma=(5.0, 20.0))
     assert CalibrationOptions(refine_intrinsics="fx, cy").refine_intrinsics == ("fx", "cy")
 
 
