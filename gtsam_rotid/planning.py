@@ -452,7 +452,7 @@ class _Constraints:
         axis, e1, e2 = self.scene.basis(joint_angles)
         if self._rims_inside(axis.point[None], axis.direction[None], e1[None], e2[None], o.constraint_sigmas)[0]:
             return None
-        return f"end effector leaves the image with the guess {o.constraint_sigmas:g} sigma off"
+        return f"end effector leaves the image with the guess off by its uncertainty ({o.constraint_sigmas:g} sigma)"
 
     def _rims_inside(self, points, directions, e1, e2, sigmas: float) -> np.ndarray:
         """For each axis (rows of (B, 3) arrays: a point, the direction, two unit vectors perpendicular to it):
@@ -544,7 +544,8 @@ class _Constraints:
             return "no part of the end effector faces the camera"
         hidden = float(np.mean(self.collisions.hidden(joint_angles, self.camera_centre, points[facing])))
         if hidden > self.options.max_hidden_fraction:
-            return f"the arm hides {100 * hidden:.0f} % of the end effector"
+            return (f"the arm hides too much of the end effector ({100 * hidden:.0f} %; at most "
+                    f"{100 * self.options.max_hidden_fraction:.0f} % allowed)")
         return None
 
     def _collision(self, joint_angles, during: str = "") -> str | None:
@@ -568,11 +569,13 @@ class _Constraints:
 
 
 _NUMBER = re.compile(r"(?<![\w.])-?\d+(\.\d+)?(?![\w.])")
+_BRACKETED = re.compile(r" \([^()]*\d[^()]*\)")
 
 
 def _reason(problem: str) -> str:
-    """A refusal's kind, for counting: its words with each number (not a digit inside a name) written #."""
-    return _NUMBER.sub("#", problem)
+    """A refusal's kind, for counting: its words without the bracketed numbers (and any other number, not a digit
+    inside a name, written #)."""
+    return _NUMBER.sub("#", _BRACKETED.sub("", problem))
 
 
 def _check_inputs(arm: Arm, camera: Camera, guess: gtsam.Pose3, options: PlanOptions) -> None:

@@ -183,6 +183,14 @@ class GroundTruth:
 # Scene construction
 
 
+def _view_problem(angle: float, allowed) -> str:
+    """Why a spinning axis at ``angle`` (deg) to the viewing ray is outside ``allowed`` (deg, deg), in words (the
+    numbers in brackets)."""
+    side = ("nearly along the viewing ray" if angle < allowed[0]
+            else "nearly across the viewing ray (its circles seen edge-on)")
+    return f"{side} ({angle:.0f} deg; {allowed[0]:g}-{allowed[1]:g} deg allowed)"
+
+
 class SpinScene:
     """Camera + arm + features: the checks shared by pose sampling and track generation.
 
@@ -251,10 +259,11 @@ class SpinScene:
         ray = axis.point - self.camera_centre
         depth = np.linalg.norm(ray)
         if not cfg.depth_range[0] <= depth <= cfg.depth_range[1]:
-            return f"wrist {depth:.2f} m from the camera"
+            return (f"wrist too {'near' if depth < cfg.depth_range[0] else 'far from'} the camera ({depth:.2f} m; "
+                    f"{cfg.depth_range[0]:g}-{cfg.depth_range[1]:g} m allowed)")
         angle = np.degrees(np.arccos(min(1.0, abs(ray @ axis.direction) / depth)))
         if not cfg.axis_view_angle_deg[0] <= angle <= cfg.axis_view_angle_deg[1]:
-            return f"axis at {angle:.0f} deg to the viewing ray"
+            return f"axis {_view_problem(angle, cfg.axis_view_angle_deg)}"
         phases = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
         rims = []
         for offset in (cfg.offset_range[0], cfg.offset_range[1]):
@@ -280,7 +289,7 @@ class SpinScene:
         ray = axis.point - self.camera_centre
         angle = np.degrees(np.arccos(min(1.0, abs(ray @ axis.direction) / np.linalg.norm(ray))))
         if not cfg.axis_view_angle_deg[0] <= angle <= cfg.axis_view_angle_deg[1]:
-            return f"{joint} axis at {angle:.0f} deg to the viewing ray"
+            return f"{joint} axis {_view_problem(angle, cfg.axis_view_angle_deg)}"
         wrist, e1, e2 = self.basis(joint_angles)
         phases = np.linspace(0.0, 2.0 * np.pi, 12, endpoint=False)
         rims = np.vstack([circle_points(wrist.point + offset * wrist.direction, wrist.direction,

@@ -465,3 +465,18 @@ def test_spins_of_two_joints_are_predicted_and_planned(kinova, collisions):
     with pytest.raises(PlanningError, match=f"during the {j5} spin"):
         plan_poses(kinova, dataset.camera, truth.arm_T_camera, 6,
                    QUICK.with_(spin_joints=(j5, j6), max_draws=3000), collisions=collisions)
+
+
+def test_refusals_are_counted_by_kind_in_words_not_templates():
+    """A pose's problem says its numbers in brackets (what was found, what is allowed); the plan counts refusals by
+    the words alone, so that "axis at # deg" does not stand for two opposite problems."""
+    from gtsam_rotid.planning import _reason
+    from gtsam_rotid.simulate import _view_problem
+
+    along, across = _view_problem(12.0, (25.0, 75.0)), _view_problem(80.0, (25.0, 75.0))
+    assert along == "nearly along the viewing ray (12 deg; 25-75 deg allowed)"
+    assert _reason(f"axis {along}") == "axis nearly along the viewing ray"
+    assert _reason(f"axis {across}") == "axis nearly across the viewing ray (its circles seen edge-on)"
+    assert _reason("wrist too far from the camera (1.85 m; 0.5-1.6 m allowed)") == "wrist too far from the camera"
+    assert _reason("self-collision of link_3 and link_5") == "self-collision of link_3 and link_5"
+    assert _reason("something 3 times off") == "something # times off"
