@@ -49,6 +49,12 @@ def _add_common(p: argparse.ArgumentParser, *, dataset: bool) -> None:
                    help="with --refine-intrinsics: their prior 1 sigma about the camera file's, focal length as a "
                         "fraction of it and principal point in px (default {} {}, as calibrate's)".format(
                             *DEFAULT_INTRINSICS_SIGMA))
+    p.add_argument("--joint-offsets", nargs="*", default=None, metavar="JOINT",
+                   help="the calibration will refine these joints' zero offsets (calibrate --joint-offsets; no "
+                        "names: every joint between the first and the spinning one): predict and choose for the "
+                        "pose with them free under the prior of --joint-offset-sigma-deg")
+    p.add_argument("--joint-offset-sigma-deg", type=float, default=None, metavar="DEG",
+                   help="with --joint-offsets: their prior 1 sigma in degrees (default 1, as calibrate's)")
     p.add_argument("--camera", metavar="CAMERA_YAML", required=not dataset,
                    help="OpenCV calibration YAML or ROS camera_info YAML")
     p.add_argument("--camera-guess", nargs=6, type=float, required=True,
@@ -123,6 +129,13 @@ def _options(args, **extra) -> PlanOptions:
     if args.intrinsics_sigma is not None and not args.refine_intrinsics:
         raise InputError("--intrinsics-sigma applies with --refine-intrinsics only (without it the camera file's "
                          "intrinsics are taken as exact)")
+    if args.joint_offset_sigma_deg is not None and args.joint_offsets is None:
+        raise InputError("--joint-offset-sigma-deg applies with --joint-offsets only (without it the joint readings' "
+                         "zeros are taken as exact)")
+    offset_sigma = 1.0 if args.joint_offset_sigma_deg is None else args.joint_offset_sigma_deg
+    if not (math.isfinite(offset_sigma) and offset_sigma > 0):
+        raise InputError(f"--joint-offset-sigma-deg must be a positive number of degrees, got {offset_sigma:g}")
+    extra.setdefault("joint_offsets", False if args.joint_offsets is None else (tuple(args.joint_offsets) or True))
     sigma = checked_intrinsics_sigma(DEFAULT_INTRINSICS_SIGMA if args.intrinsics_sigma is None
                                      else tuple(args.intrinsics_sigma), "--intrinsics-sigma FOCAL_FRACTION PX")
     if not 0 <= args.depth_range[0] < args.depth_range[1]:
@@ -132,7 +145,8 @@ def _options(args, **extra) -> PlanOptions:
                           floor_height=None if args.no_floor else args.floor_height,
                           depth_range=tuple(args.depth_range), guess_sigma_mm=args.guess_sigma[0],
                           guess_sigma_deg=args.guess_sigma[1], spin_joints=tuple(args.spin_joints),
-                          refine_intrinsics=bool(args.refine_intrinsics), intrinsics_sigma=sigma, **extra)
+                          refine_intrinsics=bool(args.refine_intrinsics), intrinsics_sigma=sigma,
+                          joint_offset_sigma_deg=offset_sigma, **extra)
     options.check()
     return options
 

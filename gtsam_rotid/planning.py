@@ -140,6 +140,12 @@ class PlanOptions:
     #: pose's marginal (the intrinsics under their prior). Needs the rigid spin; the search then ranks by it too
     refine_intrinsics: bool = False
     intrinsics_sigma: tuple = DEFAULT_INTRINSICS_SIGMA
+    #: the calibration will refine joint offsets (``CalibrationOptions(joint_offsets=...)``: True for every joint
+    #: between the first and the spinning one, or a tuple of joint names) under a prior of
+    #: ``joint_offset_sigma_deg``: the information spans them too and every choice and prediction uses the pose's
+    #: marginal (the offsets under their prior), as with ``refine_intrinsics`` (both may be set)
+    joint_offsets: bool | tuple = False
+    joint_offset_sigma_deg: float = 1.0
     seed: int = 0
 
     def with_(self, **changes) -> PlanOptions:
@@ -191,6 +197,13 @@ class PlanOptions:
                 checked_intrinsics_sigma(self.intrinsics_sigma)
             except InputError as error:
                 raise PlanningError(str(error)) from None
+        offsets = self.joint_offsets
+        if not (isinstance(offsets, bool) or (isinstance(offsets, tuple | list) and offsets
+                                              and all(isinstance(j, str) for j in offsets))):
+            raise PlanningError(f"joint_offsets must be True, False or a tuple of joint names, got {offsets!r}")
+        sigma = self.joint_offset_sigma_deg
+        if not (isinstance(sigma, int | float) and not isinstance(sigma, bool) and math.isfinite(sigma) and sigma > 0):
+            raise PlanningError(f"joint_offset_sigma_deg must be a positive number of degrees, got {sigma!r}")
         if isinstance(self.spin_joints, str) or not all(isinstance(j, str) for j in self.spin_joints):
             raise PlanningError(f"spin_joints must be a tuple of joint names, got {self.spin_joints!r}")
         if self.n_features < 2 or self.guess_samples < 1 or self.candidates < 1:
@@ -304,27 +317,35 @@ def _pose_marginal(information: np.ndarray) -> np.ndarray:
     return 0.5 * (S + np.swapaxes(S, -1, -2))
 
 
-def _information(graph, values, pose_key: int, intrinsics: bool) -> np.ndarray:
-    """A graph's information on the pose (6x6) or, with ``intrinsics`` (its Cal3_S2 at ``_INTRINSICS_KEY``), on the
-    pose and PLAN_INTRINSICS ((6+4)^2: the skew held), everything else marginalised."""
-    if not intrinsics:
+def _information(graph, values, pose_key: int, intrinsics: bool, offsets_key: int | None = None,
+                 n_offsets: int = 0) -> np.ndarray:
+    """A graph's information on the pose (6x6), with ``intrinsics`` (its Cal3_S2 at ``_INTRINSICS_KEY``) and on
+    PLAN_INTRINSICS (the skew held), with ``n_offsets`` (its offsets vector at ``offsets_key``) and on them, in that
+    order, everything else marginalised."""
+    if not intrinsics and not n_offsets:
         return pose_information(graph, values, pose_key)
-    keep = list(range(6)) + [6 + i for i in _PLAN_INDICES]
-    return marginal_information(graph, values, [pose_key, _INTRINSICS_KEY], 11)[np.ix_(keep, keep)]
+    keys, keep = [pose_key], list(range(6))
+    if intrinsics:
+        keys.append(_INTRINSICS_KEY)
+        keep += [6 + i for i in _PLAN_INDICES]
+    if n_offsets:
+        keys.append(offsets_key)
+        keep += list(range(6 + 5 * intrinsics, 6 + 5 * intrinsics + n_offsets))
+    full = marginal_information(graph, values, keys, 6 + 5 * intrinsics + n_offsets)
+    return full[np.ix_(keep, keep)]
 
 
 def _full_prior(predictor: _Predictor, prior: np.ndarray) -> np.ndarray:
-    """The prior information in the predictor's dimension: ``prior`` (6x6 on the pose, or, refining the intrinsics,
-    (6+4)^2 on the pose and PLAN_INTRINSICS: :func:`dataset_information` with the same options) and, refining the
-    intrinsics, their prior."""
+    """The prior information in the predictor's dimension: ``prior`` (6x6 on the pose, or, refining the intrinsics
+    or the offsets, on the pose and those: :func:`dataset_information` with the same options) plus theirs."""
     if predictor.dim == 6:
         if prior.shape != (6, 6):
             raise PlanningError(f"prior_information must be 6x6 (the pose's), got {prior.shape}")
         return prior
     if prior.shape not in ((6, 6), (predictor.dim, predictor.dim)):
         raise PlanningError(f"prior_information must be 6x6 (the pose's) or {predictor.dim}x{predictor.dim} (the "
-                            f"pose's and the intrinsics', refine_intrinsics), got {prior.shape}")
-    return (predictor.embed(prior) if prior.shape == (6, 6) else prior) + predictor.intrinsics_prior()
+                            f"pose's and the {predictor.nuisance_words}), got {prior.shape}")
+    return (predictor.embed(prior) if prior.shape == (6, 6) else prior) + predictor.nuisance_prior()
 
 
 def _unit_scale(options: PlanOptions) -> np.ndarray:
@@ -357,16 +378,31 @@ class _Predictor:
         self.features = typical_features(options)
         self.tie_covariance = 2.0 * options.axis_floor_px**2 * np.eye(2)
         self._rng = np.random.default_rng(0)
-        #: the information's dimension: the pose's, and the intrinsics' (PLAN_INTRINSICS) when they are refined
-        self.dim = 6 + (len(PLAN_INTRINSICS) if options.refine_intrinsics else 0)
+        #: the joints whose offsets the calibration will refine (``joint_offsets``; ArmError for a bad name)
+        self.offset_names = [] if options.joint_offsets is False else \
+            [arm.joint_names[j] for j in arm.offset_joints(options.joint_offsets)]
+        self.n_intrinsics = len(PLAN_INTRINSICS) if options.refine_intrinsics else 0
+        #: the information's dimension: the pose's, the intrinsics' (PLAN_INTRINSICS) when they are refined, then
+        #: the offsets'
+        self.dim = 6 + self.n_intrinsics + len(self.offset_names)
 
-    def intrinsics_prior(self) -> np.ndarray:
-        """(dim, dim): the intrinsics' prior information (zero on the pose's block; all zero without them)."""
+    @property
+    def nuisance_words(self) -> str:
+        """What the information spans beyond the pose, in words."""
+        return " and ".join(w for w, n in (("intrinsics' (refine_intrinsics)", self.n_intrinsics),
+                                           ("offsets' (joint_offsets)", len(self.offset_names))) if n)
+
+    def nuisance_prior(self) -> np.ndarray:
+        """(dim, dim): the intrinsics' and the offsets' prior information (zero on the pose's block; all zero
+        without them)."""
         out = np.zeros((self.dim, self.dim))
-        if self.dim > 6:
+        if self.n_intrinsics:
             sigmas = intrinsics_prior_sigmas(self.camera.K, PLAN_INTRINSICS, self.options.intrinsics_sigma)
             chosen = sigmas[_PLAN_INDICES]
-            out[6:, 6:] = np.diag(1.0 / chosen**2)
+            out[6:6 + self.n_intrinsics, 6:6 + self.n_intrinsics] = np.diag(1.0 / chosen**2)
+        if self.offset_names:
+            o = 6 + self.n_intrinsics
+            out[o:, o:] = np.eye(len(self.offset_names)) / math.radians(self.options.joint_offset_sigma_deg) ** 2
         return out
 
     def embed(self, pose_information: np.ndarray) -> np.ndarray:
@@ -393,8 +429,9 @@ class _Predictor:
         """The 6x6 information of the spins at ``joint_angles`` in ``scene`` (one per ``spin_joints``, the wrist's
         alone by default), with the options' spin model or ``spin_model``. With ``refine_intrinsics``: the (6+4)^2
         information of the pose and fx, fy, cx, cy (the data's alone, without their prior; the skew held), always
-        with the rigid spin (the free phase leaves the intrinsics nearly free)."""
-        intrinsics = self.dim > 6
+        with the rigid spin (the free phase leaves the intrinsics nearly free); with ``joint_offsets`` the offsets'
+        too, last (:attr:`dim`)."""
+        intrinsics = self.n_intrinsics > 0
         if intrinsics:
             spin_model = "rigid"
 
@@ -402,7 +439,8 @@ class _Predictor:
             return RotIdGraph(self.arm, self.camera, model="projected", track_sigma_px=sigma_px,
                               min_track_points=MIN_ELLIPSE_POINTS, min_track_extent_px=MIN_TRACK_EXTENT_PX,
                               spin_model=spin_model or self.options.spin_model,
-                              intrinsics_key=_INTRINSICS_KEY if intrinsics else None)
+                              intrinsics_key=_INTRINSICS_KEY if intrinsics else None,
+                              joint_offsets=self.offset_names or None)
 
         wrist_builder = builder(self.sigma_px)
         # (the wrist's limited arc and its repeats do not apply to another joint's spin: the simulator's spin)
@@ -412,6 +450,8 @@ class _Predictor:
         values.insert(wrist_builder.pose_key, scene.arm_T_camera)
         if intrinsics:
             values.insert(_INTRINSICS_KEY, cal3_s2(self.camera.K))
+        if self.offset_names:  # (at zero, without their prior: the data's information alone)
+            values.insert(wrist_builder.offsets_key, np.zeros(len(self.offset_names)))
         for k, joint in enumerate(self.options.spin_joints or (None,)):
             q, spin_builder = np.array(joint_angles, dtype=float), wrist_builder
             if self.arm.spins_wrist(joint):
@@ -426,7 +466,8 @@ class _Predictor:
                 continue
         if graph.size() == 0:
             return np.zeros((self.dim, self.dim))
-        return _information(graph, values, wrist_builder.pose_key, intrinsics)
+        return _information(graph, values, wrist_builder.pose_key, intrinsics, wrist_builder.offsets_key,
+                            len(self.offset_names))
 
 
 class _Constraints:
@@ -592,6 +633,8 @@ def _check_inputs(arm: Arm, camera: Camera, guess: gtsam.Pose3, options: PlanOpt
     options.check()
     for joint in options.spin_joints:
         arm.spin_index(joint)  # ArmError (an InputError) names a joint the arm does not have
+    if options.joint_offsets is not False:
+        arm.offset_joints(options.joint_offsets)  # (likewise a joint the arm has not, or the spinning one)
 
 
 # ------------------------------------------------------------------------------------------------- public
@@ -600,9 +643,9 @@ def predict_accuracy(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, joint_
                      prior_information: np.ndarray | None = None) -> Prediction:
     """The predicted 1σ of a calibration from these arm poses, before any recording (see the module's words).
 
-    ``prior_information`` (6x6, or (6+4)^2 with ``refine_intrinsics``: :func:`dataset_information`): an existing
-    calibration's information, added to the poses'. Each pose's constraint problems at the guess are listed in
-    ``problems`` (a pose that breaks one is still predicted).
+    ``prior_information`` (6x6, or with ``refine_intrinsics`` / ``joint_offsets`` on those too:
+    :func:`dataset_information`): an existing calibration's information, added to the poses'. Each pose's
+    constraint problems at the guess are listed in ``problems`` (a pose that breaks one is still predicted).
     """
     options = (PlanOptions() if options is None else options).with_texture(arm, collisions)
     _check_inputs(arm, camera, arm_T_camera, options)
@@ -621,15 +664,15 @@ def predict_accuracy(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, joint_
 def _prediction(guess, poses, infos: np.ndarray, prior: np.ndarray, options: PlanOptions, problems,
                 predictor: _Predictor | None = None) -> Prediction:
     """``infos`` (poses, samples, 6, 6) -> the Prediction (the covariance averaged over the samples). Refining the
-    intrinsics: ``infos`` and ``prior`` are (6+4)^2 (the prior with the intrinsics'), the Prediction the pose's
-    marginal; ``per_pose`` then each pose's marginal under the intrinsics' prior alone."""
+    intrinsics or the offsets: ``infos`` and ``prior`` span them too (the prior with theirs), the Prediction the
+    pose's marginal; ``per_pose`` then each pose's marginal under their prior alone."""
     total = prior[None] + infos.sum(axis=0) if len(poses) else np.repeat(prior[None], infos.shape[1], axis=0)
     per_pose = [infos[k, 0] for k in range(len(poses))]
     if prior.shape[-1] > 6:
         total = _pose_marginal(total)
-        intrinsics_prior = prior.copy()
-        intrinsics_prior[:6, :6] = 0.0
-        per_pose = [_pose_marginal(info + intrinsics_prior) for info in per_pose]
+        nuisance_prior = prior.copy()
+        nuisance_prior[:6, :6] = 0.0
+        per_pose = [_pose_marginal(info + nuisance_prior) for info in per_pose]
     at_guess = total[0]
     observability = analyse_observability(at_guess, guess)
     covariances = [analyse_observability(t, guess).covariance(t) for t in total]
@@ -645,10 +688,10 @@ def plan_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: int = 6, 
     OpenCV optical frame in the arm's root frame), subject to the constraints of :class:`PlanOptions`.
 
     ``collisions``: True (default) loads the arm's collision meshes, an :class:`ArmCollisions` reuses one, None
-    checks no collision (say so to your users). ``prior_information`` (6x6, or (6+4)^2 with ``refine_intrinsics``:
-    :func:`dataset_information`): an existing calibration's, for the next best poses. ``progress(stage, done,
-    total)`` is called as candidates are found and evaluated. Raises :class:`PlanningError` when fewer than ``n``
-    poses satisfy the constraints.
+    checks no collision (say so to your users). ``prior_information`` (6x6, or with ``refine_intrinsics`` /
+    ``joint_offsets`` on those too: :func:`dataset_information`): an existing calibration's, for the next best
+    poses. ``progress(stage, done, total)`` is called as candidates are found and evaluated. Raises
+    :class:`PlanningError` when fewer than ``n`` poses satisfy the constraints.
     """
     options = PlanOptions() if options is None else options
     _check_inputs(arm, camera, arm_T_camera, options)
@@ -844,7 +887,7 @@ def _choose(infos: np.ndarray, prior: np.ndarray, n: int, options: PlanOptions) 
         return _criterion(np.linalg.inv(base[None] + infos), options)
 
     D = _unit_scale(options)
-    extra = infos.shape[-1] - 6  # the intrinsics' dimensions (refine_intrinsics): the pose's marginal log-determinant
+    extra = infos.shape[-1] - 6  # the intrinsics' and offsets' dimensions: the pose's marginal log-determinant
     if extra:
         D = np.concatenate([D, np.ones(extra)])
     base = np.repeat(prior[None], infos.shape[1], axis=0)
@@ -895,17 +938,22 @@ def predicted_spins(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, joint_a
 def dataset_information(dataset: Dataset, arm_T_camera: gtsam.Pose3, options: PlanOptions | None = None
                         ) -> np.ndarray:
     """The information (6x6) of an existing dataset's tracks at ``arm_T_camera``, with the plan's pixel noise and
-    axis floor: what new poses add to. With ``options.refine_intrinsics``, (6+4)^2 on the pose and fx, fy, cx, cy
-    (the rigid spin; without their prior, which the plan adds)."""
+    axis floor: what new poses add to. With ``options.refine_intrinsics``, on the pose and fx, fy, cx, cy too (the
+    rigid spin), with ``options.joint_offsets`` on the offsets too (in that order; without their priors, which the
+    plan adds)."""
     options = PlanOptions() if options is None else options
     intrinsics = options.refine_intrinsics
+    offsets = [] if options.joint_offsets is False else \
+        [dataset.arm.joint_names[j] for j in dataset.arm.offset_joints(options.joint_offsets)]
     builder = RotIdGraph(dataset.arm, dataset.camera, model="projected", track_sigma_px=options.pixel_sigma,
                          spin_model="rigid" if intrinsics else options.spin_model,
-                         intrinsics_key=_INTRINSICS_KEY if intrinsics else None)
+                         intrinsics_key=_INTRINSICS_KEY if intrinsics else None, joint_offsets=offsets or None)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(builder.pose_key, arm_T_camera)
     if intrinsics:
         values.insert(_INTRINSICS_KEY, cal3_s2(dataset.camera.K))
+    if offsets:
+        values.insert(builder.offsets_key, np.zeros(len(offsets)))
     floor = 2.0 * options.axis_floor_px**2 * np.eye(2)
     for k, measurement in enumerate(dataset):
         try:
@@ -914,4 +962,4 @@ def dataset_information(dataset: Dataset, arm_T_camera: gtsam.Pose3, options: Pl
             continue
     if graph.size() == 0:
         raise PlanningError("no measurement of the dataset has two usable tracks")
-    return _information(graph, values, builder.pose_key, intrinsics)
+    return _information(graph, values, builder.pose_key, intrinsics, builder.offsets_key, len(offsets))

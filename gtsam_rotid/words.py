@@ -690,11 +690,17 @@ def prediction_words(prediction: Prediction) -> list[str]:
                  f"{o.guess_sigma_mm:g} mm and {o.guess_sigma_deg:g}°, each with its own texture)"
                  + (f"; the intrinsics refined with the pose (fx, fy, cx, cy free under a prior of "
                     f"{100 * o.intrinsics_sigma[0]:g} % and {o.intrinsics_sigma[1]:g} px)"
-                    if o.refine_intrinsics else "; the camera file's intrinsics exact"))
+                    if o.refine_intrinsics else "; the camera file's intrinsics exact")
+                 + (f"; joint offsets refined ({_offset_joints_words(o.joint_offsets)} free under a prior of "
+                    f"{o.joint_offset_sigma_deg:g}°)" if o.joint_offsets is not False else ""))
     for k, problem in enumerate(p.problems):
         if problem is not None:
             lines.append(f"pose {k}: {problem}")
     return lines
+
+
+def _offset_joints_words(joints) -> str:
+    return "every joint between the first and the spinning one" if joints is True else ", ".join(joints)
 
 
 def plan_words(plan: Plan) -> list[str]:

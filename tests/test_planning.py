@@ -19,6 +19,7 @@ from gtsam_rotid import simulate
 from gtsam_rotid.arm import Arm
 from gtsam_rotid.cli import main
 from gtsam_rotid.collisions import ArmCollisions
+from gtsam_rotid.errors import InputError
 from gtsam_rotid.planning import (
     PlanningError,
     PlanOptions,
@@ -96,6 +97,43 @@ def test_prediction_with_the_intrinsics_free_matches_an_independent_bound(scene)
                          options.with_(refine_intrinsics=True, spin_model="free"))
 
 
+@pytest.mark.parametrize("intrinsics", [False, True], ids=["offsets", "offsets and intrinsics"])
+def test_prediction_with_the_joint_offsets_free_matches_an_independent_bound(scene, intrinsics):
+    """``joint_offsets`` (with or without ``refine_intrinsics``): the pose's marginal with every offset before the
+    wrist free under its prior against the benchmark's bound of the same problem; wider than the exact model's on
+    every axis; a joint the arm has not, or the spinning one, named; a bad prior refused."""
+    from refinement import _offset_bound
+
+    from gtsam_rotid.dataset import Dataset
+
+    dataset, truth = scene
+    poses = [m.joint_angles for m in truth.measurements]
+    readings = Dataset(dataset.arm, dataset.camera, list(dataset))
+    joints = dataset.arm.offset_joints(True)
+    bound, _, _ = _offset_bound(dataset, truth, readings, joints, np.zeros(len(joints)), 2.0,
+                                (0.05, 20.0) if intrinsics else None)
+    options = QUICK.with_(guess_samples=1, spin_model="rigid", refine_intrinsics=intrinsics)
+    free = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses,
+                            options.with_(joint_offsets=True, joint_offset_sigma_deg=2.0))
+    exact = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses, options)
+    ratio = np.sqrt(np.diag(free.covariance)) / np.sqrt(np.diag(bound))
+    print("prediction / bound", ratio)
+    assert np.all((ratio > 0.85) & (ratio < 1.15)), ratio
+    assert np.all(free.sigma > exact.sigma)
+    assert free.information.shape == (6, 6) and free.per_pose[0].shape == (6, 6)
+    names = tuple(dataset.arm.joint_names[j] for j in joints[1:3])
+    some = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses,
+                            options.with_(joint_offsets=names, joint_offset_sigma_deg=2.0))
+    assert np.all(some.sigma <= free.sigma * (1 + 1e-9)) and np.all(some.sigma >= exact.sigma * (1 - 1e-9))
+    for bad, said in (((dataset.arm.wrist_joint,), "spinning"), (("no_such_joint",), "no_such_joint")):
+        with pytest.raises(InputError, match=said):
+            predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses, options.with_(joint_offsets=bad))
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(PlanningError, match="joint_offset_sigma_deg must be a positive"):
+            predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses,
+                             options.with_(joint_offsets=True, joint_offset_sigma_deg=bad))
+
+
 def test_a_recorded_dataset_adds_its_intrinsics_information_to_a_plan_that_refines_them(scene):
     """``dataset_information`` with ``refine_intrinsics``: the pose's and the intrinsics' information of the recorded
     tracks (its pose block the exact model's), so that what the recording already knows of the pose is counted with
@@ -117,6 +155,14 @@ def test_a_recorded_dataset_adds_its_intrinsics_information_to_a_plan_that_refin
     assert np.all(with_free.sigma > with_exact.sigma)
     with pytest.raises(PlanningError, match="prior_information must be 6x6"):
         predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, one, options, prior_information=free)
+    # and the offsets', after the intrinsics'
+    n = len(dataset.arm.offset_joints(True))
+    both = dataset_information(dataset, truth.arm_T_camera, options.with_(refine_intrinsics=True, joint_offsets=True))
+    assert both.shape == (10 + n, 10 + n)
+    np.testing.assert_allclose(both[:10, :10], free, rtol=1e-6, atol=1e-9 * np.abs(free).max())
+    with_both = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, one,
+                                 options.with_(refine_intrinsics=True, joint_offsets=True), prior_information=both)
+    assert np.all(with_both.sigma > with_free.sigma)
 
 
 def test_refine_intrinsics_plans_for_the_pose_marginal(kinova):
@@ -382,6 +428,18 @@ def test_cli_plan_then_predict(tmp_path, capsys):
     assert "a fraction of the focal length (0.05 for 5 %)" in capsys.readouterr().err
     assert main(["predict", *common, "--poses", str(poses), "--intrinsics-sigma", "0.02", "5"]) == 1
     assert "--intrinsics-sigma applies with --refine-intrinsics only" in capsys.readouterr().err
+    # the joint offsets to be refined too: wider still, and said
+    assert main(["predict", *common, "--poses", str(poses), "--refine-intrinsics", "--intrinsics-sigma", "0.02",
+                 "5", "--joint-offsets", "--joint-offset-sigma-deg", "0.5"]) == 0
+    both = capsys.readouterr().out
+    assert "joint offsets refined (every joint between the first and the spinning one free under a prior of " \
+           "0.5°)" in both
+    more = re.search(r"translation ([\d.]+), ([\d.]+), ([\d.]+) mm", both).groups()
+    assert all(float(b) > float(a) for a, b in zip(sigmas[1], more, strict=True))
+    assert main(["predict", *common, "--poses", str(poses), "--joint-offset-sigma-deg", "0.5"]) == 1
+    assert "--joint-offset-sigma-deg applies with --joint-offsets only" in capsys.readouterr().err
+    assert main(["predict", *common, "--poses", str(poses), "--joint-offsets", "no_such_joint"]) == 1
+    assert "no_such_joint" in capsys.readouterr().err
     # one pose is never enough: plan says so (exit 3), predict calls it degenerate
     assert main(["plan", *common, "-n", "1", "--candidates", "20", "-o", str(tmp_path / "one_planned.csv")]) == 3
     assert "NOT ENOUGH" in capsys.readouterr().out
