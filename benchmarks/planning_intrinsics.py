@@ -8,9 +8,12 @@ For each pose count: poses planned with ``PlanOptions(refine_intrinsics=True)`` 
 for comparison, the simulator's poses, each predicted with the intrinsics free; printed as ratios to (a) and (b).
 ``--confirm N --seeds K``: the scene simulated at the N planned poses, calibrated with the camera file 3 % long in
 focal length and 10 px off in cx and the intrinsics refined, over K seeds: RMSE against the prediction, and NEES.
+``--offsets-deg D``: the joint offsets too (issue 17's target with both): poses planned with
+``PlanOptions(joint_offsets=True)`` as well (prior 1°), every prediction with the offsets free, and the confirming
+scenes' readings of every joint before the wrist D° off its zero (random signs), calibrated with the offsets refined.
 
-Run: ``python benchmarks/planning_intrinsics.py [--counts 12,24,36] [--confirm 12 --seeds 10]`` (4 min for the
-predictions on one core; about 1 min per confirming calibration at 12 poses).
+Run: ``python benchmarks/planning_intrinsics.py [--counts 12,24,36] [--confirm 12 --seeds 10] [--offsets-deg 0.5]``
+(4 min for the predictions on one core; about 1 min per confirming calibration at 12 poses).
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ def main(argv=None) -> int:
 
     from gtsam_rotid.arm import Arm
     from gtsam_rotid.calibration import CalibrationOptions
-    from gtsam_rotid.dataset import Dataset
+    from gtsam_rotid.dataset import Dataset, Measurement
     from gtsam_rotid.errors import RotIdError
     from gtsam_rotid.estimate import calibrate
     from gtsam_rotid.geometry import look_at
@@ -46,7 +49,10 @@ def main(argv=None) -> int:
     parser.add_argument("--scenes", type=int, default=5, help="simulated scenes of the usual recording's reference")
     parser.add_argument("--confirm", type=int, default=None, metavar="N", help="simulate and calibrate at N poses")
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--offsets-deg", type=float, default=0.0,
+                        help="plan and predict with the joint offsets free too; the confirming readings this far off")
     args = parser.parse_args(argv)
+    with_offsets = args.offsets_deg > 0
     counts = [int(c) for c in args.counts.split(",")]
     if args.confirm is not None and args.confirm not in counts:
         counts.append(args.confirm)
@@ -58,7 +64,7 @@ def main(argv=None) -> int:
         return PlanOptions(pixel_sigma=math.sqrt(config.noise_var), axis_floor_px=0.0, depth_range=config.depth_range,
                            radius_range=config.radius_range, offset_range=config.offset_range,
                            respect_wrist_limits=False, spin_seconds=config.duration, jobs=1, search_seconds=None,
-                           refine_intrinsics=refine)
+                           refine_intrinsics=refine, joint_offsets=refine and with_offsets)
 
     def sigma(poses, refine: bool) -> np.ndarray:
         return predict_accuracy(arm, config.camera, truth, poses, options(refine)).sigma
@@ -67,7 +73,9 @@ def main(argv=None) -> int:
     usual = np.median([sigma([simulate(config, seed=s, arm=arm)[0].joint_angles(k) for k in range(6)], False)
                        for s in range(args.scenes)], axis=0)
     planned6 = sigma(plan_poses(arm, config.camera, truth, 6, options(False)).joint_angles, False)
-    print("Jaco2, 12 s spins, 1.5 px^2; intrinsics free under 5 % / 20 px; predicted 1 sigma (deg, mm camera frame)")
+    free_words = "intrinsics free under 5 % / 20 px" + (" and joint offsets under 1 deg" if with_offsets else "")
+    freed = "intrinsics and offsets free" if with_offsets else "intrinsics free"
+    print(f"Jaco2, 12 s spins, 1.5 px^2; {free_words}; predicted 1 sigma (deg, mm camera frame)")
     print(f"{'(a) usual recording, 6 poses, exact':44s} " + " ".join(f"{x:8.4f}" for x in usual))
     print(f"{'(b) 6 planned poses, exact':44s} " + " ".join(f"{x:8.4f}" for x in planned6))
     print(f"{'':44s} " + " ".join(f"{a:>8s}" for a in AXES))
@@ -83,13 +91,13 @@ def main(argv=None) -> int:
                                    for k in range(n)], True))
             except RotIdError:  # the sampler finds too few poses in view
                 pass
-        print(f"{n} poses planned, intrinsics free / (a)".ljust(44) + " " + " ".join(f"{x:8.2f}" for x in free / usual)
+        print(f"{n} poses planned, {freed} / (a)".ljust(44) + " " + " ".join(f"{x:8.2f}" for x in free / usual)
               + f"   max {np.max(free / usual):.2f}")
-        print(f"{n} poses planned, intrinsics free / (b)".ljust(44) + " "
+        print(f"{n} poses planned, {freed} / (b)".ljust(44) + " "
               + " ".join(f"{x:8.2f}" for x in free / planned6) + f"   max {np.max(free / planned6):.2f}")
         if sims:
             sim = np.median(sims, axis=0)
-            print(f"{n} simulated poses, intrinsics free / (a)".ljust(44) + " "
+            print(f"{n} simulated poses, {freed} / (a)".ljust(44) + " "
                   + " ".join(f"{x:8.2f}" for x in sim / usual) + f"   max {np.max(sim / usual):.2f}")
         print(f"  ({time.perf_counter() - start:.0f} s)", flush=True)
     if args.confirm is None:
@@ -98,26 +106,43 @@ def main(argv=None) -> int:
     poses = plans[n]
     predicted = sigma(poses, True)
     scene = relaxed(config).with_(joint_angles=tuple(tuple(q) for q in poses), n_measurements=len(poses))
-    errors, chi2, flagged, refused = [], [], 0, 0
+    errors, chi2, offsets_chi2, flagged, refused = [], [], [], 0, 0
+    joints = arm.offset_joints(True)
     for seed in range(args.seeds):
         dataset, scene_truth = simulate(scene, seed=1000 + seed, arm=arm)
-        readings = Dataset(arm, dataset.camera.with_intrinsics_changed(1.03, 10.0), list(dataset))
+        offsets = np.radians(args.offsets_deg) * np.random.default_rng(10_000 + seed).choice([-1.0, 1.0],
+                                                                                              size=len(joints))
+        shift = np.zeros(arm.dof)
+        shift[joints] = offsets
+        readings = Dataset(arm, dataset.camera.with_intrinsics_changed(1.03, 10.0),
+                           [Measurement(dataset.joint_angles(k) - shift, m.tracks) for k, m in enumerate(dataset)])
         try:
-            result = calibrate(readings, options=CalibrationOptions(refine_intrinsics=True))
+            result = calibrate(readings, options=CalibrationOptions(refine_intrinsics=True,
+                                                                    joint_offsets=True if with_offsets else None))
         except RotIdError:
             refused += 1
             continue
         e = result.error_to(scene_truth.arm_T_camera)
+        flagged += not result.covariance_usable
+        if not result.covariance_usable:
+            continue
         errors.append(e * UNITS)
         chi2.append(float(e @ np.linalg.solve(result.covariance, e)))
-        flagged += not result.covariance_usable
+        if with_offsets:
+            miss = np.array(list(result.joint_offsets.values())) - offsets
+            offsets_chi2.append(float(miss @ np.linalg.solve(result.joint_offsets_covariance, miss)))
     rmse = np.sqrt(np.mean(np.square(errors), axis=0))
-    print(f"\nconfirmed at the {n} planned poses: {len(errors)} calibrated ({flagged} not usable), {refused} refused; "
-          f"camera file focal +3 %, cx +10 px, intrinsics refined")
+    print(f"\nconfirmed at the {n} planned poses: {len(errors) + flagged} calibrated ({flagged} not usable), {refused} "
+          f"refused; camera file focal +3 %, cx +10 px, intrinsics refined"
+          + (f"; readings {args.offsets_deg:g} deg off, offsets refined" if with_offsets else ""))
+    if not errors:
+        return 0
     print(f"{'RMSE':44s} " + " ".join(f"{x:8.4f}" for x in rmse))
     print(f"{'RMSE / predicted':44s} " + " ".join(f"{x:8.2f}" for x in rmse / predicted))
     print(f"{'RMSE / (a)':44s} " + " ".join(f"{x:8.2f}" for x in rmse / usual))
-    print(f"NEES pose {np.mean(chi2):.2f} over {len(chi2)}  ({time.perf_counter() - start:.0f} s)")
+    print(f"NEES pose {np.mean(chi2):.2f} over {len(chi2)} usable"
+          + (f"; offsets {np.mean(offsets_chi2):.2f} ({len(joints)} dof)" if offsets_chi2 else "")
+          + f"  ({time.perf_counter() - start:.0f} s)")
     return 0
 
 
