@@ -133,3 +133,17 @@ def test_joint_marginal_covariance_equals_gtsams_marginals():
     free.add(gtsam.PoseTranslationPrior3D(X(0), pose, gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
     free.add(gtsam.PriorFactorPoint3(L(0), gtsam.Point3(1.0, 2.0, 3.0), gtsam.noiseModel.Isotropic.Sigma(3, 2.0)))
     assert joint_marginal_covariance(free, values, keys, 8) is None  # the pose's rotation has no information
+
+
+def test_a_held_variable_does_not_make_a_weakly_determined_one_look_null():
+    """The Schur complement onto the first variable: a nuisance held by a tight prior (information 1e12, as the skew
+    of refined intrinsics) next to one determined only weakly (50, a joint offset held by its prior alone) and
+    coupled to the first. The weak one must be marginalised, not dropped as numerically null (which takes it as
+    known and understates the first variable's variance)."""
+    from gtsam_rotid.uncertainty import _schur
+
+    H = np.array([[10.0, 0.0, 20.0], [0.0, 1e12, 0.0], [20.0, 0.0, 50.0]])
+    np.testing.assert_allclose(_schur(H, 1), [[10.0 - 20.0**2 / 50.0]], rtol=1e-9)
+    # a direction of the others that is truly null is still dropped (it carries no information to marginalise)
+    H0 = np.array([[10.0, 0.0, 0.0], [0.0, 1e12, 0.0], [0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(_schur(H0, 1), [[10.0]], rtol=1e-12)

@@ -309,8 +309,12 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     _with_axis_covariances(reports, used, rows)
     try:
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
-    except RuntimeError:  # indeterminate: the observability analysis of ``info`` says why
-        covariance = None
+    except RuntimeError:
+        # GTSAM's Cholesky also gives up on a nuisance variable that is only nearly indeterminate (an offset that
+        # turns the arm as the pose does, held by its prior alone: the intrinsics' covariance and the sandwich were
+        # then lost on 6 poses planned for offsets and intrinsics); the dense marginal is None where the pose
+        # itself is indeterminate, which the observability analysis of ``info`` then says
+        covariance = joint_marginal_covariance(graph, result, [POSE_KEY], 6)
     correlated = _meats(keys, result, stage1, sigmas, used)
     if covariance is not None and correlated:  # errors shared along a track: the cluster-robust covariance
         robust = sandwich_marginal(graph, result, POSE_KEY, 6, correlated)
