@@ -76,9 +76,9 @@ def main(argv=None) -> int:
     free_words = "intrinsics free under 5 % / 20 px" + (" and joint offsets under 1 deg" if with_offsets else "")
     freed = "intrinsics and offsets free" if with_offsets else "intrinsics free"
     print(f"Jaco2, 12 s spins, 1.5 px^2; {free_words}; predicted 1 sigma (deg, mm camera frame)")
-    print(f"{'(a) usual recording, 6 poses, exact':44s} " + " ".join(f"{x:8.4f}" for x in usual))
-    print(f"{'(b) 6 planned poses, exact':44s} " + " ".join(f"{x:8.4f}" for x in planned6))
-    print(f"{'':44s} " + " ".join(f"{a:>8s}" for a in AXES))
+    print(f"{'(a) usual recording, 6 poses, exact':54s} " + " ".join(f"{x:8.4f}" for x in usual))
+    print(f"{'(b) 6 planned poses, exact':54s} " + " ".join(f"{x:8.4f}" for x in planned6))
+    print(f"{'':54s} " + " ".join(f"{a:>8s}" for a in AXES))
     plans = {}
     for n in counts:
         plan = plan_poses(arm, config.camera, truth, n, options(True))
@@ -91,13 +91,13 @@ def main(argv=None) -> int:
                                    for k in range(n)], True))
             except RotIdError:  # the sampler finds too few poses in view
                 pass
-        print(f"{n} poses planned, {freed} / (a)".ljust(44) + " " + " ".join(f"{x:8.2f}" for x in free / usual)
+        print(f"{n} poses planned, {freed} / (a)".ljust(54) + " " + " ".join(f"{x:8.2f}" for x in free / usual)
               + f"   max {np.max(free / usual):.2f}")
-        print(f"{n} poses planned, {freed} / (b)".ljust(44) + " "
+        print(f"{n} poses planned, {freed} / (b)".ljust(54) + " "
               + " ".join(f"{x:8.2f}" for x in free / planned6) + f"   max {np.max(free / planned6):.2f}")
         if sims:
             sim = np.median(sims, axis=0)
-            print(f"{n} simulated poses, {freed} / (a)".ljust(44) + " "
+            print(f"{n} simulated poses, {freed} / (a)".ljust(54) + " "
                   + " ".join(f"{x:8.2f}" for x in sim / usual) + f"   max {np.max(sim / usual):.2f}")
         print(f"  ({time.perf_counter() - start:.0f} s)", flush=True)
     if args.confirm is None:
@@ -137,9 +137,9 @@ def main(argv=None) -> int:
           + (f"; readings {args.offsets_deg:g} deg off, offsets refined" if with_offsets else ""))
     if not errors:
         return 0
-    print(f"{'RMSE':44s} " + " ".join(f"{x:8.4f}" for x in rmse))
-    print(f"{'RMSE / predicted':44s} " + " ".join(f"{x:8.2f}" for x in rmse / predicted))
-    print(f"{'RMSE / (a)':44s} " + " ".join(f"{x:8.2f}" for x in rmse / usual))
+    print(f"{'RMSE':54s} " + " ".join(f"{x:8.4f}" for x in rmse))
+    print(f"{'RMSE / predicted':54s} " + " ".join(f"{x:8.2f}" for x in rmse / predicted))
+    print(f"{'RMSE / (a)':54s} " + " ".join(f"{x:8.2f}" for x in rmse / usual))
     print(f"NEES pose {np.mean(chi2):.2f} over {len(chi2)} usable"
           + (f"; offsets {np.mean(offsets_chi2):.2f} ({len(joints)} dof)" if offsets_chi2 else "")
           + f"  ({time.perf_counter() - start:.0f} s)")
