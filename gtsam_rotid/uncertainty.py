@@ -83,14 +83,9 @@ def _schur(H: np.ndarray, dim: int) -> np.ndarray:
     if H.shape[0] == dim:
         return H
     H_pp, H_po, H_oo = H[:dim, :dim], H[:dim, dim:], H[dim:, dim:]
-    try:  # the usual case: the other variables are determined given this one
-        L = np.linalg.cholesky(H_oo)
-        if np.min(np.diag(L)) ** 2 > RELATIVE_ZERO * np.max(np.diag(H_oo)):
-            B = np.linalg.solve(L, H_po.T)
-            S = H_pp - B.T @ B
-            return 0.5 * (S + S.T)
-    except np.linalg.LinAlgError:
-        pass
+    S = _cholesky_schur(H_pp, H_po, H_oo)  # the usual case: the other variables are determined given this one
+    if S is not None:
+        return S
     # Scaled to a unit diagonal first: a variable held by a tight prior (the skew of refined intrinsics, 1e12 at
     # HELD_INTRINSIC_PX) must not make the others' weakly determined directions (joint offsets held by their prior
     # alone, at 1e3) look numerically null: dropped, they were taken as known, and a calibration of six poses with
@@ -98,18 +93,27 @@ def _schur(H: np.ndarray, dim: int) -> np.ndarray:
     d = np.diag(H_oo)
     s = np.where(d > 0, 1.0 / np.sqrt(np.where(d > 0, d, 1.0)), 1.0)
     H_oo, H_po = H_oo * s[:, None] * s[None, :], H_po * s[None, :]
-    try:
-        L = np.linalg.cholesky(H_oo)
-        if np.min(np.diag(L)) ** 2 > RELATIVE_ZERO * np.max(np.diag(H_oo)):
-            B = np.linalg.solve(L, H_po.T)
-            S = H_pp - B.T @ B
-            return 0.5 * (S + S.T)
-    except np.linalg.LinAlgError:
-        pass
+    S = _cholesky_schur(H_pp, H_po, H_oo)
+    if S is not None:
+        return S
     w, V = np.linalg.eigh(H_oo)
     keep = w > RELATIVE_ZERO * max(w.max(), 1e-300)
     H_oo_inv = (V[:, keep] / w[keep]) @ V[:, keep].T
     S = H_pp - H_po @ H_oo_inv @ H_po.T
+    return 0.5 * (S + S.T)
+
+
+def _cholesky_schur(H_pp: np.ndarray, H_po: np.ndarray, H_oo: np.ndarray) -> np.ndarray | None:
+    """``H_pp - H_po H_oo^-1 H_op`` by Cholesky, or None where ``H_oo`` is not clearly positive definite (a pivot
+    below RELATIVE_ZERO of its largest diagonal entry)."""
+    try:
+        L = np.linalg.cholesky(H_oo)
+    except np.linalg.LinAlgError:
+        return None
+    if np.min(np.diag(L)) ** 2 <= RELATIVE_ZERO * np.max(np.diag(H_oo)):
+        return None
+    B = np.linalg.solve(L, H_po.T)
+    S = H_pp - B.T @ B
     return 0.5 * (S + S.T)
 
 

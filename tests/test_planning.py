@@ -71,10 +71,12 @@ def test_prediction_matches_an_independent_cramer_rao_bound(scene, spin_model):
     assert len(prediction.problems) == 6
 
 
-def test_prediction_with_the_intrinsics_free_matches_an_independent_bound(scene):
-    """``refine_intrinsics``: the pose's marginal with fx, fy, cx, cy free under their prior against the benchmark's
-    bound of the same problem (``benchmarks/refinement.py``, the simulated tracks at the truth); wider than the exact
-    model's on every axis; the free phase refused."""
+@pytest.mark.parametrize("intrinsics, offsets", [(True, False), (False, True), (True, True)],
+                         ids=["intrinsics", "offsets", "offsets and intrinsics"])
+def test_prediction_with_nuisances_free_matches_an_independent_bound(scene, intrinsics, offsets):
+    """``refine_intrinsics`` and / or ``joint_offsets``: the pose's marginal with fx, fy, cx, cy and every offset
+    before the wrist free under their priors against the benchmark's bound of the same problem
+    (``benchmarks/refinement.py``, the simulated tracks at the truth); wider than the exact model's on every axis."""
     from refinement import _offset_bound
 
     from gtsam_rotid.dataset import Dataset
@@ -82,49 +84,30 @@ def test_prediction_with_the_intrinsics_free_matches_an_independent_bound(scene)
     dataset, truth = scene
     poses = [m.joint_angles for m in truth.measurements]
     readings = Dataset(dataset.arm, dataset.camera, list(dataset))
-    bound, _, _ = _offset_bound(dataset, truth, readings, [], np.zeros(0), 1.0, (0.05, 20.0))
+    joints = dataset.arm.offset_joints(True) if offsets else []
+    bound, _, _ = _offset_bound(dataset, truth, readings, joints, np.zeros(len(joints)), 2.0,
+                                (0.05, 20.0) if intrinsics else None)
     options = QUICK.with_(guess_samples=1, spin_model="rigid")
     free = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses,
-                            options.with_(refine_intrinsics=True))
+                            options.with_(refine_intrinsics=intrinsics, joint_offsets=offsets,
+                                          joint_offset_sigma_deg=2.0))
     exact = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses, options)
     ratio = np.sqrt(np.diag(free.covariance)) / np.sqrt(np.diag(bound))
     print("prediction / bound", ratio)
     assert np.all((ratio > 0.85) & (ratio < 1.15)), ratio
     assert np.all(free.sigma > exact.sigma)
     assert free.information.shape == (6, 6) and free.per_pose[0].shape == (6, 6)
+
+
+def test_nuisances_the_prediction_cannot_free_are_refused(scene):
+    """The free phase with the intrinsics; offsets of a joint the arm has not, or of the spinning one; a bad prior.
+    Offsets of some joints only widen the prediction less than all of them."""
+    dataset, truth = scene
+    poses = [m.joint_angles for m in truth.measurements]
+    options = QUICK.with_(guess_samples=1, spin_model="rigid")
     with pytest.raises(PlanningError, match="rigid"):
         predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses,
                          options.with_(refine_intrinsics=True, spin_model="free"))
-
-
-@pytest.mark.parametrize("intrinsics", [False, True], ids=["offsets", "offsets and intrinsics"])
-def test_prediction_with_the_joint_offsets_free_matches_an_independent_bound(scene, intrinsics):
-    """``joint_offsets`` (with or without ``refine_intrinsics``): the pose's marginal with every offset before the
-    wrist free under its prior against the benchmark's bound of the same problem; wider than the exact model's on
-    every axis; a joint the arm has not, or the spinning one, named; a bad prior refused."""
-    from refinement import _offset_bound
-
-    from gtsam_rotid.dataset import Dataset
-
-    dataset, truth = scene
-    poses = [m.joint_angles for m in truth.measurements]
-    readings = Dataset(dataset.arm, dataset.camera, list(dataset))
-    joints = dataset.arm.offset_joints(True)
-    bound, _, _ = _offset_bound(dataset, truth, readings, joints, np.zeros(len(joints)), 2.0,
-                                (0.05, 20.0) if intrinsics else None)
-    options = QUICK.with_(guess_samples=1, spin_model="rigid", refine_intrinsics=intrinsics)
-    free = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses,
-                            options.with_(joint_offsets=True, joint_offset_sigma_deg=2.0))
-    exact = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses, options)
-    ratio = np.sqrt(np.diag(free.covariance)) / np.sqrt(np.diag(bound))
-    print("prediction / bound", ratio)
-    assert np.all((ratio > 0.85) & (ratio < 1.15)), ratio
-    assert np.all(free.sigma > exact.sigma)
-    assert free.information.shape == (6, 6) and free.per_pose[0].shape == (6, 6)
-    names = tuple(dataset.arm.joint_names[j] for j in joints[1:3])
-    some = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses,
-                            options.with_(joint_offsets=names, joint_offset_sigma_deg=2.0))
-    assert np.all(some.sigma <= free.sigma * (1 + 1e-9)) and np.all(some.sigma >= exact.sigma * (1 - 1e-9))
     for bad, said in (((dataset.arm.wrist_joint,), "spinning"), (("no_such_joint",), "no_such_joint")):
         with pytest.raises(InputError, match=said):
             predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses, options.with_(joint_offsets=bad))
@@ -132,6 +115,12 @@ def test_prediction_with_the_joint_offsets_free_matches_an_independent_bound(sce
         with pytest.raises(PlanningError, match="joint_offset_sigma_deg must be a positive"):
             predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses,
                              options.with_(joint_offsets=True, joint_offset_sigma_deg=bad))
+    joints = dataset.arm.offset_joints(True)
+    names = tuple(dataset.arm.joint_names[j] for j in joints[1:3])
+    every, some, exact = (predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, poses,
+                                           options.with_(joint_offsets=o)) for o in (True, names, False))
+    assert np.all(some.sigma <= every.sigma * (1 + 1e-9)) and np.all(some.sigma >= exact.sigma * (1 - 1e-9))
+    assert np.any(some.sigma < every.sigma * 0.999)
 
 
 def test_a_recorded_dataset_adds_its_intrinsics_information_to_a_plan_that_refines_them(scene):
