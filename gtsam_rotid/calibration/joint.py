@@ -329,7 +329,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     shapes = None
     if intrinsics is None and covariance is not None:
         shapes = _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result, keys, sigmas, circles,
-                                    lines, correlated, options, rest, sync)
+                                    lines, options, rest, sync)
     solved = _Solved(pose, covariance, info, Method.JOINT, converged, iterations, error)
     projected = sum(keys[k].coaxial.inner_dof for k in used if keys[k].coaxial is not None)
     offsets_covariance, cross, determined = None, None, 0
@@ -447,7 +447,7 @@ def _time_offset_sigma(graph, result: gtsam.Values, sync: _Sync, correlated: dic
 
 
 def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: gtsam.Values, keys, sigmas, circles,
-                       lines, correlated, options, rest, sync: _Sync | None = None) -> dict | None:
+                       lines, options, rest, sync: _Sync | None = None) -> dict | None:
     """What the tracks' shapes say of the camera as given, at the joint estimate ``result`` (fixed intrinsics): the
     same graph with the intrinsics free under their prior (``options.intrinsics_sigma`` about the camera's),
     linearised at the estimate (its ``circles`` and ``lines`` there). Its Gauss-Newton step's intrinsics
