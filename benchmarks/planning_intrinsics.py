@@ -34,10 +34,10 @@ UNITS = np.array([math.degrees(1.0)] * 3 + [1000.0] * 3)
 
 def main(argv=None) -> int:
     from ambient import relaxed
+    from refinement import offset_readings
 
     from gtsam_rotid.arm import Arm
     from gtsam_rotid.calibration import CalibrationOptions
-    from gtsam_rotid.dataset import Dataset, Measurement
     from gtsam_rotid.errors import RotIdError
     from gtsam_rotid.estimate import calibrate
     from gtsam_rotid.geometry import look_at
@@ -107,15 +107,10 @@ def main(argv=None) -> int:
     predicted = sigma(poses, True)
     scene = relaxed(config).with_(joint_angles=tuple(tuple(q) for q in poses), n_measurements=len(poses))
     errors, chi2, offsets_chi2, flagged, refused = [], [], [], 0, 0
-    joints = arm.offset_joints(True)
     for seed in range(args.seeds):
         dataset, scene_truth = simulate(scene, seed=1000 + seed, arm=arm)
-        offsets = np.radians(args.offsets_deg) * np.random.default_rng(10_000 + seed).choice([-1.0, 1.0],
-                                                                                              size=len(joints))
-        shift = np.zeros(arm.dof)
-        shift[joints] = offsets
-        readings = Dataset(arm, dataset.camera.with_intrinsics_changed(1.03, 10.0),
-                           [Measurement(dataset.joint_angles(k) - shift, m.tracks) for k, m in enumerate(dataset)])
+        readings, joints, offsets = offset_readings(dataset, dataset.camera.with_intrinsics_changed(1.03, 10.0),
+                                                    args.offsets_deg, seed)
         try:
             result = calibrate(readings, options=CalibrationOptions(refine_intrinsics=True,
                                                                     joint_offsets=True if with_offsets else None))

@@ -100,26 +100,37 @@ def _offset_bound(dataset, truth, readings, joints, offsets, prior_deg: float, i
     return both[:6, :6], offsets_bound, intrinsics_bound
 
 
-def trial(robot: str, seed: int, duration: float, offset_deg: float, prior_deg: float, two_spins: bool = False,
-          focal_percent: float = 0.0, cx_px: float = 0.0, poses: int = 6) -> dict:
-    from accuracy import crlb_rigid
-
-    from gtsam_rotid.calibration import CalibrationOptions
+def offset_readings(dataset, camera, offset_deg: float, seed: int):
+    """(readings, joints, offsets): ``dataset``'s measurements with every joint between the first and the spinning
+    one read ``offset_deg`` off its zero (random signs, drawn from ``seed``), with ``camera`` as the camera file; the
+    joints' indices and their offsets (rad)."""
     from gtsam_rotid.dataset import Dataset, Measurement
-    from gtsam_rotid.errors import RotIdError
-    from gtsam_rotid.estimate import calibrate
 
-    dataset, truth = _scene(robot, seed, duration, two_spins, poses)
     arm = dataset.arm
     joints = arm.offset_joints(True)
     rng = np.random.default_rng(10_000 + seed)
     offsets = np.radians(offset_deg) * rng.choice([-1.0, 1.0], size=len(joints))
     shift = np.zeros(arm.dof)
     shift[joints] = offsets
+    readings = Dataset(arm, camera, [Measurement(dataset.joint_angles(k) - shift, m.tracks, spin_joint=m.spin_joint)
+                                     for k, m in enumerate(dataset)])
+    return readings, joints, offsets
+
+
+def trial(robot: str, seed: int, duration: float, offset_deg: float, prior_deg: float, two_spins: bool = False,
+          focal_percent: float = 0.0, cx_px: float = 0.0, poses: int = 6) -> dict:
+    from accuracy import crlb_rigid
+
+    from gtsam_rotid.calibration import CalibrationOptions
+    from gtsam_rotid.dataset import Dataset
+    from gtsam_rotid.errors import RotIdError
+    from gtsam_rotid.estimate import calibrate
+
+    dataset, truth = _scene(robot, seed, duration, two_spins, poses)
+    arm = dataset.arm
     intrinsics = bool(focal_percent or cx_px)
     given = dataset.camera.with_intrinsics_changed(1.0 + focal_percent / 100.0, cx_px) if intrinsics else dataset.camera
-    readings = Dataset(arm, given, [Measurement(dataset.joint_angles(k) - shift, m.tracks,
-                                                spin_joint=m.spin_joint) for k, m in enumerate(dataset)])
+    readings, joints, offsets = offset_readings(dataset, given, offset_deg, seed)
     if offset_deg == 0.0:
         joints, offsets = [], np.zeros(0)
     out = {"seed": seed, "bound_exact": crlb_rigid(dataset, truth, NOISE_VAR)}

@@ -11,7 +11,7 @@ import gtsam
 import numpy as np
 
 from .arm import Arm
-from .calibration.options import DEFAULT_INTRINSICS_SIGMA, checked_intrinsics_sigma
+from .calibration.options import DEFAULT_INTRINSICS_SIGMA, checked_intrinsics_sigma, checked_offset_sigma_deg
 from .camerafiles import load_camera
 from .dataset import Dataset
 from .errors import InputError
@@ -132,9 +132,8 @@ def _options(args, **extra) -> PlanOptions:
     if args.joint_offset_sigma_deg is not None and args.joint_offsets is None:
         raise InputError("--joint-offset-sigma-deg applies with --joint-offsets only (without it the joint readings' "
                          "zeros are taken as exact)")
-    offset_sigma = 1.0 if args.joint_offset_sigma_deg is None else args.joint_offset_sigma_deg
-    if not (math.isfinite(offset_sigma) and offset_sigma > 0):
-        raise InputError(f"--joint-offset-sigma-deg must be a positive number of degrees, got {offset_sigma:g}")
+    offset_sigma = checked_offset_sigma_deg(1.0 if args.joint_offset_sigma_deg is None
+                                            else args.joint_offset_sigma_deg, "--joint-offset-sigma-deg")
     extra.setdefault("joint_offsets", False if args.joint_offsets is None else (tuple(args.joint_offsets) or True))
     sigma = checked_intrinsics_sigma(DEFAULT_INTRINSICS_SIGMA if args.intrinsics_sigma is None
                                      else tuple(args.intrinsics_sigma), "--intrinsics-sigma FOCAL_FRACTION PX")

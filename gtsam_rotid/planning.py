@@ -32,7 +32,7 @@ import numpy as np
 
 from .arm import Arm
 from .calibration.joint import CAL3_S2_ORDER, intrinsics_prior_sigmas
-from .calibration.options import DEFAULT_INTRINSICS_SIGMA, checked_intrinsics_sigma
+from .calibration.options import DEFAULT_INTRINSICS_SIGMA, checked_intrinsics_sigma, checked_offset_sigma_deg
 from .camera import Camera
 from .collisions import ArmCollisions
 from .dataset import Dataset
@@ -201,9 +201,10 @@ class PlanOptions:
         if not (isinstance(offsets, bool) or (isinstance(offsets, tuple | list) and offsets
                                               and all(isinstance(j, str) for j in offsets))):
             raise PlanningError(f"joint_offsets must be True, False or a tuple of joint names, got {offsets!r}")
-        sigma = self.joint_offset_sigma_deg
-        if not (isinstance(sigma, int | float) and not isinstance(sigma, bool) and math.isfinite(sigma) and sigma > 0):
-            raise PlanningError(f"joint_offset_sigma_deg must be a positive number of degrees, got {sigma!r}")
+        try:
+            checked_offset_sigma_deg(self.joint_offset_sigma_deg)
+        except InputError as error:
+            raise PlanningError(str(error)) from None
         if isinstance(self.spin_joints, str) or not all(isinstance(j, str) for j in self.spin_joints):
             raise PlanningError(f"spin_joints must be a tuple of joint names, got {self.spin_joints!r}")
         if self.n_features < 2 or self.guess_samples < 1 or self.candidates < 1:
@@ -317,19 +318,32 @@ def _pose_marginal(information: np.ndarray) -> np.ndarray:
     return 0.5 * (S + np.swapaxes(S, -1, -2))
 
 
-def _information(graph, values, pose_key: int, intrinsics: bool, offsets_key: int | None = None,
-                 n_offsets: int = 0) -> np.ndarray:
-    """A graph's information on the pose (6x6), with ``intrinsics`` (its Cal3_S2 at ``_INTRINSICS_KEY``) and on
-    PLAN_INTRINSICS (the skew held), with ``n_offsets`` (its offsets vector at ``offsets_key``) and on them, in that
-    order, everything else marginalised."""
+def _nuisance_graph(builder: RotIdGraph, arm_T_camera: gtsam.Pose3) -> tuple[gtsam.NonlinearFactorGraph,
+                                                                              gtsam.Values]:
+    """An empty graph and its values for ``builder``'s measurements: the pose at ``arm_T_camera`` and, where the
+    builder reads them, the intrinsics at the camera's and the offsets at zero (without their priors: the data's
+    information alone)."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(builder.pose_key, arm_T_camera)
+    if builder.intrinsics_key is not None:
+        values.insert(builder.intrinsics_key, cal3_s2(builder.camera.K))
+    if builder.offset_joints:
+        values.insert(builder.offsets_key, np.zeros(len(builder.offset_joints)))
+    return graph, values
+
+
+def _information(graph, values, builder: RotIdGraph) -> np.ndarray:
+    """A graph's information on the pose (6x6), and where ``builder`` reads them on PLAN_INTRINSICS (the skew held)
+    and on the offsets, in that order, everything else marginalised."""
+    intrinsics, n_offsets = builder.intrinsics_key is not None, len(builder.offset_joints)
     if not intrinsics and not n_offsets:
-        return pose_information(graph, values, pose_key)
-    keys, keep = [pose_key], list(range(6))
+        return pose_information(graph, values, builder.pose_key)
+    keys, keep = [builder.pose_key], list(range(6))
     if intrinsics:
-        keys.append(_INTRINSICS_KEY)
+        keys.append(builder.intrinsics_key)
         keep += [6 + i for i in _PLAN_INDICES]
     if n_offsets:
-        keys.append(offsets_key)
+        keys.append(builder.offsets_key)
         keep += list(range(6 + 5 * intrinsics, 6 + 5 * intrinsics + n_offsets))
     full = marginal_information(graph, values, keys, 6 + 5 * intrinsics + n_offsets)
     return full[np.ix_(keep, keep)]
@@ -378,19 +392,18 @@ class _Predictor:
         self.features = typical_features(options)
         self.tie_covariance = 2.0 * options.axis_floor_px**2 * np.eye(2)
         self._rng = np.random.default_rng(0)
-        #: the joints whose offsets the calibration will refine (``joint_offsets``; ArmError for a bad name)
-        self.offset_names = [] if options.joint_offsets is False else \
-            [arm.joint_names[j] for j in arm.offset_joints(options.joint_offsets)]
+        #: how many joint offsets the calibration will refine (``joint_offsets``; ArmError for a bad name)
+        self.n_offsets = 0 if options.joint_offsets is False else len(arm.offset_joints(options.joint_offsets))
         self.n_intrinsics = len(PLAN_INTRINSICS) if options.refine_intrinsics else 0
         #: the information's dimension: the pose's, the intrinsics' (PLAN_INTRINSICS) when they are refined, then
         #: the offsets'
-        self.dim = 6 + self.n_intrinsics + len(self.offset_names)
+        self.dim = 6 + self.n_intrinsics + self.n_offsets
 
     @property
     def nuisance_words(self) -> str:
         """What the information spans beyond the pose, in words."""
         return " and ".join(w for w, n in (("intrinsics' (refine_intrinsics)", self.n_intrinsics),
-                                           ("offsets' (joint_offsets)", len(self.offset_names))) if n)
+                                           ("offsets' (joint_offsets)", self.n_offsets)) if n)
 
     def nuisance_prior(self) -> np.ndarray:
         """(dim, dim): the intrinsics' and the offsets' prior information (zero on the pose's block; all zero
@@ -400,9 +413,9 @@ class _Predictor:
             sigmas = intrinsics_prior_sigmas(self.camera.K, PLAN_INTRINSICS, self.options.intrinsics_sigma)
             chosen = sigmas[_PLAN_INDICES]
             out[6:6 + self.n_intrinsics, 6:6 + self.n_intrinsics] = np.diag(1.0 / chosen**2)
-        if self.offset_names:
+        if self.n_offsets:
             o = 6 + self.n_intrinsics
-            out[o:, o:] = np.eye(len(self.offset_names)) / math.radians(self.options.joint_offset_sigma_deg) ** 2
+            out[o:, o:] = np.eye(self.n_offsets) / math.radians(self.options.joint_offset_sigma_deg) ** 2
         return out
 
     def embed(self, pose_information: np.ndarray) -> np.ndarray:
@@ -440,18 +453,13 @@ class _Predictor:
                               min_track_points=MIN_ELLIPSE_POINTS, min_track_extent_px=MIN_TRACK_EXTENT_PX,
                               spin_model=spin_model or self.options.spin_model,
                               intrinsics_key=_INTRINSICS_KEY if intrinsics else None,
-                              joint_offsets=self.offset_names or None)
+                              joint_offsets=self.options.joint_offsets)
 
         wrist_builder = builder(self.sigma_px)
         # (the wrist's limited arc and its repeats do not apply to another joint's spin: the simulator's spin)
         other_builder = wrist_builder if self.limited_span is None else \
             builder(self.options.pixel_sigma / math.sqrt(self.options.fps / self.fps))
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        values.insert(wrist_builder.pose_key, scene.arm_T_camera)
-        if intrinsics:
-            values.insert(_INTRINSICS_KEY, cal3_s2(self.camera.K))
-        if self.offset_names:  # (at zero, without their prior: the data's information alone)
-            values.insert(wrist_builder.offsets_key, np.zeros(len(self.offset_names)))
+        graph, values = _nuisance_graph(wrist_builder, scene.arm_T_camera)
         for k, joint in enumerate(self.options.spin_joints or (None,)):
             q, spin_builder = np.array(joint_angles, dtype=float), wrist_builder
             if self.arm.spins_wrist(joint):
@@ -466,8 +474,7 @@ class _Predictor:
                 continue
         if graph.size() == 0:
             return np.zeros((self.dim, self.dim))
-        return _information(graph, values, wrist_builder.pose_key, intrinsics, wrist_builder.offsets_key,
-                            len(self.offset_names))
+        return _information(graph, values, wrist_builder)
 
 
 class _Constraints:
@@ -943,17 +950,10 @@ def dataset_information(dataset: Dataset, arm_T_camera: gtsam.Pose3, options: Pl
     plan adds)."""
     options = PlanOptions() if options is None else options
     intrinsics = options.refine_intrinsics
-    offsets = [] if options.joint_offsets is False else \
-        [dataset.arm.joint_names[j] for j in dataset.arm.offset_joints(options.joint_offsets)]
     builder = RotIdGraph(dataset.arm, dataset.camera, model="projected", track_sigma_px=options.pixel_sigma,
                          spin_model="rigid" if intrinsics else options.spin_model,
-                         intrinsics_key=_INTRINSICS_KEY if intrinsics else None, joint_offsets=offsets or None)
-    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    values.insert(builder.pose_key, arm_T_camera)
-    if intrinsics:
-        values.insert(_INTRINSICS_KEY, cal3_s2(dataset.camera.K))
-    if offsets:
-        values.insert(builder.offsets_key, np.zeros(len(offsets)))
+                         intrinsics_key=_INTRINSICS_KEY if intrinsics else None, joint_offsets=options.joint_offsets)
+    graph, values = _nuisance_graph(builder, arm_T_camera)
     floor = 2.0 * options.axis_floor_px**2 * np.eye(2)
     for k, measurement in enumerate(dataset):
         try:
@@ -962,4 +962,4 @@ def dataset_information(dataset: Dataset, arm_T_camera: gtsam.Pose3, options: Pl
             continue
     if graph.size() == 0:
         raise PlanningError("no measurement of the dataset has two usable tracks")
-    return _information(graph, values, builder.pose_key, intrinsics, builder.offsets_key, len(offsets))
+    return _information(graph, values, builder)

@@ -175,11 +175,7 @@ class CalibrationOptions:
                 raise InputError(f"CalibrationOptions.joint_offsets must be None, True or a list of joint names, got "
                                  f"{self.joint_offsets!r}")
             self.joint_offsets = tuple(self.joint_offsets)
-        if isinstance(self.joint_offset_sigma_deg, bool) or not isinstance(
-                self.joint_offset_sigma_deg, int | float | np.number) or not np.isfinite(
-                self.joint_offset_sigma_deg) or self.joint_offset_sigma_deg <= 0:
-            raise InputError(f"CalibrationOptions.joint_offset_sigma_deg must be a positive number of degrees, got "
-                             f"{self.joint_offset_sigma_deg!r}")
+        checked_offset_sigma_deg(self.joint_offset_sigma_deg, "CalibrationOptions.joint_offset_sigma_deg")
         if self.refine_intrinsics is True:
             self.refine_intrinsics = INTRINSICS
         elif self.refine_intrinsics is False or self.refine_intrinsics is None:
@@ -210,6 +206,15 @@ class CalibrationOptions:
         if not (np.isfinite(self.joint_sigma_deg) and self.joint_sigma_deg >= 0.0):
             raise InputError(f"CalibrationOptions.joint_sigma_deg must be a finite value >= 0 (deg), got "
                              f"{self.joint_sigma_deg}")
+
+
+def checked_offset_sigma_deg(sigma, name: str = "joint_offset_sigma_deg") -> float:
+    """The joint offsets' prior 1 sigma (degrees) as a float, or an InputError naming ``name``: a positive finite
+    number."""
+    if isinstance(sigma, bool) or not isinstance(sigma, int | float | np.number) or not np.isfinite(sigma) \
+            or sigma <= 0:
+        raise InputError(f"{name} must be a positive number of degrees, got {sigma!r}")
+    return float(sigma)
 
 
 def checked_intrinsics_sigma(sigma, name: str = "intrinsics_sigma") -> tuple[float, float]:

@@ -154,12 +154,12 @@ def test_offsets_and_intrinsics_refined_at_six_planned_poses_hold_their_covarian
     from pathlib import Path
 
     from gtsam_rotid.arm import Arm
-    from gtsam_rotid.dataset import Measurement
     from gtsam_rotid.recordings import read_joint_file
     from gtsam_rotid.simulate import SceneConfig, simulate
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from ambient import relaxed
+    from refinement import offset_readings
 
     arm = Arm.from_robot("kinova")
     poses = read_joint_file(Path(__file__).resolve().parents[1] / "data" / "jaco2_planned_offsets_intrinsics.csv",
@@ -167,11 +167,7 @@ def test_offsets_and_intrinsics_refined_at_six_planned_poses_hold_their_covarian
     config = relaxed(SceneConfig(robot="kinova", duration=12.0, noise_var=1.5)).with_(
         joint_angles=tuple(tuple(q) for q in poses), n_measurements=len(poses))
     dataset, truth = simulate(config, seed=1000, arm=arm)
-    joints = arm.offset_joints(True)
-    shift = np.zeros(arm.dof)
-    shift[joints] = np.radians(0.5) * np.random.default_rng(10_000).choice([-1.0, 1.0], size=len(joints))
-    readings = Dataset(arm, dataset.camera.with_intrinsics_changed(1.03, 10.0),
-                       [Measurement(dataset.joint_angles(k) - shift, m.tracks) for k, m in enumerate(dataset)])
+    readings, _, _ = offset_readings(dataset, dataset.camera.with_intrinsics_changed(1.03, 10.0), 0.5, seed=0)
     result = calibrate(readings, options=CalibrationOptions(refine_intrinsics=True, joint_offsets=True))
     assert result.intrinsics_covariance is not None and set(result.intrinsics_sigma) == set(NAMES)
     assert intrinsics_chi2(result, dataset.camera) < CHI2_999_4
