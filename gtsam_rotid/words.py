@@ -21,6 +21,7 @@ from .calibration.tuning import (
     RESTART_P,
 )
 from .planning import Plan, Prediction
+from .trackparams import AXIS_FLOOR_PX
 from .uncertainty import Observability
 
 
@@ -251,7 +252,7 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
         elif kind == "intrinsics":
             out.append(intrinsics_words(result))
         elif kind == "intrinsics_shapes":
-            out.append(intrinsics_shapes_words(result.intrinsics_shapes))
+            out.append(intrinsics_shapes_words(result.intrinsics_shapes, result.axis_floor_px))
         elif kind == "kinematics":
             out.append(joint_offset_words(result))
         elif kind == "camera_or_measurement":
@@ -329,10 +330,23 @@ def _camera_change(i: dict) -> str:
             f"{cy:+.3g} px)")
 
 
-def intrinsics_shapes_words(shapes: dict | None) -> str:
-    """Why a result whose tracks' shapes ask for other intrinsics is not trusted (``result.intrinsics_shapes``)."""
+def intrinsics_shapes_words(shapes: dict | None, floor_px: float | None = None) -> str:
+    """Why a result whose tracks' shapes ask for other intrinsics is not trusted (``result.intrinsics_shapes``).
+    Two causes read alike: a camera file that is off, and a bias of the tracked pixels that a pose's tracks share
+    (features on highlights or silhouette edges that do not move with the surface). ``floor_px`` (the result's
+    ``axis_floor_px``): at 0 the calibration took the tracks as unbiased, and the words say how to allow for the
+    tracker's bias."""
     advice = ("Calibrate again with the intrinsics refined (calibrate --refine-intrinsics; CalibrationOptions("
               "refine_intrinsics=True)), or check the camera file (is it this camera's, at this resolution?)")
+    if floor_px is not None and floor_px <= 0.0:
+        advice += (". A bias of the tracked pixels shared by a pose's tracks bends the shapes alike, and this "
+                   "calibration took the tracks as unbiased (no image-axis floor: the dataset does not name its "
+                   "tracker and CalibrationOptions.axis_floor_px is 0). If the camera is calibrated, calibrate "
+                   f"again with the floor of a corner tracker (--axis-floor-px {AXIS_FLOOR_PX['corners']:g}; "
+                   f"CalibrationOptions(axis_floor_px={AXIS_FLOOR_PX['corners']:g}))")
+    else:
+        advice += (", and the tracks (a bias shared by a pose's tracks, such as features on highlights or edges that "
+                   "do not move with the surface, reads the same way)")
     if not shapes:
         return "the tracks' shapes ask for other intrinsics than the camera file's. " + advice
     change = (f"focal length {shapes['focal_percent']:+.2g} % (1 sigma {shapes['focal_percent_sigma']:.2g} %), "

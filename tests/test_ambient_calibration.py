@@ -91,6 +91,8 @@ def test_a_precise_pose_that_no_other_checks_is_held_by_the_trackers_floor():
     assert bare.axis_floor_px == 0.0 and bare.axis_consistency.consistent
     assert chi2(bare) > 10 * CHI2_999_6DOF  # measured: 527
     assert not bare.covariance_usable and set(bare.untrusted) == {"intrinsics_shapes"}
+    # the words name both causes: the camera file, and the tracks taken as unbiased (with the floor to try)
+    assert "check the camera file" in summary(bare) and f"--axis-floor-px {AXIS_FLOOR_PX['corners']:g}" in summary(bare)
 
     dataset.metadata["tracker"] = tracker_metadata(TrackerParams())
     result = calibrate(dataset)
