@@ -259,10 +259,14 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
             for k in better:
                 lines[k] = circles[k] = None
             if better:
+                # their spins start from the solutions just found about the FK axis, not from scratch; synced, from
+                # scratch (those solutions followed the readings, which the readings' test at the start would read)
+                solved = {k: v for k, v in (solved or {}).items() if k not in better}
+                if sync is None:
+                    solved.update(_solved(fk_keys, fk_values, better))
                 graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas,
                                                    circles, lines, fk_start=start, rest=rest, intrinsics=intrinsics,
-                                                   sync=sync, solved={k: v for k, v in (solved or {}).items()
-                                                                      if k not in better})
+                                                   sync=sync, solved=solved)
         start, solved = (), None
         if _round == 0 and sync is not None:  # grossly wrong readings (see below), where the fit starts
             refused = _disagreeing_readings(keys, values, sync, READINGS_START_Z)
