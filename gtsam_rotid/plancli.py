@@ -95,8 +95,9 @@ def add_plan_parsers(subparsers) -> None:
                     "neither end-on nor side-on, and the arm's other links not hiding the end effector. Writes a "
                     "CSV (a header row of the joint names, one row per pose, radians) that `track --joints` and "
                     "`predict --poses` read, and prints the predicted 1 sigma per axis. With --dataset: the next "
-                    "best pose(s) to add to an existing recording (robot and camera from it; the guess: its "
-                    "calibration's estimate). Exit code 0: the poses determine the calibration; 3: they do not.")
+                    "best pose(s) to add to an existing recording (robot and camera from it, its spins counted at "
+                    "their own pixel noise and its tracker's floor; the guess: its calibration's estimate). Exit "
+                    "code 0: the poses determine the calibration; 3: they do not.")
     _add_common(p, dataset=True)
     p.add_argument("-n", type=int, default=None, metavar="N",
                    help="how many poses (default 6; 1 with --dataset: the next best pose)")

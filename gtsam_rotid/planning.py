@@ -32,7 +32,14 @@ import numpy as np
 
 from .arm import Arm
 from .calibration.joint import CAL3_S2_ORDER, intrinsics_prior_sigmas
-from .calibration.options import DEFAULT_INTRINSICS_SIGMA, checked_intrinsics_sigma, checked_offset_sigma_deg
+from .calibration.options import (
+    DEFAULT_INTRINSICS_SIGMA,
+    CalibrationOptions,
+    checked_intrinsics_sigma,
+    checked_offset_sigma_deg,
+    tracker_floor_px,
+)
+from .calibration.stage1 import measured_noise
 from .camera import Camera
 from .collisions import ArmCollisions
 from .dataset import Dataset
@@ -942,22 +949,35 @@ def predicted_spins(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, joint_a
     return out
 
 
-def dataset_information(dataset: Dataset, arm_T_camera: gtsam.Pose3, options: PlanOptions | None = None
-                        ) -> np.ndarray:
-    """The information (6x6) of an existing dataset's tracks at ``arm_T_camera``, with the plan's pixel noise and
-    axis floor: what new poses add to. With ``options.refine_intrinsics``, on the pose and fx, fy, cx, cy too (the
-    rigid spin), with ``options.joint_offsets`` on the offsets too (in that order; without their priors, which the
-    plan adds)."""
+def dataset_information(dataset: Dataset, arm_T_camera: gtsam.Pose3, options: PlanOptions | None = None, *,
+                        measured: bool = True) -> np.ndarray:
+    """The information (6x6) of an existing dataset's tracks at ``arm_T_camera``: what new poses add to. With
+    ``measured`` (default) the recording is counted as ``calibrate`` would count it: each measurement at the pixel
+    noise its own tracks show (its line fitted alone, :func:`gtsam_rotid.calibration.stage1.measured_noise`, without
+    the tracks that fit leaves out) and with the floor of the dataset's tracker (its metadata; none where it names
+    no tracker); otherwise at the plan's pixel noise and axis floor (quicker: no fit). With
+    ``options.refine_intrinsics``, on the pose and fx, fy, cx, cy too (the rigid spin), with
+    ``options.joint_offsets`` on the offsets too (in that order; without their priors, which the plan adds)."""
     options = PlanOptions() if options is None else options
     intrinsics = options.refine_intrinsics
+    spin_model = "rigid" if intrinsics else options.spin_model
     builder = RotIdGraph(dataset.arm, dataset.camera, model="projected", track_sigma_px=options.pixel_sigma,
-                         spin_model="rigid" if intrinsics else options.spin_model,
-                         intrinsics_key=_INTRINSICS_KEY if intrinsics else None, joint_offsets=options.joint_offsets)
+                         spin_model=spin_model, intrinsics_key=_INTRINSICS_KEY if intrinsics else None,
+                         joint_offsets=options.joint_offsets)
     graph, values = _nuisance_graph(builder, arm_T_camera)
-    floor = 2.0 * options.axis_floor_px**2 * np.eye(2)
+    floor_px, noise = options.axis_floor_px, [(options.pixel_sigma, {})] * len(dataset)
+    if measured:
+        floor_px = tracker_floor_px(dataset.metadata)
+        noise = measured_noise(dataset.arm, dataset.camera, list(dataset), arm_T_camera,
+                               CalibrationOptions(spin_model=spin_model))
+    floor = 2.0 * floor_px**2 * np.eye(2)
     for k, measurement in enumerate(dataset):
+        if noise[k] is None:  # (a measurement that cannot be fitted alone: calibrate leaves it out too)
+            continue
+        sigma, outliers = noise[k]
         try:
-            builder.add_measurement(graph, values, k, measurement, tie_covariance=floor)
+            builder.add_measurement(graph, values, k, measurement, tie_covariance=floor, skip_tracks=outliers,
+                                    track_sigmas=dict.fromkeys(range(len(measurement.tracks)), sigma))
         except InputError:
             continue
     if graph.size() == 0:

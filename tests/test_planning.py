@@ -19,6 +19,7 @@ from gtsam_rotid import simulate
 from gtsam_rotid.arm import Arm
 from gtsam_rotid.cli import main
 from gtsam_rotid.collisions import ArmCollisions
+from gtsam_rotid.dataset import Dataset
 from gtsam_rotid.errors import InputError
 from gtsam_rotid.planning import (
     PlanningError,
@@ -152,6 +153,27 @@ def test_a_recorded_dataset_adds_its_intrinsics_information_to_a_plan_that_refin
     with_both = predict_accuracy(dataset.arm, dataset.camera, truth.arm_T_camera, one,
                                  options.with_(refine_intrinsics=True, joint_offsets=True), prior_information=both)
     assert np.all(with_both.sigma > with_free.sigma)
+
+
+def test_a_recorded_dataset_is_counted_at_its_own_noise_and_trackers_floor(scene):
+    """``dataset_information`` counts the recording as ``calibrate`` would: at the pixel noise its tracks show
+    (simulated at 1.22 px) and its tracker's floor, not at the plan's (0.5 px, no floor) for the poses to come."""
+    from gtsam_rotid.planning import dataset_information
+
+    dataset, truth = scene
+    plan = PlanOptions(pixel_sigma=0.5, axis_floor_px=0.0, spin_model="rigid")
+    measured = dataset_information(dataset, truth.arm_T_camera, plan)
+    at_true = dataset_information(dataset, truth.arm_T_camera, plan.with_(pixel_sigma=math.sqrt(1.5)),
+                                  measured=False)
+    at_plans = dataset_information(dataset, truth.arm_T_camera, plan, measured=False)
+    sigma = {name: np.sqrt(np.diag(np.linalg.inv(info))) for name, info in
+             (("measured", measured), ("true", at_true), ("plan", at_plans))}
+    np.testing.assert_allclose(sigma["measured"], sigma["true"], rtol=0.03)
+    assert np.all(sigma["measured"] > 2.0 * sigma["plan"])
+    # the dataset's tracker's floor is counted (the plan's is for the poses to come)
+    floored = Dataset(dataset.arm, dataset.camera, list(dataset), metadata={"tracker": {"axis_floor_px": 0.3}})
+    with_floor = np.sqrt(np.diag(np.linalg.inv(dataset_information(floored, truth.arm_T_camera, plan))))
+    assert np.all(with_floor >= sigma["measured"] * (1 - 1e-9)) and np.any(with_floor > 1.2 * sigma["measured"])
 
 
 def test_refine_intrinsics_plans_for_the_pose_marginal(kinova):

@@ -25,7 +25,7 @@ from ..factors import axis_offsets_residuals, axis_point_residuals
 from ..graph import Model, axis_test_points, offset_axis_test_points, track_huber
 from ..uncertainty import chi2_sf
 from .lm import _builder
-from .options import CalibrationError, CalibrationOptions
+from .options import CalibrationError, CalibrationOptions, tracker_floor_px
 from .setup import _setup
 from .stage1 import _checked, _stage1
 from .stage2 import _axis_distances
@@ -165,8 +165,7 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
     prior = np.diag(WEAK_PRIOR**2)
     options = CalibrationOptions() if options is None else options
     if options.axis_floor_px is None:
-        from .run import _tracker_floor_px  # the same floor calibrate takes from the dataset's tracker
-        options = replace(options, axis_floor_px=_tracker_floor_px(metadata))
+        options = replace(options, axis_floor_px=tracker_floor_px(metadata))  # (the floor calibrate takes)
     measurements = [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements]
     # the test rests on stage 1's free-phase lines alone: where a spin's ellipses are thin their linearised
     # covariance understates the line's scatter, so they are jackknifed (stage1._thin), as for `weighted`

@@ -231,3 +231,16 @@ def checked_intrinsics_sigma(sigma, name: str = "intrinsics_sigma") -> tuple[flo
         raise InputError(f"{name}'s focal length sigma is a fraction of the focal length (0.05 for 5 %), at most "
                          f"{MAX_FOCAL_FRACTION:g}, got {values[0]:g}")
     return float(values[0]), float(values[1])
+
+
+def tracker_floor_px(metadata: dict) -> float:
+    """The image axes' prior floor (px) the dataset's tracker wrote (``metadata["tracker"]["axis_floor_px"]``);
+    0 when it names none."""
+    tracker = metadata.get("tracker")
+    value = tracker.get("axis_floor_px") if isinstance(tracker, dict) else None
+    if value is None:
+        return 0.0
+    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
+        raise InputError(f"the dataset's metadata[\"tracker\"][\"axis_floor_px\"] must be a finite number >= 0 "
+                         f"(px), got {value!r}")
+    return float(value)

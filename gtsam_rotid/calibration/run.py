@@ -19,7 +19,7 @@ from .joint import Fitted, _joint, _judged, _weighted
 from .lm import _builder
 from .modelcheck import IMPROVEMENT_Z, intrinsics_check, kinematics_check
 from .offsets import MAX_OFFSET_SIGMAS, OffsetsPrior, offsets_from_axes, shifted
-from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method
+from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method, tracker_floor_px
 from .result import CalibrationResult, MeasurementReport, OutlierKind
 from .setup import _Setup, arc_span_deg
 from .stage2 import _check_scale, _paper, _refined_stage1
@@ -61,7 +61,7 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
         raise InputError(f"unknown method {method!r}; choose one of {[m.value for m in Method]}") from None
     options = CalibrationOptions() if options is None else options
     if options.axis_floor_px is None:
-        options = replace(options, axis_floor_px=_tracker_floor_px(metadata))
+        options = replace(options, axis_floor_px=tracker_floor_px(metadata))
     measurements = [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements]
     for k, m in enumerate(measurements):  # as a Dataset checks them (a Dataset's are checked already)
         problem = arm.limit_problem(m.joint_angles)
@@ -110,19 +110,6 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
                      readings_refused={kept[k]: v for k, v in result.readings_refused.items()},
                      readings_ignored=bool(ignored))
     return replace(result, untrusted=_untrusted(result, setup))
-
-
-def _tracker_floor_px(metadata: dict) -> float:
-    """The image axes' prior floor (px) the dataset's tracker wrote (``metadata["tracker"]["axis_floor_px"]``);
-    0 when it names none."""
-    tracker = metadata.get("tracker")
-    value = tracker.get("axis_floor_px") if isinstance(tracker, dict) else None
-    if value is None:
-        return 0.0
-    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
-        raise InputError(f"the dataset's metadata[\"tracker\"][\"axis_floor_px\"] must be a finite number >= 0 "
-                         f"(px), got {value!r}")
-    return float(value)
 
 
 def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]:

@@ -33,7 +33,7 @@ from ..uncertainty import (
 )
 from .lm import _builder, _lm
 from .options import MIN_TRACKS_FOR_SPREAD, CalibrationOptions
-from .setup import _Setup
+from .setup import _Setup, _setup
 from .tuning import (
     HOLD_SIGMA_RAD,
     JACKKNIFE_GROUPS,
@@ -503,3 +503,22 @@ def _start_line(camera: Camera, axis, image_axis: np.ndarray, pose: gtsam.Pose3)
     """
     line, _ = rot3_from_line(*axis_in_camera(axis, pose))
     return line if image_axis is None else align_line(line, plane_normal(camera.K, image_axis))
+
+
+def measured_noise(arm, camera: Camera, measurements, pose: gtsam.Pose3, options: CalibrationOptions | None = None
+                   ) -> list[tuple[float, dict[int, str]] | None]:
+    """Each measurement's pixel noise (px per image coordinate) and the tracks that stage 1 leaves out as outliers
+    (track -> reason), as ``calibrate`` measures them: its line fitted alone to its tracks, started about the FK
+    axis seen from ``pose``. None for a measurement that cannot be fitted alone (too few usable tracks, no finite
+    residuals). For counting what a recording already knows at its own noise (the planner)."""
+    options = CalibrationOptions() if options is None else options
+    out = []
+    for m in measurements:
+        try:
+            setup = _setup(arm, camera, [m], options, minimum=1)
+            s = _stage1(arm, camera, [m], pose, setup, options)[0]
+        except (RotIdError, np.linalg.LinAlgError, RuntimeError):
+            out.append(None)
+            continue
+        out.append((float(np.sqrt(s.sigma2)), dict(s.outliers)) if np.isfinite(s.sigma2) and s.sigma2 > 0 else None)
+    return out
