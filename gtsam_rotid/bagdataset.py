@@ -15,7 +15,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .arm import Arm
-from .bags import Bag, BagError, estimate_time_offset, is_rectified
+from .bags import MIN_OFFSET_CORRELATION, Bag, BagError, estimate_time_offset, is_rectified
 from .camera import Camera
 from .camerafiles import load_camera
 from .dataset import Dataset, Measurement, SpinReadings
@@ -23,10 +23,6 @@ from .errors import ArmError, InputError, ValidationError
 from .recordings import MIN_SPIN_DEG, STILL_TOLERANCE_DEG, JointFile, _spin_runs, _still_pose
 from .trackrun import default_tracker, tracked_frames, tracker_description
 
-#: Below this score (the correlation of image change and joint travel times the fraction of the recording it lines
-#: up, :class:`gtsam_rotid.bags.TimeOffset`) the time offset is not trusted (and not applied): one spin later, a
-#: repeating recording scores about (n - 1) / n of the true offset's (0.66 of 0.98 with three spins).
-MIN_OFFSET_CORRELATION = 0.8
 #: Images this close (s) to a spin's first or last joint state are left out (the stamps' own jitter).
 SPIN_MARGIN_S = 0.1
 #: A spin's readings (Measurement.spin_readings, synced mode) reach this far (s) beyond its first and last joint

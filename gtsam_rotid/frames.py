@@ -19,7 +19,8 @@ import numpy as np
 from .errors import InputError, RecordingError
 from .files import IMAGE_SUFFIXES, image_files
 
-__all__ = ["Source", "checked_range", "frames_of", "open_source", "read_frames"]
+__all__ = ["Source", "checked_range", "frames_of", "open_source", "read_frames", "small_grey", "with_motion",
+           "video_fps"]
 
 
 def checked_range(frame_range, path: Path) -> tuple[int, int | None]:
@@ -167,3 +168,34 @@ def read_frames(path: str | os.PathLike, frame_range: tuple[int | None, int | No
     """
     frames, _, _ = frames_of(open_source(path), frame_range)
     return frames
+
+
+def small_grey(image: np.ndarray, size: int = 64) -> np.ndarray:
+    """``image`` in grey levels (float32) at ``size`` pixels across: what frame-to-frame motion is measured on."""
+    grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    return cv2.resize(grey, (size, max(1, round(size * grey.shape[0] / grey.shape[1]))),
+                      interpolation=cv2.INTER_AREA).astype(np.float32)
+
+
+def with_motion(frames: Iterator[np.ndarray], motion: list, size: int = 64) -> Iterator[np.ndarray]:
+    """The frames unchanged, appending to ``motion`` how much each differs from the one before (the mean absolute
+    difference in grey levels at ``size`` pixels across; 0 for the first) as it passes."""
+    previous = None
+    for image in frames:
+        small = small_grey(image, size)
+        motion.append(0.0 if previous is None or previous.shape != small.shape
+                      else float(np.mean(np.abs(small - previous))))
+        previous = small
+        yield image
+
+
+def video_fps(source: Source) -> float | None:
+    """The frame rate a video file's container states (None for an image folder, or where it states none)."""
+    if source.is_folder:
+        return None
+    capture = cv2.VideoCapture(os.fspath(source.path))
+    try:
+        fps = float(capture.get(cv2.CAP_PROP_FPS)) if capture.isOpened() else 0.0
+    finally:
+        capture.release()
+    return fps if np.isfinite(fps) and 0.0 < fps < 10_000.0 else None

@@ -35,12 +35,20 @@ import numpy as np
 from tqdm import tqdm
 
 from .arm import Arm
+from .bags import MIN_OFFSET_CORRELATION, estimate_time_offset
 from .camera import Camera
 from .camerafiles import load_camera, parse_yaml  # noqa: F401 (parse_yaml: re-export)
-from .dataset import Dataset, Measurement, Track
-from .errors import ArmError, InputError, RecordingError
+from .dataset import Dataset, Measurement, SpinReadings, Track
+from .errors import ArmError, InputError, RecordingError, ValidationError
 from .files import VIDEO_SUFFIXES, image_files, natural_key
-from .frames import checked_range, frames_of, open_source, read_frames  # noqa: F401 (read_frames: re-export)
+from .frames import (  # noqa: F401 (read_frames: re-export)
+    checked_range,
+    frames_of,
+    open_source,
+    read_frames,
+    video_fps,
+    with_motion,
+)
 from .trackrun import default_tracker, tracked_frames, tracker_description
 
 #: Column names (case-insensitive) that make a joint CSV a time series.
@@ -342,6 +350,26 @@ def load_joints(path: str | os.PathLike, arm: Arm, n_measurements: int | None = 
     ``labels[k]``, e.g. the video), the joint and how much it moved. ``spin_joints`` (one joint name or None per
     measurement): the joint that spun in each, in the wrist's place; spins of different joints need ``spans``.
     """
+    return _load_joints(path, arm, n_measurements, degrees=degrees, spans=spans,
+                        still_tolerance_deg=still_tolerance_deg, min_spin_deg=min_spin_deg,
+                        ignore_joints=ignore_joints, labels=labels, spin_joints=spin_joints).angles
+
+
+@dataclass(frozen=True)
+class _LoadedJoints:
+    """:func:`load_joints`' angles, and for a time series the file, its unwrapped positions and each measurement's
+    rows (indices into the series)."""
+
+    angles: np.ndarray
+    joint_file: JointFile
+    unwrapped: np.ndarray | None = None
+    selections: tuple = ()
+
+
+def _load_joints(path, arm: Arm, n_measurements: int | None = None, *, degrees: bool = False, spans=None,
+                 still_tolerance_deg: float = STILL_TOLERANCE_DEG, min_spin_deg: float = MIN_SPIN_DEG,
+                 ignore_joints: Sequence[str] = (), labels: Sequence[str] | None = None,
+                 spin_joints: Sequence[str | None] | None = None) -> _LoadedJoints:
     joint_file = read_joint_file(path, arm, degrees=degrees, ignore_joints=ignore_joints)
     if n_measurements is not None and (isinstance(n_measurements, bool) or not isinstance(n_measurements, int)
                                        or n_measurements < 1):
@@ -354,7 +382,7 @@ def load_joints(path: str | os.PathLike, arm: Arm, n_measurements: int | None = 
         if n_measurements is not None and rows != n_measurements:
             raise RecordingError(f"{joint_file.path} has {rows} row(s) of joint angles (one per measurement) but "
                                  f"there are {n_measurements} measurements (videos)")
-        return _within_limits(joint_file.positions.copy(), arm, joint_file.path, labels)
+        return _LoadedJoints(_within_limits(joint_file.positions.copy(), arm, joint_file.path, labels), joint_file)
     unwrapped = np.unwrap(joint_file.positions, axis=0)
     stamps = joint_file.stamps
     spinning = list(spin_joints) if spin_joints is not None else None
@@ -394,10 +422,11 @@ def load_joints(path: str | os.PathLike, arm: Arm, n_measurements: int | None = 
                                      f"{inside.size} sample(s) between the stamps {t0:g} and {t1:g} (it spans "
                                      f"{stamps[0]:g} to {stamps[-1]:g}); a spin needs at least 2")
             selections.append(inside)
-    return _within_limits(np.array([_still_pose(joint_file, unwrapped, inside, arm, _label(k, labels),
-                                                still_tolerance_deg, min_spin_deg,
-                                                None if spinning is None else spinning[k])
-                                    for k, inside in enumerate(selections)]), arm, joint_file.path, labels)
+    angles = _within_limits(np.array([_still_pose(joint_file, unwrapped, inside, arm, _label(k, labels),
+                                                  still_tolerance_deg, min_spin_deg,
+                                                  None if spinning is None else spinning[k])
+                                      for k, inside in enumerate(selections)]), arm, joint_file.path, labels)
+    return _LoadedJoints(angles, joint_file, unwrapped, tuple(selections))
 
 
 def _within_limits(angles: np.ndarray, arm: Arm, path: Path, labels: Sequence[str] | None) -> np.ndarray:
@@ -412,11 +441,14 @@ def _within_limits(angles: np.ndarray, arm: Arm, path: Path, labels: Sequence[st
 
 # ---------------------------------------------------------------------------------------------- dataset
 def _joint_rows(joints, arm: Arm, labels: list[str], joint_options: Mapping | None,
-                spin_joints: list[str | None] | None = None) -> list[np.ndarray]:
-    """One joint-angle vector per video (``joints``: rows, or a joint-angle file read with ``joint_options``)."""
+                spin_joints: list[str | None] | None = None) -> tuple[list[np.ndarray], _LoadedJoints | None]:
+    """One joint-angle vector per video (``joints``: rows, or a joint-angle file read with ``joint_options``), and
+    the file as read (None for rows)."""
     n = len(labels)
+    loaded = None
     if isinstance(joints, (str, os.PathLike)):
-        joints = load_joints(joints, arm, n, labels=labels, spin_joints=spin_joints, **dict(joint_options or {}))
+        loaded = _load_joints(joints, arm, n, labels=labels, spin_joints=spin_joints, **dict(joint_options or {}))
+        joints = loaded.angles
     elif joint_options:
         raise InputError("joint_options apply only when joints is the path of a joint-angle file")
     if isinstance(joints, np.ndarray) and joints.ndim != 2:
@@ -430,21 +462,68 @@ def _joint_rows(joints, arm: Arm, labels: list[str], joint_options: Mapping | No
             angles.append(arm.joint_angle_vector(row))
         except ArmError as exc:
             raise InputError(f"{_label(k, labels)}: {exc}") from None
-    return angles
+    return angles, loaded
 
 
 def _tracked(source, frame_range, camera: Camera, tracker: Callable, tracker_params, k: int, label: str,
-             progress: bool) -> list[Track]:
-    """The tracks of one video (frame indices the video's own), at least 2, or a RecordingError naming it."""
+             progress: bool, motion: list | None = None) -> tuple[list[Track], int]:
+    """The tracks of one video (frame indices the video's own), at least 2, or a RecordingError naming it; and the
+    index of its first frame. ``motion``: filled with each frame's change from the one before (see
+    :func:`gtsam_rotid.frames.with_motion`)."""
     frames, expected, first = frames_of(source, frame_range)
-    return tracked_frames(frames, expected, first, source.path, camera, tracker, tracker_params, k, label, progress)
+    if motion is not None:
+        frames = with_motion(frames, motion)
+    return tracked_frames(frames, expected, first, source.path, camera, tracker, tracker_params, k, label,
+                          progress), first
+
+
+#: A video's joint readings cover its frames' span and this much (s) on each side.
+READINGS_MARGIN_S = 1.0
+
+
+def _video_readings(loaded: _LoadedJoints, k: int, motion: list, first: int, fps: float, arm: Arm,
+                    spin_joint: str | None, label: str) -> tuple[SpinReadings | None, dict]:
+    """Video ``k``'s spin readings from a joint time series: where its first frame falls on the series' clock is
+    found by lining up how much each frame differs from the one before (``motion``) with how far the joints moved
+    between the two frames' times (:func:`gtsam_rotid.bags.estimate_time_offset`), searched over every start at
+    which the video overlaps its spin's span of the series; each frame index ``i`` is then at ``start + (i - first)
+    / fps``. (None, what was found) with a warning where that cannot be measured (a steady spin throughout the
+    video: no start or stop to line up) or two starts fit alike."""
+    stamps, rows = loaded.joint_file.stamps, loaded.selections[k]
+    t0, t1 = float(stamps[rows[0]]), float(stamps[rows[-1]])
+    n = len(motion)
+    length = (n - 1) / fps
+    # the video's clock shifted so that every start at which it overlaps [t0, t1] lies within +-half of zero
+    centre, half = 0.5 * (t0 + t1 - length), 0.5 * (t1 - t0 + length) + 1.0 / fps
+    found = estimate_time_offset(centre + np.arange(n) / fps, np.asarray(motion), stamps, loaded.unwrapped, half)
+    start = centre - found.offset  # the series' time of frame ``first``
+    info = {"start_s": None if not np.isfinite(start) else float(start), "correlation": float(found.score),
+            "rival_start_s": None if found.rival is None else float(centre - found.rival)}
+    if not np.isfinite(start) or found.rival is not None or found.score < MIN_OFFSET_CORRELATION:
+        why = ("the spin never starts or stops within the video, or the images never change" if not
+               np.isfinite(start) else f"another start ({info['rival_start_s']:.3f} s) fits as well"
+               if found.rival is not None else f"image and joint motion correlate only {found.score:.2f}")
+        print(f"warning: {label}: where its frames fall on the joint time series' clock could not be measured "
+              f"({why}); its spin readings are not attached (no synced mode for it)", file=sys.stderr)
+        return None, info
+    frame_times = start + (np.arange(first + n) - first) / fps
+    window = (stamps >= frame_times[first] - READINGS_MARGIN_S) & (stamps <= frame_times[-1] + READINGS_MARGIN_S)
+    window[1:] &= np.diff(stamps) > 0  # (of rows with one stamp, the first)
+    spin = arm.spin_index(spin_joint)
+    try:
+        return SpinReadings(frame_times, stamps[window], loaded.unwrapped[window, spin]), info
+    except ValidationError as error:
+        print(f"warning: {label}: its spin readings are not attached (no synced mode for it): {error}",
+              file=sys.stderr)
+        return None, info
 
 
 def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | str | os.PathLike, arm: Arm, *,
                  tracker: Callable | None = None, tracker_params: Any = None,
                  frame_ranges: Sequence[tuple[int | None, int | None] | None] | None = None,
                  progress: bool = True, joint_options: Mapping | None = None,
-                 metadata: Mapping | None = None, spin_joints: Sequence[str | None] | None = None) -> Dataset:
+                 metadata: Mapping | None = None, spin_joints: Sequence[str | None] | None = None,
+                 fps: float | None = None, readings: bool = True) -> Dataset:
     """A :class:`Dataset` from one video (file or image folder) per measurement.
 
     Args:
@@ -464,6 +543,13 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
         metadata: extra dataset metadata (merged with a ``"recording"`` entry naming the sources).
         spin_joints: the joint that spun in each video (one name or None per video; None: the wrist), each
             measurement's ``spin_joint``; a joint time series then checks that joint moved and the others did not.
+        fps: the videos' frame rate (frames per second); default: what each video file's container states (an image
+            folder states none).
+        readings: with a joint time series, attach each video's spin readings (``Measurement.spin_readings``: the
+            spinning joint's series about its spin, and each frame's time on the series' clock, found by lining up
+            image motion with joint motion), so that ``calibrate`` syncs the spin with them. A video whose frames
+            cannot be placed on the series' clock (no frame rate, a spin that never starts or stops within it,
+            two places that fit alike) gets none, with a warning.
 
     Every video is checked before any tracking (missing, unreadable, empty, a range beyond a folder's end);
     a range beyond a video's end, frames of another size than the camera's, or fewer than 2 tracks in a video
@@ -498,17 +584,34 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
             except ArmError as exc:
                 raise InputError(f"{_label(k, labels)}: {exc}") from None
     joints_file = os.fspath(joints) if isinstance(joints, (str, os.PathLike)) else None
-    angles = _joint_rows(joints, arm, labels, joint_options, spin_joints)
+    if fps is not None and (isinstance(fps, bool) or not isinstance(fps, (int, float, np.number))
+                            or not math.isfinite(fps) or fps <= 0):
+        raise InputError(f"fps must be a positive number of frames per second, got {fps!r}")
+    angles, loaded = _joint_rows(joints, arm, labels, joint_options, spin_joints)
+    series = readings and loaded is not None and loaded.unwrapped is not None
     sources = [open_source(v) for v in videos]  # fail fast, before the slow tracking
     checked_ranges = [checked_range(r, v) for r, v in zip(frame_ranges, videos, strict=True)]
     from .trackparams import tracker_metadata
     tracker, described, corner_tracks = default_tracker(tracker, tracker_params)
-    measurements = []
+    measurements, placed = [], []
     with tqdm(total=n, desc="videos", unit="video", disable=not progress, file=sys.stderr) as bar:
         for k, (source, frame_range) in enumerate(zip(sources, checked_ranges, strict=True)):
-            tracks = _tracked(source, frame_range, camera, tracker, tracker_params, k, _label(k, labels), progress)
-            measurements.append(Measurement(angles[k], tracks, name=source.path.name,
-                                            spin_joint=None if spin_joints is None else spin_joints[k]))
+            spin_joint = None if spin_joints is None else spin_joints[k]
+            rate = fps if fps is not None else video_fps(source)
+            motion = [] if series and rate is not None else None
+            tracks, first = _tracked(source, frame_range, camera, tracker, tracker_params, k, _label(k, labels),
+                                     progress, motion)
+            spin_readings = None
+            if motion is not None:
+                spin_readings, found = _video_readings(loaded, k, motion, first, rate, arm, spin_joint,
+                                                       _label(k, labels))
+                placed.append({**found, "fps": rate})
+            elif series:
+                print(f"warning: {_label(k, labels)}: an image folder states no frame rate; its spin readings are "
+                      "not attached (give the frame rate: fps / --fps)", file=sys.stderr)
+                placed.append(None)
+            measurements.append(Measurement(angles[k], tracks, name=source.path.name, spin_joint=spin_joint,
+                                            spin_readings=spin_readings))
             bar.update(1)
     recording = {
         "videos": [os.path.abspath(v) for v in videos],
@@ -519,6 +622,8 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
         "camera_file": camera_file,
         "tracker": tracker_description(described, tracker_params),
     }
+    if series:  # each video's first frame on the joint series' clock (s), and the score it was found at
+        recording["video_starts"] = placed
     extra = {"recording": recording}
     if corner_tracks is not None:
         extra["tracker"] = tracker_metadata(tracker_params, sum(corner_tracks))
