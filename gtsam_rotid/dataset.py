@@ -358,6 +358,8 @@ class Dataset:
                 for name in ("frame_times", "times", "angles"):
                     entry["spin_readings"][name] = key = f"m{k}_spin_{name}"
                     arrays[key] = getattr(m.spin_readings, name)
+                if m.spin_readings.clock is not None:
+                    entry["spin_readings"]["clock"] = m.spin_readings.clock
             entries.append(entry)
         document = {
             "format": FORMAT,
@@ -529,9 +531,9 @@ def _load_measurements(npz_path: Path, entries: list[dict]) -> list[Measurement]
                 spec = entry["spin_readings"]
                 arrays = {name: _npz_array(npz, spec[name], "spin readings", k, None)
                           for name in ("frame_times", "times", "angles")}
-                used.update(spec.values())
+                used.update(spec[name] for name in ("frame_times", "times", "angles"))
                 try:
-                    readings = SpinReadings(**arrays)
+                    readings = SpinReadings(**arrays, clock=spec.get("clock"))
                 except ValidationError as err:
                     raise _located(err, measurement=k) from None
             try:

@@ -160,19 +160,26 @@ class SpinReadings:
             differ by a constant offset (the calibration can estimate it).
         angles: (K,) the spinning joint's readings (rad), in the arm model's sense of the joint (a joint reported
             in [-pi, pi) is unwrapped).
+        clock: the name of the clock ``frame_times`` are on: spins whose readings name the same clock share one
+            offset from the encoder's clock in the calibration, spins of different clocks have one each (videos
+            placed on a joint time series one by one: each video its own). Default None: one clock for every spin
+            that names none (the images of one bag).
 
-    Attributes are read-only float64 copies.
+    Attributes are read-only float64 copies (``clock``: a string or None).
     """
 
-    __slots__ = ("frame_times", "times", "angles")
+    __slots__ = ("frame_times", "times", "angles", "clock")
 
-    def __init__(self, frame_times, times, angles):
+    def __init__(self, frame_times, times, angles, clock: str | None = None):
         self.frame_times = self._checked("frame_times", frame_times, 1)
         self.times = self._checked("times", times, 2)
         self.angles = self._checked("angles", angles, 2)
         if len(self.angles) != len(self.times):
             raise ValidationError(f"spin readings need one angle per time, got {len(self.angles)} angles for "
                                   f"{len(self.times)} times")
+        if clock is not None and (not isinstance(clock, str) or not clock):
+            raise ValidationError(f"spin readings' clock must be a non-empty string or None, got {clock!r}")
+        self.clock = clock
 
     @staticmethod
     def _checked(name: str, values, least: int) -> np.ndarray:
@@ -199,13 +206,15 @@ class SpinReadings:
     def __eq__(self, other) -> bool:
         if not isinstance(other, SpinReadings):
             return NotImplemented
-        return all(np.array_equal(getattr(self, a), getattr(other, a)) for a in self.__slots__)
+        return self.clock == other.clock and all(np.array_equal(getattr(self, a), getattr(other, a))
+                                                 for a in ("frame_times", "times", "angles"))
 
     __hash__ = None
 
     def __repr__(self) -> str:
         return (f"SpinReadings({len(self.times)} readings over {self.times[-1] - self.times[0]:.3g} s, "
-                f"{len(self.frame_times)} frame times)")
+                f"{len(self.frame_times)} frame times" + ("" if self.clock is None else f", clock {self.clock!r}")
+                + ")")
 
 
 def _checked_joint_angles(joint_angles) -> np.ndarray | dict[str, float]:

@@ -665,6 +665,14 @@ def test_spin_readings_round_trip_in_version_2(kinova, camera, tmp_path):
     assert loaded == dataset
     np.testing.assert_array_equal(loaded.measurements[0].spin_readings.angles, synced.spin_readings.angles)
     assert loaded.measurements[1].spin_readings is None
+    # a named camera clock (one offset per clock in the calibration) is kept, and is part of equality
+    r = spin_readings()
+    clocked = Dataset(kinova, camera, [synced.replace(spin_readings=SpinReadings(r.frame_times, r.times, r.angles,
+                                                                               clock="video 3")), measurements[1]])
+    assert clocked != dataset
+    root = clocked.save(tmp_path / "clocked")
+    assert read_json(root)["measurements"][0]["spin_readings"]["clock"] == "video 3"
+    assert Dataset.load(root).measurements[0].spin_readings.clock == "video 3" and Dataset.load(root) == clocked
 
 
 def test_spin_readings_are_checked_with_words_that_name_the_problem(kinova):
@@ -684,6 +692,8 @@ def test_spin_readings_are_checked_with_words_that_name_the_problem(kinova):
         SpinReadings([0.0], [0.0, 0.1, 0.2], [0.0, 1.0])
     with pytest.raises(ValidationError, match=r"angles\[1\] is not finite"):
         SpinReadings([0.0], [0.0, 0.1], [0.0, np.nan])
+    with pytest.raises(ValidationError, match="clock must be a non-empty string or None, got 3"):
+        SpinReadings([0.0], [0.0, 0.1], [0.0, 1.0], clock=3)
     with pytest.raises(ValidationError, match="spin_readings must be SpinReadings or None, got dict"):
         Measurement(angles, tracks, spin_readings={"times": [0.0]})
 
