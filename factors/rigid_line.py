@@ -190,9 +190,11 @@ class EncoderPrior:
         self._values, self._slopes = _smoothed(self.times, self.angles, float(smoothing_s))
 
     def covers(self, delta: float = 0.0) -> bool:
-        """Whether every frame's time (plus ``delta``) lies within the readings."""
+        """Whether every frame's time (plus ``delta``) lies within the readings, or beyond them by at most their
+        median interval (where the prior's line beyond the readings, :meth:`at`, is one step of theirs)."""
         shifted = self.frame_times + delta
-        return bool(shifted.min() >= self.times[0] and shifted.max() <= self.times[-1])
+        step = float(np.median(np.diff(self.times)))
+        return bool(shifted.min() >= self.times[0] - step and shifted.max() <= self.times[-1] + step)
 
     def rate_noise(self, delta: float, frames: int = 15) -> float:
         """The variance (rad^2/s^2) that the readings' own noise puts on the frames' rates (``at``'s derivative),

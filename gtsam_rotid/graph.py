@@ -19,7 +19,7 @@ Example::
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -282,8 +282,10 @@ class RotIdGraph:
         time_offset_key: synced mode: the encoder clock's offset from the camera's (s, encoder minus camera: a
             frame at camera time t is read at encoder time t + offset; ``CalibrationOptions.time_offset_s`` is its
             negative, as bags state it) is a ``gtsam`` Vector1 variable at this key (insert it with
-            :meth:`add_time_offset_prior` before the measurements), shared by every synced measurement; None: the
-            offset is ``time_offset_s`` (known).
+            :meth:`add_time_offset_prior` before the measurements), shared by every synced measurement; or a mapping
+            clock -> key, one variable per camera clock (``SpinReadings.clock``; None is the clock of readings that
+            name none), each inserted with ``add_time_offset_prior(..., clock=)``; None: the offset is
+            ``time_offset_s`` (known).
         time_offset_s: synced, without ``time_offset_key``: the encoder clock's known offset from the camera's (s,
             encoder minus camera).
     """
@@ -293,7 +295,7 @@ class RotIdGraph:
                  min_track_points: int = MIN_TRACK_POINTS, min_track_extent_px: float = MIN_TRACK_EXTENT_PX,
                  robust=None, model: str | Model = Model.LINE, spin_model: str | SpinModel = SpinModel.FREE,
                  joint_offsets=None, offsets_key: int = gtsam.symbol("o", 0), intrinsics_key: int | None = None,
-                 encoder_sigma_deg: float | None = None, time_offset_key: int | None = None,
+                 encoder_sigma_deg: float | None = None, time_offset_key: int | Mapping | None = None,
                  time_offset_s: float = 0.0):
         if line_symbol == circle_symbol:
             raise InputError("line_symbol and circle_symbol must differ")
@@ -333,6 +335,11 @@ class RotIdGraph:
         if time_offset_key is not None and encoder_sigma_deg is None:
             raise InputError("a time offset variable needs synced mode: give encoder_sigma_deg too")
         self.encoder_sigma_deg = None if encoder_sigma_deg is None else float(encoder_sigma_deg)
+        if isinstance(time_offset_key, Mapping):
+            if not time_offset_key or len(set(time_offset_key.values())) != len(time_offset_key):
+                raise InputError(f"time_offset_key as a mapping needs one distinct key per clock, got "
+                                 f"{dict(time_offset_key)!r}")
+            time_offset_key = dict(time_offset_key)
         self.time_offset_key = time_offset_key
         if not np.isfinite(time_offset_s):
             raise InputError(f"time_offset_s must be finite seconds, got {time_offset_s!r}")
@@ -387,19 +394,31 @@ class RotIdGraph:
         values.insert(self.intrinsics_key, mean if initial is None else initial)
         graph.add(gtsam.PriorFactorCal3_S2(self.intrinsics_key, mean, gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
 
+    def time_offset_key_of(self, clock: str | None = None) -> int | None:
+        """The time offset variable's key for readings on ``clock`` (``SpinReadings.clock``); None where the offset
+        is known (no ``time_offset_key``)."""
+        if not isinstance(self.time_offset_key, dict):
+            return self.time_offset_key
+        if clock not in self.time_offset_key:
+            raise InputError(f"no time offset variable for the clock {clock!r} (time_offset_key has "
+                             f"{sorted(map(str, self.time_offset_key))})")
+        return self.time_offset_key[clock]
+
     def add_time_offset_prior(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, sigma_s: float,
-                              mean_s: float = 0.0, initial_s: float | None = None) -> None:
+                              mean_s: float = 0.0, initial_s: float | None = None, clock: str | None = None) -> None:
         """Insert the time offset variable (s; at ``initial_s``, default the prior's mean) with a Gaussian prior of
-        mean ``mean_s`` and ``sigma_s`` (how far the encoder's stamps may be from the camera's)."""
+        mean ``mean_s`` and ``sigma_s`` (how far the encoder's stamps may be from the camera's); with one variable
+        per clock (``time_offset_key`` a mapping), ``clock``'s."""
         if self.time_offset_key is None:
             raise InputError("this graph has no time offset variable (RotIdGraph(time_offset_key=...))")
+        key = self.time_offset_key_of(clock)
         if not (np.isfinite(sigma_s) and sigma_s > 0) or not np.isfinite(mean_s):
             raise InputError(f"the time offset's prior needs a positive sigma and a finite mean (s), got sigma "
                              f"{sigma_s!r}, mean {mean_s!r}")
-        if values.exists(self.time_offset_key):
-            raise InputError(f"key {gtsam.DefaultKeyFormatter(self.time_offset_key)} already exists in values")
-        values.insert(self.time_offset_key, np.array([mean_s if initial_s is None else float(initial_s)]))
-        graph.add(gtsam.PriorFactorVector(self.time_offset_key, np.array([float(mean_s)]),
+        if values.exists(key):
+            raise InputError(f"key {gtsam.DefaultKeyFormatter(key)} already exists in values")
+        values.insert(key, np.array([mean_s if initial_s is None else float(initial_s)]))
+        graph.add(gtsam.PriorFactorVector(key, np.array([float(mean_s)]),
                                           gtsam.noiseModel.Isotropic.Sigma(1, float(sigma_s))))
 
     def axis_of(self, joint_angles, spin_joint: str | None = None):
@@ -472,8 +491,12 @@ class RotIdGraph:
             raise InputError("insert the joint offsets first (RotIdGraph.add_offsets_prior)")
         if self.intrinsics_key is not None and not values.exists(self.intrinsics_key):
             raise InputError("insert the intrinsics first (RotIdGraph.add_intrinsics_prior)")
-        if self.time_offset_key is not None and not values.exists(self.time_offset_key):
-            raise InputError("insert the time offset first (RotIdGraph.add_time_offset_prior)")
+        readings = measurement.spin_readings
+        if self.time_offset_key is not None and (readings is not None or not isinstance(self.time_offset_key, dict)):
+            key = self.time_offset_key_of(None if readings is None else readings.clock)
+            if not values.exists(key):
+                raise InputError("insert the time offset first (RotIdGraph.add_time_offset_prior" + (
+                    f", clock={readings.clock!r})" if isinstance(self.time_offset_key, dict) else ")"))
         if tie and self.offset_joints:
             axis = self.arm.wrist_axis_offset_derivatives(measurement.joint_angles, self.offset_joints,
                                                           values.atVector(self.offsets_key),
@@ -576,7 +599,8 @@ class RotIdGraph:
             encoder = EncoderPrior(readings.frame_times[rigid.frame_ids], readings.times, readings.angles,
                                    np.radians(self.encoder_sigma_deg), sign)
             if self.time_offset_key is not None:
-                time_key, offset = self.time_offset_key, float(values.atVector(self.time_offset_key)[0])
+                time_key = self.time_offset_key_of(readings.clock)
+                offset = float(values.atVector(time_key)[0])
             if not encoder.covers(offset):
                 k = gtsam.Symbol(line_key).index()
                 raise InputError(f"measurement {k}: the spin readings ({readings.times[0]:.3f}-"

@@ -6,7 +6,7 @@ import pytest
 from gtsam.symbol_shorthand import L, O, X
 
 from gtsam_rotid import InputError, simulate
-from gtsam_rotid.dataset import Measurement
+from gtsam_rotid.dataset import Measurement, SpinReadings
 from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.factors import CoaxialLineFactor, RigidLineFactor
 from gtsam_rotid.graph import Model, RotIdGraph, lm_params
@@ -331,3 +331,21 @@ def test_synced_mode_refuses_what_it_cannot_use():
     with pytest.raises(InputError, match=r"measurement 0: the spin readings \(-0.500-4.480 s\) do not cover"):
         builder.add_measurement(graph, values, 0, dataset[0])
     assert graph.size() == 1 and values.size() == 2  # nothing added
+    # one offset variable per camera clock: a spin's readings must name a clock the mapping has, inserted first
+    clocks = RotIdGraph(dataset.arm, dataset.camera, model="projected", spin_model="rigid", encoder_sigma_deg=0.05,
+                        time_offset_key={"left": T(1), "right": T(2)})
+    r = dataset[0].spin_readings
+    on = {name: dataset[0].replace(spin_readings=SpinReadings(r.frame_times, r.times, r.angles, clock=name))
+          for name in ("left", "right", "other")}
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(clocks.pose_key, truth.arm_T_camera)
+    clocks.add_time_offset_prior(graph, values, sigma_s=0.1, clock="left")
+    with pytest.raises(InputError, match=r"no time offset variable for the clock 'other'"):
+        clocks.add_measurement(graph, values, 0, on["other"])
+    with pytest.raises(InputError, match=r"insert the time offset first \(RotIdGraph.add_time_offset_prior, "
+                                         r"clock='right'\)"):
+        clocks.add_measurement(graph, values, 0, on["right"])
+    assert clocks.add_measurement(graph, values, 0, on["left"]).coaxial.time_key == T(1)
+    with pytest.raises(InputError, match="one distinct key per clock"):
+        RotIdGraph(dataset.arm, dataset.camera, model="projected", spin_model="rigid", encoder_sigma_deg=0.05,
+                   time_offset_key={"left": T(1), "right": T(1)})
