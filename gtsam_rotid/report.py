@@ -156,6 +156,8 @@ class CalibrationReport:
     time_offset_prior_sigma_s: float | None = None
     readings_refused: dict = field(default_factory=dict)
     time_offset_noise_share: float | None = None
+    #: synced with named camera clocks: each clock's offset (``CalibrationResult.time_offsets``)
+    time_offsets: dict | None = None
     #: the measurements carry joint readings that this method does not use (only joint with the rigid spin)
     readings_ignored: bool = False
     #: intrinsics as given: what the tracks' shapes say of them (``result.intrinsics_shapes``); None: not checked
@@ -233,7 +235,8 @@ class CalibrationReport:
                                           self.intrinsics_prior),
                 *filter(None, [intrinsics_assumed_words(self.intrinsics_shapes)]),
                 *synced_words(self.synced, self.time_offset_s, self.time_offset_sigma_s, len(self.measurements),
-                              self.time_offset_prior_sigma_s, self.readings_refused, self.time_offset_noise_share),
+                              self.time_offset_prior_sigma_s, self.readings_refused, self.time_offset_noise_share,
+                              self.time_offsets),
                 *readings_ignored_words(self.readings_ignored, self.method),
                 tracking_words(self.axis_floor_px)]
 
@@ -379,6 +382,10 @@ class CalibrationReport:
             "readings_refused": {str(k): dict(v) for k, v in self.readings_refused.items()},
             "time_offset_noise_share": None if self.time_offset_noise_share is None
             else f(self.time_offset_noise_share),
+            "time_offsets": None if self.time_offsets is None else {
+                c: {"offset_s": f(v["offset_s"]), "sigma_s": None if v.get("sigma_s") is None else f(v["sigma_s"]),
+                    "noise_share": None if v.get("noise_share") is None else f(v["noise_share"]),
+                    "measurements": list(v.get("measurements") or ())} for c, v in self.time_offsets.items()},
             "readings_ignored": self.readings_ignored,
             "untrusted": list(self.untrusted),
             "axis_consistency": None if self.axis_consistency is None
@@ -626,6 +633,7 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         time_offset_prior_sigma_s=getattr(result, "time_offset_prior_sigma_s", None),
         readings_refused=dict(getattr(result, "readings_refused", {})),
         time_offset_noise_share=getattr(result, "time_offset_noise_share", None),
+        time_offsets=getattr(result, "time_offsets", None),
         readings_ignored=bool(getattr(result, "readings_ignored", False)),
     )
 

@@ -84,7 +84,8 @@ def summary(result: CalibrationResult) -> str:
         lines.append("  " + assumed)
     lines.extend("  " + line for line in synced_words(result.synced, result.time_offset_s, result.time_offset_sigma_s,
                                                       len(result.measurements), result.time_offset_prior_sigma_s,
-                                                      result.readings_refused, result.time_offset_noise_share))
+                                                      result.readings_refused, result.time_offset_noise_share,
+                                                      result.time_offsets))
     lines.extend("  " + line for line in readings_ignored_words(result.readings_ignored, result.method))
     lines.append("  " + tracking_words(result.axis_floor_px))
     for m in result.measurements:
@@ -519,10 +520,11 @@ def readings_ignored_words(ignored: bool, method: str) -> list[str]:
 
 def synced_words(synced, offset_s: float | None, sigma_s: float | None, n_measurements: int,
                  prior_sigma_s: float | None = None, refused: dict | None = None,
-                 noise_share: float | None = None) -> list[str]:
+                 noise_share: float | None = None, offsets: dict | None = None) -> list[str]:
     """What synced mode did (``result.synced``, ``time_offset_s``, ``time_offset_sigma_s``, the offset's prior
-    1 sigma and the share of its information that the readings' own noise makes), and the readings it did not use
-    (``result.readings_refused``); [] when no spin carried readings."""
+    1 sigma and the share of its information that the readings' own noise makes; with named camera clocks,
+    ``result.time_offsets``: one line per clock), and the readings it did not use (``result.readings_refused``); []
+    when no spin carried readings."""
     lines = [(f"encoders: measurement {k}'s readings ({v['readings'][0]:.3f} to {v['readings'][1]:.3f} s) do not "
               f"cover its frames ({v['frames'][0]:.3f} to {v['frames'][1]:.3f} s on the encoder's clock): not used; "
               "give the clocks' offset (CalibrationOptions.time_offset_s, calibrate --time-offset) if they are "
@@ -532,29 +534,37 @@ def synced_words(synced, offset_s: float | None, sigma_s: float | None, n_measur
               f"{v['chi2']:.0f} for {v['dof']} frames): not used; check the joint's sense and scale in the readings, "
               "their clock, or their noise (CalibrationOptions.encoder_sigma_deg)")
              for k, v in sorted((refused or {}).items())]
-    return lines + _synced_lines(synced, offset_s, sigma_s, n_measurements, prior_sigma_s, noise_share)
-
-
-def _synced_lines(synced, offset_s, sigma_s, n_measurements, prior_sigma_s, noise_share) -> list[str]:
     if not synced:
-        return []
+        return lines
     which = "every spin" if len(synced) == n_measurements else "measurements " + ", ".join(str(k) for k in synced)
     head = f"encoders: the spinning joint's readings set the spin's angle in every frame of {which} (synced)"
-    if offset_s is None:
-        return [head]
+    if offsets:
+        lines.append(head + f"; each of the {len(offsets)} camera clocks its own offset from the encoder's:")
+        for clock, v in offsets.items():
+            ks = ", ".join(str(k) for k in v.get("measurements") or ())
+            words = _offset_words(v["offset_s"], v.get("sigma_s"), prior_sigma_s, v.get("noise_share"))
+            lines.append(f"  clock {clock!r} (measurement{'s' if ',' in ks else ''} {ks}): {words}")
+        return lines
+    words = None if offset_s is None else _offset_words(offset_s, sigma_s, prior_sigma_s, noise_share)
+    return lines + [head if words is None else f"{head}; {words}"]
+
+
+def _offset_words(offset_s: float, sigma_s: float | None, prior_sigma_s: float | None,
+                  noise_share: float | None) -> str:
+    """One clock offset (camera minus encoder, s) with its 1 sigma (None: held), in words."""
     if sigma_s is None:
-        return [head + f"; the clocks' offset (camera minus encoder) taken as {1000.0 * offset_s:+.1f} ms (held)"]
+        return f"the clocks' offset (camera minus encoder) taken as {1000.0 * offset_s:+.1f} ms (held)"
     if noise_share is not None and noise_share > 0.25:
         prior = "" if prior_sigma_s is None else f" ({1000.0 * prior_sigma_s:g} ms)"
-        return [head + f"; the readings cannot date the frames: their own noise makes {100.0 * noise_share:.0f} % of "
-                "what looks like the clocks' offset's information (a spin at one speed, or noisy readings), so the "
-                f"offset keeps its prior's 1 sigma{prior}; start and stop the spin within the video to measure it"]
-    line = (head + f"; the clocks' offset (camera minus encoder) {1000.0 * offset_s:+.2f} ms +- "
-            f"{1000.0 * sigma_s:.2f} ms (1 sigma)")
+        return (f"the readings cannot date the frames: their own noise makes {100.0 * noise_share:.0f} % of what "
+                "looks like the clocks' offset's information (a spin at one speed, or noisy readings), so the "
+                f"offset keeps its prior's 1 sigma{prior}; start and stop the spin within the video to measure it")
+    line = (f"the clocks' offset (camera minus encoder) {1000.0 * offset_s:+.2f} ms +- {1000.0 * sigma_s:.2f} ms "
+            "(1 sigma)")
     if prior_sigma_s is not None and sigma_s > 0.5 * prior_sigma_s:
         line += (f" (mostly its prior's {1000.0 * prior_sigma_s:g} ms: the spins' changes of speed hardly date the "
                  "frames; start and stop the spin within the video to measure it)")
-    return [line]
+    return line
 
 
 def tracking_words(axis_floor_px: float) -> str:

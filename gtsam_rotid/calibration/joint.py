@@ -290,7 +290,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         if intrinsics is not None:
             intrinsics = intrinsics._replace(now=result.atCal3_S2(INTRINSICS_KEY))
         if sync is not None and sync.sigma is not None:
-            sync = sync._replace(now=float(result.atVector(TIME_KEY)[0]))
+            sync = sync._replace(now=tuple(float(result.atVector(sync.key(i))[0]) for i in range(len(sync.clocks))))
         new_sigmas = {k: float(np.sqrt(_joint_variance(graph, keys[k], result, options))) for k in used}
         failed = [setup.index[k] if setup.index else k for k in used if not np.isfinite(new_sigmas[k])]
         if failed:
@@ -360,9 +360,16 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                       intrinsics_covariance=intrinsics_covariance, intrinsics_prior_sigma=options.intrinsics_sigma,
                       given_intrinsics={n: given[n] for n in options.refine_intrinsics})
     if sync is not None:
-        out = replace(out, synced=sync.measurements, time_offset_s=-sync.now,
-                      time_offset_prior_sigma_s=sync.sigma,
-                      **_time_offset_sigma(graph, result, sync, correlated, out, keys))
+        clocks = [_time_offset_sigma(graph, result, sync, i, correlated, out, keys) for i in range(len(sync.clocks))]
+        out = replace(out, synced=sync.measurements, time_offset_prior_sigma_s=sync.sigma)
+        if len(clocks) == 1:  # (one clock: the offset of every synced spin)
+            out = replace(out, time_offset_s=-sync.now[0], **clocks[0])
+        if sync.clocks != (None,):  # named clocks (videos placed one by one): each its offset
+            out = replace(out, time_offsets={
+                str(c): {"offset_s": -now, "sigma_s": d["time_offset_sigma_s"],
+                         "noise_share": d.get("time_offset_noise_share"),
+                         "measurements": [k for k, i in zip(sync.measurements, sync.clock_of, strict=True) if i == n]}
+                for n, (c, now, d) in enumerate(zip(sync.clocks, sync.now, clocks, strict=True))})
     if offsets is not None:
         c = out.axis_consistency
         if offsets_covariance is not None and c is not None and not c.consistent:
@@ -396,9 +403,10 @@ def _uncovered_readings(measurements, sync: _Sync) -> dict[int, dict]:
     for k in sync.measurements:
         m = measurements[k]
         frames = np.concatenate([t.frames for t in m.tracks if t.frames is not None])
-        times = m.spin_readings.frame_times[frames] + sync.now
+        times = m.spin_readings.frame_times[frames] + sync.offset(k)
         first, last = float(m.spin_readings.times[0]), float(m.spin_readings.times[-1])
-        if times.min() < first or times.max() > last:
+        step = float(np.median(np.diff(m.spin_readings.times)))  # (as EncoderPrior.covers: one step beyond)
+        if times.min() < first - step or times.max() > last + step:
             out[k] = {"why": "cover", "readings": [first, last], "frames": [float(times.min()), float(times.max())]}
     return out
 
@@ -419,10 +427,11 @@ def _disagreeing_readings(keys, result: gtsam.Values, sync: _Sync, z: float) -> 
     return out
 
 
-def _time_offset_sigma(graph, result: gtsam.Values, sync: _Sync, correlated: dict, out: CalibrationResult,
+def _time_offset_sigma(graph, result: gtsam.Values, sync: _Sync, i: int, correlated: dict, out: CalibrationResult,
                        keys) -> dict:
-    """The estimated time offset's 1 sigma (s, ``time_offset_sigma_s``) and the share of its information that the
-    readings' own noise makes (``time_offset_noise_share``): its cluster-robust marginal (as the pose's), scaled as
+    """Clock ``i``'s estimated time offset's 1 sigma (s, ``time_offset_sigma_s``) and the share of its information
+    that its readings' own noise makes (``time_offset_noise_share``): its cluster-robust marginal (as the pose's),
+    scaled as
     the pose's where the axes' scatter scaled it; where the noise makes more than DATING_NOISE_MAX of the
     information, the prior's sigma (the readings cannot date the frames), else widened for the pull towards the
     prior's mean that noise in the offset's column gives (errors in variables: the estimate moves from the mean by
@@ -430,22 +439,22 @@ def _time_offset_sigma(graph, result: gtsam.Values, sync: _Sync, correlated: dic
     if sync.sigma is None:
         return {"time_offset_sigma_s": None}
     try:
-        variance = sandwich_marginal(graph, result, TIME_KEY, 1, correlated) if correlated else None
+        variance = sandwich_marginal(graph, result, sync.key(i), 1, correlated) if correlated else None
         if variance is None:
-            variance = gtsam.Marginals(graph, result).marginalCovariance(TIME_KEY)
+            variance = gtsam.Marginals(graph, result).marginalCovariance(sync.key(i))
     except RuntimeError:
         return {"time_offset_sigma_s": None}
     c = out.axis_consistency
     scale = max(c.scale, 1.0) if c is not None and not c.consistent else 1.0
     variance = float(np.asarray(variance).reshape(-1)[0]) * scale
-    dated = [keys[k].coaxial.dating(result) for k in sync.measurements if k in keys and isinstance(
-        keys[k].coaxial, RigidLineFactor)]
+    dated = [keys[k].coaxial.dating(result) for k, n in zip(sync.measurements, sync.clock_of, strict=True)
+             if n == i and k in keys and isinstance(keys[k].coaxial, RigidLineFactor)]
     dated = [d for d in dated if d is not None]
     information = sum(d[0] for d in dated)
     share = min(sum(d[1] for d in dated) / information, 1.0) if information > 0 else 1.0
     if share > DATING_NOISE_MAX:
         return {"time_offset_sigma_s": float(sync.sigma), "time_offset_noise_share": share}
-    pull = share / (1.0 - share) * (sync.now - sync.mean)
+    pull = share / (1.0 - share) * (sync.now[i] - sync.mean)
     return {"time_offset_sigma_s": float(np.sqrt(variance / (1.0 - share) + pull**2)),
             "time_offset_noise_share": share}
 
@@ -645,15 +654,18 @@ class _IntrinsicsPrior(NamedTuple):
 
 class _Sync(NamedTuple):
     """Synced mode (``CalibrationOptions.sync_encoders``): the measurements with spin readings among those fitted,
-    the readings' sigma, and the encoder clock's offset from the camera's (encoder minus camera, the graph's
-    variable: the options' and the result's offset with the other sign): its prior (mean, sigma; sigma None: held at
-    the mean) and its current value (s)."""
+    the readings' sigma, and per camera clock (``SpinReadings.clock``: ``clocks``, first seen first; ``clock_of``
+    the index of each measurement's) the encoder clock's offset from that camera clock (encoder minus camera, the
+    graph's variables: the options' and the result's offsets with the other sign): their prior (mean, sigma; sigma
+    None: held at the mean) and their current values (s, ``now``, one per clock)."""
 
     measurements: tuple
     encoder_sigma_deg: float
     mean: float
     sigma: float | None
-    now: float
+    now: tuple
+    clocks: tuple = (None,)
+    clock_of: tuple = ()
 
     @classmethod
     def of(cls, measurements, used, options) -> _Sync | None:
@@ -663,12 +675,23 @@ class _Sync(NamedTuple):
         if (not synced or not options.sync_encoders or options.spin_model != "rigid"
                 or options.joint_model is not Model.PROJECTED):
             return None
+        named = [measurements[k].spin_readings.clock for k in synced]
+        clocks = tuple(dict.fromkeys(named))
         return cls(synced, options.encoder_sigma_deg, -options.time_offset_s, options.time_offset_sigma_s,
-                   -options.time_offset_s)
+                   (-options.time_offset_s,) * len(clocks), clocks, tuple(clocks.index(c) for c in named))
+
+    def key(self, i: int) -> int:
+        """Clock ``i``'s offset variable (the first's is TIME_KEY)."""
+        return TIME_KEY if i == 0 else gtsam.symbol(chr(gtsam.Symbol(TIME_KEY).chr()), i)
+
+    def offset(self, k: int) -> float:
+        """The current offset (s, encoder minus camera) of synced measurement ``k``'s clock."""
+        return self.now[self.clock_of[self.measurements.index(k)]]
 
     def builder_kwargs(self) -> dict:
-        return {"encoder_sigma_deg": self.encoder_sigma_deg, "time_offset_s": self.now,
-                "time_offset_key": None if self.sigma is None else TIME_KEY}
+        keys = TIME_KEY if self.clocks == (None,) else {c: self.key(i) for i, c in enumerate(self.clocks)}
+        return {"encoder_sigma_deg": self.encoder_sigma_deg, "time_offset_s": self.now[0],
+                "time_offset_key": None if self.sigma is None else keys}
 
 
 def _sync_kwargs(sync: _Sync | None) -> dict:
@@ -719,7 +742,8 @@ def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas,
     if intrinsics is not None:
         builder.add_intrinsics_prior(graph, values, intrinsics.sigmas, intrinsics.mean, intrinsics.now)
     if builder.time_offset_key is not None:
-        builder.add_time_offset_prior(graph, values, sync.sigma, sync.mean, sync.now)
+        for clock, now in zip(sync.clocks, sync.now, strict=True):
+            builder.add_time_offset_prior(graph, values, sync.sigma, sync.mean, now, clock=clock)
     keys = {k: builder.add_measurement(graph, values, k, measurements[k], track_sigmas=dict.fromkeys(
                 setup.prepared[k].usable, sigmas[k]), skip_tracks=stage1[k].outliers,
                 prepared=setup.prepared[k], initial_circles=None if k in fk_start else circles[k],

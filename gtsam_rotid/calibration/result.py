@@ -257,6 +257,11 @@ class CalibrationResult:
     #: the share of the offset's information that the readings' own noise makes (above 0.25 the readings cannot
     #: date the frames and ``time_offset_sigma_s`` is the prior's); None: held or not synced
     time_offset_noise_share: float | None = None
+    #: synced with named camera clocks (``SpinReadings.clock``: videos placed on a joint time series one by one),
+    #: each clock's offset: clock -> {"offset_s" (camera minus encoder, as ``time_offset_s``), "sigma_s",
+    #: "noise_share", "measurements" (its spins)}; the single-offset fields above hold only where there is one
+    #: clock. None: one unnamed clock, or not synced
+    time_offsets: dict | None = None
     #: the measurements carry spin readings that this method does not use (only ``joint`` with the rigid spin does)
     readings_ignored: bool = False
     #: measurements whose readings were not used: measurement -> {"chi2", "dof"} where they disagreed with their
@@ -366,6 +371,7 @@ class CalibrationResult:
             "time_offset_sigma_s": self.time_offset_sigma_s,
             "time_offset_prior_sigma_s": self.time_offset_prior_sigma_s,
             "time_offset_noise_share": self.time_offset_noise_share,
+            "time_offsets": self.time_offsets,
             "readings_refused": {str(k): v for k, v in self.readings_refused.items()},
             "readings_ignored": self.readings_ignored,
         }
@@ -419,6 +425,12 @@ class CalibrationResult:
             else float(data["time_offset_prior_sigma_s"]),
             time_offset_noise_share=None if data.get("time_offset_noise_share") is None
             else float(data["time_offset_noise_share"]),
+            time_offsets=None if data.get("time_offsets") is None else {
+                str(c): {"offset_s": float(v["offset_s"]),
+                         "sigma_s": None if v.get("sigma_s") is None else float(v["sigma_s"]),
+                         "noise_share": None if v.get("noise_share") is None else float(v["noise_share"]),
+                         "measurements": [int(k) for k in v.get("measurements") or ()]}
+                for c, v in data["time_offsets"].items()},
             readings_refused={int(k): dict(v) for k, v in (data.get("readings_refused") or {}).items()},
             readings_ignored=bool(data.get("readings_ignored", False)),
         )

@@ -108,6 +108,9 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
     result = replace(result, measurements=sorted(reports, key=lambda r: r.index), robot=arm.description(),
                      dataset=source, synced=tuple(kept[k] for k in result.synced),
                      readings_refused={kept[k]: v for k, v in result.readings_refused.items()},
+                     time_offsets=None if result.time_offsets is None else {
+                         c: {**v, "measurements": [kept[k] for k in v["measurements"]]}
+                         for c, v in result.time_offsets.items()},
                      readings_ignored=bool(ignored))
     return replace(result, untrusted=_untrusted(result, setup))
 

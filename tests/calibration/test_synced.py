@@ -67,6 +67,37 @@ def test_a_known_offset_is_held_and_a_steady_spin_leaves_it_to_its_prior(ramped)
     assert "mostly its prior's 100 ms" in summary(result)
 
 
+def test_spins_on_named_clocks_get_one_offset_each(ramped):
+    """Readings naming their camera clock (SpinReadings.clock: videos placed on a joint series one by one): each
+    clock's offset is its own variable. Three clocks, the frames of each shifted by its own amount (and the
+    simulator's 37 ms): every clock's offset within 3 of its 1 sigma of the truth, the pose within its covariance;
+    the single-offset fields are empty (three clocks), the words name each clock, the result's file keeps them."""
+    dataset, truth = ramped
+    shifts = {"a": 0.0, "b": 0.020, "c": -0.015}  # s added to the frames' camera times, per clock
+    names = ["a", "b", "c"] * len(dataset)
+    measurements = []
+    for k, m in enumerate(dataset):
+        r = m.spin_readings
+        measurements.append(m.replace(spin_readings=SpinReadings(r.frame_times + shifts[names[k]], r.times, r.angles,
+                                                                 clock=names[k])))
+    result = calibrate(Dataset(dataset.arm, dataset.camera, measurements))
+    assert result.synced == tuple(range(len(dataset))) and result.time_offset_s is None
+    assert set(result.time_offsets) == set(shifts)
+    for name, shift in shifts.items():
+        clock = result.time_offsets[name]
+        assert clock["measurements"] == [k for k in range(len(dataset)) if names[k] == name]
+        assert clock["sigma_s"] < 1.0 / 30
+        assert abs(clock["offset_s"] - (CAMERA_MINUS_ENCODER + shift)) < 3 * clock["sigma_s"], (name, clock)
+    assert chi2(result, truth) < 22.5
+    words = summary(result)
+    assert "each of the 3 camera clocks its own offset" in words
+    assert f"clock 'b' (measurements 1, 4): the clocks' offset (camera minus encoder) " \
+           f"{1000 * result.time_offsets['b']['offset_s']:+.2f} ms" in words
+    again = CalibrationResult.from_dict(result.to_dict())
+    assert again.time_offsets == result.time_offsets
+    assert "camera clocks" in make_report(result).to_text()
+
+
 def test_readings_of_only_some_spins_sync_those():
     dataset, truth = reference_scene(seed=12, duration=8.0, spin_ramp=2.0, encoder_rate=100.0,
                                      encoder_sigma_deg=0.02, encoder_time_offset=OFFSET)
