@@ -4,6 +4,7 @@ calls the library."""
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import re
 import sys
@@ -550,9 +551,11 @@ def _track_videos(args: argparse.Namespace, arm: Arm, params) -> Dataset:
     if args.spin_joints and len(args.spin_joints) != len(videos):
         raise InputError(f"{len(args.spin_joints)} --spin-joints for {len(videos)} video(s); name the joint that "
                          f"spun in each video (the wrist: {arm.wrist_joint})")
+    if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
+        raise InputError(f"--fps must be a positive number of frames per second, got {args.fps:g}")
     return make_dataset(videos, args.joints, args.camera, arm, frame_ranges=frame_ranges,
                         progress=not args.no_progress, joint_options=joint_options, tracker_params=params,
-                        spin_joints=args.spin_joints)
+                        spin_joints=args.spin_joints, fps=args.fps, readings=not args.no_readings)
 
 
 def add_track_parser(subparsers) -> argparse.ArgumentParser:
@@ -597,6 +600,13 @@ def add_track_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--spans", nargs="+", metavar="T0:T1",
                    help="time span of each video's spin in the joint time series (default: found automatically)")
     p.add_argument("--degrees", action="store_true", help="the joint file is in degrees (default radians)")
+    p.add_argument("--fps", type=float, metavar="HZ",
+                   help="videos with a joint time series: the videos' frame rate (default: what each video file "
+                        "states; an image folder states none)")
+    p.add_argument("--no-readings", action="store_true",
+                   help="videos with a joint time series: do not attach each spin's joint readings (synced mode "
+                        "places each video on the series' clock by image motion, then estimates what is left of "
+                        "its offset, one per video)")
     p.add_argument("--still-tolerance", type=float, default=STILL_TOLERANCE_DEG, metavar="DEG",
                    help=f"largest motion of a non-wrist joint during a spin (default {STILL_TOLERANCE_DEG})")
     p.add_argument("--min-spin", type=float, default=MIN_SPIN_DEG, metavar="DEG",

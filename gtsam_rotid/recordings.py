@@ -479,16 +479,21 @@ def _tracked(source, frame_range, camera: Camera, tracker: Callable, tracker_par
 
 #: A video's joint readings cover its frames' span and this much (s) on each side.
 READINGS_MARGIN_S = 1.0
+#: With readings, a video's frames this close (s) to the ends of its pose's span in the joint series (where the
+#: other joints start or stop moving) are left out: the readings' smoothing there mixes in the arm's move.
+SPIN_MARGIN_S = 0.1
 
 
 def _video_readings(loaded: _LoadedJoints, k: int, motion: list, first: int, fps: float, arm: Arm,
-                    spin_joint: str | None, label: str) -> tuple[SpinReadings | None, dict]:
+                    spin_joint: str | None, label: str, clock: str) -> tuple[SpinReadings | None, dict]:
     """Video ``k``'s spin readings from a joint time series: where its first frame falls on the series' clock is
     found by lining up how much each frame differs from the one before (``motion``) with how far the joints moved
     between the two frames' times (:func:`gtsam_rotid.bags.estimate_time_offset`), searched over every start at
     which the video overlaps its spin's span of the series; each frame index ``i`` is then at ``start + (i - first)
-    / fps``. (None, what was found) with a warning where that cannot be measured (a steady spin throughout the
-    video: no start or stop to line up) or two starts fit alike."""
+    / fps``, on the camera clock named ``clock`` (the video's own: the calibration estimates what is left of its
+    offset, one per video). (None, what was found) with a warning where that cannot be measured (a steady spin
+    throughout the video: no start or stop to line up) or two starts fit alike; what was found holds
+    ``held_s``, the first and last stamps of the pose's span in the series."""
     stamps, rows = loaded.joint_file.stamps, loaded.selections[k]
     t0, t1 = float(stamps[rows[0]]), float(stamps[rows[-1]])
     n = len(motion)
@@ -498,7 +503,7 @@ def _video_readings(loaded: _LoadedJoints, k: int, motion: list, first: int, fps
     found = estimate_time_offset(centre + np.arange(n) / fps, np.asarray(motion), stamps, loaded.unwrapped, half)
     start = centre - found.offset  # the series' time of frame ``first``
     info = {"start_s": None if not np.isfinite(start) else float(start), "correlation": float(found.score),
-            "rival_start_s": None if found.rival is None else float(centre - found.rival)}
+            "rival_start_s": None if found.rival is None else float(centre - found.rival), "held_s": [t0, t1]}
     if not np.isfinite(start) or found.rival is not None or found.score < MIN_OFFSET_CORRELATION:
         why = ("the spin never starts or stops within the video, or the images never change" if not
                np.isfinite(start) else f"another start ({info['rival_start_s']:.3f} s) fits as well"
@@ -511,11 +516,29 @@ def _video_readings(loaded: _LoadedJoints, k: int, motion: list, first: int, fps
     window[1:] &= np.diff(stamps) > 0  # (of rows with one stamp, the first)
     spin = arm.spin_index(spin_joint)
     try:
-        return SpinReadings(frame_times, stamps[window], loaded.unwrapped[window, spin]), info
+        return SpinReadings(frame_times, stamps[window], loaded.unwrapped[window, spin], clock=clock), info
     except ValidationError as error:
         print(f"warning: {label}: its spin readings are not attached (no synced mode for it): {error}",
               file=sys.stderr)
         return None, info
+
+
+def _held_frames(tracks: list[Track], frame_times: np.ndarray, held_s, label: str) -> tuple[list[Track], list]:
+    """The tracks cut to the frames that lie within the pose's span of the joint series ``held_s`` (first, last
+    stamp) by SPIN_MARGIN_S, and [first, last] frame index kept; tracks with no frame left are dropped. Unchanged
+    (with a warning) where fewer than 2 tracks would be left."""
+    inside = (frame_times >= held_s[0] + SPIN_MARGIN_S) & (frame_times <= held_s[1] - SPIN_MARGIN_S)
+    kept = []
+    for track in tracks:
+        mask = inside[track.frames]
+        if np.any(mask):
+            kept.append(track if np.all(mask) else Track(track.pixels[mask], track.frames[mask]))
+    if len(kept) < 2:
+        print(f"warning: {label}: fewer than 2 tracks within its pose's span of the joint series; its frames are "
+              "kept whole", file=sys.stderr)
+        return tracks, [int(np.min([t.frames[0] for t in tracks])), int(np.max([t.frames[-1] for t in tracks]))]
+    frames = np.flatnonzero(inside)
+    return kept, [int(frames[0]), int(frames[-1])]
 
 
 def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | str | os.PathLike, arm: Arm, *,
@@ -603,8 +626,12 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
                                      progress, motion)
             spin_readings = None
             if motion is not None:
+                clock = labels[k] if labels.count(labels[k]) == 1 else f"{k}:{labels[k]}"
                 spin_readings, found = _video_readings(loaded, k, motion, first, rate, arm, spin_joint,
-                                                       _label(k, labels))
+                                                       _label(k, labels), clock)
+                if spin_readings is not None:
+                    tracks, found["frames_kept"] = _held_frames(tracks, spin_readings.frame_times, found["held_s"],
+                                                                _label(k, labels))
                 placed.append({**found, "fps": rate})
             elif series:
                 print(f"warning: {_label(k, labels)}: an image folder states no frame rate; its spin readings are "

@@ -21,9 +21,10 @@ STILL_S = 0.6
 MOVE_S = 0.8
 
 
-def scene(n_poses: int = 4, duration: float = 3.0, seed: int = 3):
-    """A reference scene of ``n_poses`` spins of ``duration`` s at FPS, rendered (dots), and its truth."""
-    dataset, truth = simulate.reference_scene(seed=seed, duration=duration, fps=FPS)
+def scene(n_poses: int = 4, duration: float = 3.0, seed: int = 3, spin_ramp: float = 0.0):
+    """A reference scene of ``n_poses`` spins of ``duration`` s at FPS (speeding up and slowing down over
+    ``spin_ramp`` s at each end), rendered (dots), and its truth."""
+    dataset, truth = simulate.reference_scene(seed=seed, duration=duration, fps=FPS, spin_ramp=spin_ramp)
     dataset = Dataset(dataset.arm, dataset.camera, list(dataset)[:n_poses], metadata=dataset.metadata)
     truth = replace(truth, measurements=truth.measurements[:n_poses])
     spins = [render_measurement(dataset, truth, k, RenderConfig(seed=seed)) for k in range(n_poses)]

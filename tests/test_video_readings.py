@@ -11,15 +11,17 @@ from bag_scene import FPS, scene, timeline
 
 from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.recordings import make_dataset
+from gtsam_rotid.words import summary
 
 CHI2_6_999 = 22.458
 
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    """Four rendered spins as image folders (each with its still frames before and after), the joint states as a
-    time-series CSV on their own clock, the true joint-clock time of every image, and the scene's truth."""
-    dataset, truth, spins = scene(n_poses=4, duration=3.0)
+    """Six rendered spins (speeding up and slowing down over half a second, as an arm does) as image folders (each
+    with its still frames before and after), the joint states as a time-series CSV on their own clock, the true
+    joint-clock time of every image, and the scene's truth."""
+    dataset, truth, spins = scene(n_poses=6, duration=4.0, spin_ramp=0.5)
     joint_t, joint_q, images = timeline(dataset, spins)
     root = tmp_path_factory.mktemp("videos")
     folders, times = [], []
@@ -43,20 +45,32 @@ def recorded(tmp_path_factory):
 
 
 def test_each_videos_frames_are_placed_on_the_joint_clock_and_the_calibration_syncs(recorded):
+    """Each video is placed on the series' clock by image motion to within half a frame; what is left of its
+    offset is a variable of its own (its clock, named after the video) that the synced calibration estimates:
+    each video's estimated offset holds the placement's true error within its 1 sigma's chi-square."""
     dataset, truth, folders, times, csv = recorded
     made = make_dataset(folders, csv, dataset.camera, dataset.arm, fps=FPS, progress=False)
+    placed_error = []  # camera minus encoder: the placed time of each video's frames less the true time
     for k, (m, true_times) in enumerate(zip(made, times, strict=True)):
         readings = m.spin_readings
-        assert readings is not None, k
-        # within a tenth of a frame of the time each image was taken
-        assert np.max(np.abs(readings.frame_times - true_times)) < 0.1 / FPS, k
-        assert readings.times[0] <= true_times[0] and readings.times[-1] >= true_times[-1]
+        assert readings is not None and readings.clock == folders[k].name, k
+        error = readings.frame_times - true_times
+        assert np.ptp(error) < 1e-9 and abs(error[0]) < 0.5 / FPS, (k, error[0])
+        placed_error.append(float(error[0]))
     starts = made.metadata["recording"]["video_starts"]
-    assert [round(s["start_s"], 6) for s in starts] == pytest.approx([t[0] for t in times], abs=0.1 / FPS)
+    assert [s["start_s"] for s in starts] == pytest.approx([t[0] for t in times], abs=0.5 / FPS)
     result = calibrate(made)
-    assert result.synced == (0, 1, 2, 3) and abs(result.time_offset_s) < 3.0 * result.time_offset_sigma_s
+    assert result.synced == tuple(range(6)) and result.time_offset_s is None  # (six clocks: no single offset)
+    assert set(result.time_offsets) == {f.name for f in folders}
+    z = []
+    for k, folder in enumerate(folders):
+        clock = result.time_offsets[folder.name]
+        assert clock["measurements"] == [k] and clock["sigma_s"] < 0.1 / FPS, clock
+        z.append((clock["offset_s"] - placed_error[k]) / clock["sigma_s"])
+    assert float(np.sum(np.square(z))) < CHI2_6_999, z  # (6 clocks: 6 dof)
     error = result.error_to(truth.arm_T_camera)
     assert float(error @ np.linalg.solve(result.covariance, error)) < CHI2_6_999
+    assert "each of the 6 camera clocks its own offset" in summary(result)
 
 
 def test_a_video_that_never_sees_its_spin_start_or_stop_gets_no_readings(recorded, capsys):
@@ -65,13 +79,46 @@ def test_a_video_that_never_sees_its_spin_start_or_stop_gets_no_readings(recorde
     middle = [(10, n[0] - 10)] + [None] * (len(folders) - 1)  # video 0 cut to frames inside its spin
     made = make_dataset(folders, csv, dataset.camera, dataset.arm, fps=FPS, progress=False, frame_ranges=middle)
     assert made[0].spin_readings is None and all(m.spin_readings is not None for m in list(made)[1:])
-    assert "spin0: where its frames fall on the joint time series' clock could not be measured" in \
+    assert "(spin0): where its frames fall on the joint time series' clock could not be measured" in \
         capsys.readouterr().err
 
 
 def test_image_folders_need_a_frame_rate_and_readings_can_be_left_off(recorded, capsys):
     dataset, _, folders, _, csv = recorded
-    made = make_dataset(folders[:4], csv, dataset.camera, dataset.arm, progress=False)
+    made = make_dataset(folders, csv, dataset.camera, dataset.arm, progress=False)
     assert all(m.spin_readings is None for m in made) and "states no frame rate" in capsys.readouterr().err
     off = make_dataset(folders, csv, dataset.camera, dataset.arm, fps=FPS, progress=False, readings=False)
     assert all(m.spin_readings is None for m in off) and "video_starts" not in off.metadata["recording"]
+
+
+def test_track_places_videos_on_the_joint_series_and_calibrate_says_each_clock(recorded, tmp_path, capsys):
+    """From the command line: `track --videos ... --joints states.csv --fps` attaches each video's readings on its
+    own clock (its frames cut to its pose's span of the series), `calibrate` estimates one offset per video and
+    says so; --no-readings leaves them off."""
+    from gtsam_rotid.cli import main
+    from gtsam_rotid.dataset import Dataset
+
+    dataset, _, folders, _, csv = recorded
+    K = dataset.camera.K
+    camera = tmp_path / "camera_info.yaml"
+    matrix = ", ".join(repr(float(v)) for v in K.ravel())
+    camera.write_text(f"image_width: {dataset.camera.width}\nimage_height: {dataset.camera.height}\n"
+                      f"camera_matrix: {{rows: 3, cols: 3, data: [{matrix}]}}\ndistortion_model: plumb_bob\n"
+                      "distortion_coefficients: {rows: 1, cols: 5, data: [0, 0, 0, 0, 0]}\n")
+    common = ["track", "--videos", *map(str, folders), "--joints", str(csv), "--camera", str(camera), "--robot",
+              "kinova", "--fps", str(FPS), "--no-progress"]
+    assert main([*common, "-o", str(tmp_path / "d")]) == 0
+    made = Dataset.load(tmp_path / "d")
+    assert [m.spin_readings.clock for m in made] == [f.name for f in folders]
+    for k, (m, start) in enumerate(zip(made, made.metadata["recording"]["video_starts"], strict=True)):
+        first, last = start["frames_kept"]
+        held = start["held_s"]
+        times = m.spin_readings.frame_times
+        assert held[0] + 0.1 <= times[first] and times[last] <= held[1] - 0.1, k
+        assert all(first <= t.frames[0] and t.frames[-1] <= last for t in m.tracks), k
+    assert main(["calibrate", str(tmp_path / "d"), "-o", str(tmp_path / "r.json")]) == 0
+    assert "each of the 6 camera clocks its own offset" in capsys.readouterr().out
+    assert main([*common, "--no-readings", "-o", str(tmp_path / "bare")]) == 0
+    assert all(m.spin_readings is None for m in Dataset.load(tmp_path / "bare"))
+    assert main([*common[:-3], "--fps", "0", "-o", str(tmp_path / "x")]) != 0
+    assert "--fps must be a positive number" in capsys.readouterr().err
