@@ -20,7 +20,11 @@ Synced (``--synced``): every spin speeds up from rest over ``--spin-ramp`` s and
 measurement carries its spinning joint's readings (100 per second, ``--encoder-sigma-deg`` noise, stamped
 ``--time-offset`` s ahead of the camera); ``joint`` syncs them (``CalibrationOptions.sync_encoders``) and is compared
 with the synced bound (:func:`crlb_synced`: the same graph, exact readings, the offset estimated under its 0.1 s
-prior), and the estimated offset with its own bound and NEES (target: within a tenth of a frame).
+prior), and the estimated offset with its own bound and NEES (target: within a tenth of a frame). With ``--clocks
+per-spin`` every spin's readings name a camera clock of their own (``SpinReadings.clock``, as videos placed one by
+one on a joint series: ``track --videos ... --joints states.csv``), its frames' camera times shifted by a draw of
++-half a frame (what the placement by image motion leaves), and the calibration estimates one offset per spin;
+the bound has one offset variable per clock, and the offsets' errors are pooled over the clocks.
 
 Run: ``python benchmarks/accuracy.py [--trials 50] [--jobs 2] [--duration 60] [--noise-var 1.5] [--synced]``.
 Trials run in separate processes (CustomFactors cannot be pickled: each process builds its own graphs).
@@ -90,11 +94,13 @@ def crlb_rigid(dataset, truth, noise_var: float) -> np.ndarray:
     return np.linalg.inv(pose_information(graph, values, builder.pose_key))
 
 
-def crlb_synced(dataset, truth, noise_var: float, config) -> tuple[np.ndarray, float]:
+def crlb_synced(dataset, truth, noise_var: float, config, shifts: dict | None = None
+                ) -> tuple[np.ndarray, float | dict]:
     """Cramér–Rao bound (6x6) of ``arm_T_camera`` and (1 sigma, s) of the clocks' offset with the rigid spin synced
     with the spinning joint's readings: :func:`crlb_rigid`'s graph on noise-free pixels with noise-free readings
     (``config``'s spin, stamped with its offset) under the estimator's prior (``encoder_sigma_deg`` per frame), the
-    offset a variable under ``CalibrationOptions``' default prior (0.1 s)."""
+    offset a variable under ``CalibrationOptions``' default prior (0.1 s). With ``shifts`` (clock -> s, the
+    readings naming their clocks): one offset per clock, the bound's 1 sigma per clock."""
     from gtsam_rotid.calibration.options import CalibrationOptions
     from gtsam_rotid.dataset import SpinReadings
     from gtsam_rotid.graph import RotIdGraph
@@ -102,24 +108,28 @@ def crlb_synced(dataset, truth, noise_var: float, config) -> tuple[np.ndarray, f
     from gtsam_rotid.uncertainty import marginal_information
 
     options = CalibrationOptions(encoder_sigma_deg=config.encoder_sigma_deg)
-    key = gtsam.symbol("d", 0)
+    keys = {None: gtsam.symbol("d", 0)} if shifts is None else {
+        c: gtsam.symbol("d", i) for i, c in enumerate(shifts)}
     builder = RotIdGraph(dataset.arm, dataset.camera, track_sigma_px=float(np.sqrt(noise_var)), model="projected",
-                         spin_model="rigid", encoder_sigma_deg=options.encoder_sigma_deg, time_offset_key=key)
+                         spin_model="rigid", encoder_sigma_deg=options.encoder_sigma_deg,
+                         time_offset_key=keys[None] if shifts is None else keys)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(builder.pose_key, truth.arm_T_camera)
-    builder.add_time_offset_prior(graph, values, options.time_offset_sigma_s, options.time_offset_s,
-                                  config.encoder_time_offset)
+    for clock in keys:  # (the graph's offset is encoder minus camera: a shifted camera clock's less its shift)
+        builder.add_time_offset_prior(graph, values, options.time_offset_sigma_s, options.time_offset_s,
+                                      config.encoder_time_offset - (0.0 if shifts is None else shifts[clock]),
+                                      clock=clock)
     exact = []
     for measurement, m_truth in zip(dataset, truth.measurements, strict=True):
         r = measurement.spin_readings
         start = float(m_truth.joint_angles[dataset.arm.spin_index(measurement.spin_joint)])
         angles = start + spin_profile(r.times - config.encoder_time_offset, config)
         exact.append(Measurement(measurement.joint_angles, measurement.tracks, spin_joint=measurement.spin_joint,
-                                 spin_readings=SpinReadings(r.frame_times, r.times, angles)))
+                                 spin_readings=SpinReadings(r.frame_times, r.times, angles, clock=r.clock)))
     add_noise_free(builder, graph, values, dataset.camera, exact, truth)
     pose = np.linalg.inv(marginal_information(graph, values, builder.pose_key, 6))
-    offset = float(np.sqrt(1.0 / marginal_information(graph, values, key, 1)[0, 0]))
-    return pose, offset
+    offsets = {c: float(np.sqrt(1.0 / marginal_information(graph, values, key, 1)[0, 0])) for c, key in keys.items()}
+    return pose, offsets[None] if shifts is None else offsets
 
 
 def add_noise_free(builder, graph, values, camera, measurements, truth) -> None:
@@ -144,20 +154,39 @@ def add_noise_free(builder, graph, values, camera, measurements, truth) -> None:
                                 initial_circles=circles, refine_circles=False)
 
 
+def per_spin_clocks(dataset, seed: int, fps: float):
+    """The dataset with each spin's readings on a camera clock of its own (``spin<k>``), its frames' camera times
+    shifted by a draw of +-half a frame (the trial's seed), and the shifts (clock -> s)."""
+    from gtsam_rotid.dataset import Dataset, SpinReadings
+
+    rng = np.random.default_rng([seed, 18])
+    shifts, measurements = {}, []
+    for k, m in enumerate(dataset):
+        r = m.spin_readings
+        shifts[f"spin{k}"] = shift = float(rng.uniform(-0.5, 0.5)) / fps
+        measurements.append(m.replace(spin_readings=SpinReadings(r.frame_times + shift, r.times, r.angles,
+                                                                 clock=f"spin{k}")))
+    return Dataset(dataset.arm, dataset.camera, measurements, metadata=dataset.metadata), shifts
+
+
 def trial(seed: int, duration: float, noise_var: float, joint_model: str, spin_model: str, methods,
-          joint_angles, synced: dict | None = None) -> dict:
+          joint_angles, synced: dict | None = None, clocks: str = "one") -> dict:
     from gtsam_rotid import simulate
     from gtsam_rotid.errors import RotIdError
     from gtsam_rotid.estimate import CalibrationOptions, calibrate
 
     dataset, truth = simulate.reference_scene(seed=seed, noise_var=noise_var, duration=duration,
                                               joint_angles=joint_angles, **(synced or {}))
+    shifts = None
+    if synced and clocks == "per-spin":
+        dataset, shifts = per_spin_clocks(dataset, seed, simulate.SceneConfig().fps)
     out = {"seed": seed, "crlb": crlb(dataset, truth, noise_var), "points": sum(m.n_observations for m in dataset)}
     if spin_model == "rigid" and "joint" in methods:
         out["crlb_rigid"] = crlb_rigid(dataset, truth, noise_var)
         if synced:
             config = simulate.SceneConfig().with_(duration=duration, **synced)
-            out["crlb_synced"], out["offset_bound"] = crlb_synced(dataset, truth, noise_var, config)
+            out["crlb_synced"], out["offset_bound"] = crlb_synced(dataset, truth, noise_var, config, shifts)
+            out["shifts"] = shifts
     options = CalibrationOptions(joint_model=joint_model, spin_model=spin_model,
                                  **({} if not synced else {"encoder_sigma_deg": synced["encoder_sigma_deg"]}))
     for method in methods:
@@ -174,6 +203,8 @@ def trial(seed: int, duration: float, noise_var: float, joint_model: str, spin_m
             "seconds": time.perf_counter() - start,
             "offset": result.time_offset_s,
             "offset_sigma": result.time_offset_sigma_s,
+            "offsets": None if result.time_offsets is None else {
+                c: (v["offset_s"], v["sigma_s"]) for c, v in result.time_offsets.items()},
             "refused": len(result.readings_refused),
             "spins": len(dataset),
         }
@@ -201,6 +232,9 @@ def main(argv=None) -> int:
                         "slowing down at each end of a spin")
     parser.add_argument("--encoder-sigma-deg", type=float, default=0.02, help="synced: the readings' noise (deg)")
     parser.add_argument("--time-offset", type=float, default=0.037, help="synced: the encoder clock's offset (s)")
+    parser.add_argument("--clocks", choices=("one", "per-spin"), default="one",
+                        help="synced: one camera clock for every spin (a bag), or one per spin, each shifted by up "
+                             "to half a frame (videos placed one by one on a joint series)")
     args = parser.parse_args(argv)
     methods = [m for m in args.methods.split(",") if m]
     unknown = set(methods) - set(METHODS)
@@ -223,7 +257,7 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         futures = [pool.submit(trial, s, args.duration, args.noise_var, args.joint_model,
-                               args.spin_model, methods, joint_angles, synced) for s in seeds]
+                               args.spin_model, methods, joint_angles, synced, args.clocks) for s in seeds]
         results = [f.result() for f in tqdm(futures, desc="trials", unit="trial")]
     wall = time.perf_counter() - start
     if args.save:
@@ -282,8 +316,25 @@ def main(argv=None) -> int:
         print(f"{'  mean error / RMSE':24}" + "".join(f"{v:10.2f}" for v in mean / rmse))
         verdict = "inside" if low <= nees <= high else "OUTSIDE"
         print(f"  NEES {nees:.2f} (ideal 6; 95 % interval for {len(usable)} trials [{low:.2f}, {high:.2f}]: {verdict})")
+        if synced_bound and method == "joint" and args.clocks == "per-spin":
+            clocked = [(o["offsets"], r["shifts"], r["offset_bound"]) for r in results
+                       for o in [r[method]] if "error" in o and o.get("offsets")]
+            rows = [(-offsets[c][0] - (args.time_offset - shifts[c]), offsets[c][1], bounds[c])
+                    for offsets, shifts, bounds in clocked for c in offsets if offsets[c][1] is not None]
+            if rows:
+                err, sig, bnd = (np.array(v) for v in zip(*rows, strict=True))
+                off_rmse, bound_offset = float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(bnd**2)))
+                off_nees = float(np.mean((err / sig) ** 2))
+                lo1, hi1 = chi2_mean_interval(1, len(rows))
+                frame = 1.0 / simulate_fps()
+                print(f"  time offsets, one per spin's clock ({len(rows)} clocks): RMSE {1000 * off_rmse:.2f} ms "
+                      f"({off_rmse / frame:.3f} frame; bound {1000 * bound_offset:.2f} ms, ratio "
+                      f"{off_rmse / bound_offset:.2f}), mean error {1000 * np.mean(err):+.2f} ms, reported 1 sigma "
+                      f"median {1000 * np.median(sig):.2f} ms, NEES {off_nees:.2f} (95 % interval [{lo1:.2f}, "
+                      f"{hi1:.2f}]: {'inside' if lo1 <= off_nees <= hi1 else 'OUTSIDE'}); readings refused on "
+                      f"{sum(o.get('refused', 0) for o in ok)} of {sum(o['spins'] for o in ok)} spins")
         timed = [(o["offset"], o["offset_sigma"]) for o in ok if o.get("offset_sigma") is not None]
-        if synced_bound and method == "joint" and timed:
+        if synced_bound and method == "joint" and timed and args.clocks == "one":
             offsets, sigmas = np.array(timed).T
             offsets = -offsets  # (the result's offset is camera minus encoder; --time-offset the encoder's lead)
             off_rmse = float(np.sqrt(np.mean((offsets - args.time_offset) ** 2)))
