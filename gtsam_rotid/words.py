@@ -17,6 +17,7 @@ from .calibration.tuning import (
     LONG_ARC_CONSISTENCY_P,
     MAX_CONSISTENCY_SCALE,
     MAX_RELATIVE_SIGMA,
+    MAX_SCALE_AFTER_OUTLIERS,
     MAX_SIGMA_DEG,
     RESTART_P,
 )
@@ -266,6 +267,17 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
                        f"for {c.dof} dof, P = {c.p_value:.2g}), and only {c.dof // 2 + 3} measurements are used: "
                        "too few to measure by how much the noise is understated, so no covariance can be given; add "
                        "arm poses (six or more used), or spin longer where measurements were left out")
+        elif kind == "inconsistent_after_outliers":
+            c = result.axis_consistency
+            which = ", ".join(str(k) for k in ks)
+            out.append(f"measurement{'s' if len(ks) > 1 else ''} {which} {'were' if len(ks) > 1 else 'was'} left out "
+                       f"as disagreeing, and the others' axes still disagree with one pose (χ² = {c.chi2:.3g} for "
+                       f"{c.dof} dof, P = {c.p_value:.2g}: their noise variance scaled by {c.scale:.3g}, more than "
+                       f"{MAX_SCALE_AFTER_OUTLIERS:g}): one wrong measurement does not explain the axes, and a scaled "
+                       "covariance would not hold the error. More than one measurement is wrong, or the model is off "
+                       "in more than one way (the camera's intrinsics and the joints' zero positions together): "
+                       "calibrate again with them refined (--refine-intrinsics --joint-offsets), check the joint "
+                       "readings, and add arm poses")
         elif kind == "too_uncertain" and not np.all(np.isfinite(result.covariance)):
             out.append("the covariance is not finite: the data do not determine the calibration; add arm poses, "
                        "longer spins or more texture")

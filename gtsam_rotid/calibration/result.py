@@ -448,6 +448,9 @@ class CalibrationResult:
 UNTRUSTED_KINDS = {
     "thin_evidence": "the estimate rests on weak measurements (few tracks or short arcs) that nothing vouches for",
     "inconsistent": "the measurements disagree far beyond their noise",
+    "inconsistent_after_outliers": "with the measurements that disagree left out, the others still disagree far "
+                                   "beyond their noise: more than one measurement is wrong, or the model (camera, "
+                                   "kinematics) is off",
     "too_uncertain": "the uncertainty is too large to be a calibration",
     "unmeasured_scatter": "the measurements disagree beyond their noise and are too few to measure by how much",
     "intrinsics": "the camera's focal length or principal point explains the axes' disagreement better than the "

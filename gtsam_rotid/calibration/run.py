@@ -30,6 +30,7 @@ from .tuning import (
     LONG_ARC_CONSISTENCY_P,
     MAX_CONSISTENCY_SCALE,
     MAX_RELATIVE_SIGMA,
+    MAX_SCALE_AFTER_OUTLIERS,
     MAX_SIGMA_DEG,
     RESTART_P,
     SHORT_ARC_CONSISTENCY_P,
@@ -161,10 +162,16 @@ def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]
         # joint offsets explain every axis, and so does one wrong measurement: the estimate rests on one of them
         # (left out or only down-weighted), and they put the camera apart beyond its covariance
         out["kinematics_or_measurement"] = [int(c.kinematics["one_out_measurement"])]
+    dropped = [m.index for m in result.measurements if not m.used and m.outlier_kind == OutlierKind.DISAGREES.value]
     if c is not None and c.dof > 0 and c.chi2 / c.dof > MAX_CONSISTENCY_SCALE:
         out["inconsistent"] = [m.index for m in result.measurements if m.used]
     elif c is not None and not c.consistent and c.dof <= 2:
         out["unmeasured_scatter"] = [m.index for m in result.measurements if m.used]
+    elif c is not None and dropped and not c.consistent and c.scale > MAX_SCALE_AFTER_OUTLIERS \
+            and not out.keys() & {"intrinsics", "kinematics", "camera_or_measurement", "kinematics_or_measurement"}:
+        # one wrong measurement left out does not explain the axes: the rest still disagree far beyond the
+        # scatter a scaled covariance covers (a camera and joint offsets both off, neither alone explaining them)
+        out["inconsistent_after_outliers"] = dropped
     distance = float(np.median([np.linalg.norm(result.arm_T_camera.transformTo(a.point)) for a in setup.axes]))
     limit_mm = 1000.0 * MAX_RELATIVE_SIGMA * distance
     if (not np.all(np.isfinite(result.covariance)) or np.max(result.sigma_mm_arm) > limit_mm
