@@ -71,6 +71,7 @@ def run(dataset: Dataset, truth) -> dict:
             "shapes": "intrinsics_shapes" in result.untrusted,
             "measurement": result.untrusted.get("camera_or_measurement"),
             "km": result.untrusted.get("kinematics_or_measurement"),
+            "after": result.untrusted.get("inconsistent_after_outliers"),
             "usable": result.covariance_usable,
             "mm": 1000.0 * float(np.max(np.abs(truth.arm_T_camera.rotation().matrix() @ e[3:]))),
             "deg": float(np.degrees(np.max(np.abs(e[:3])))),
@@ -95,19 +96,23 @@ def main(argv=None) -> int:
         print(f"seed {seed} done ({time.perf_counter() - started:.0f} s)", flush=True)
     print(f"\nreference scene, {args.seeds} seeds, {args.duration:g} s spins\n")
     print("| case | flagged intrinsics | flagged intrinsics_shapes | flagged kinematics | flagged camera or "
-          "measurement (which) | flagged kinematics or measurement (which) | covariance usable | error mm / deg "
-          "(median) | χ² of the error (median) | reading where flagged: focal %, cx px, cy px (median) |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+          "measurement (which) | flagged kinematics or measurement (which) | flagged inconsistent after outliers "
+          "(left out) | covariance usable | error mm / deg (median) | χ² of the error (median) | reading where "
+          "flagged: focal %, cx px, cy px (median) |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for name, results in rows.items():
         done = [r for r in results if "refused" not in r]
         flagged = [r for r in done if r["flagged"]]
         reading = (np.median([r["reading"] for r in flagged], axis=0) if flagged else None)
         named = [r["measurement"][0] for r in done if r["measurement"]]
         km = [r["km"][0] for r in done if r["km"]]
+        after = [r["after"] for r in done if r["after"]]
         print(f"| {name} | {len(flagged)} of {len(done)} | {sum(r['shapes'] for r in done)} of {len(done)} | "
               f"{sum(r['kinematics'] for r in done)} of {len(done)} | "
               f"{len(named)} of {len(done)}" + (f" ({', '.join(str(k) for k in named)})" if named else "") + " | "
               f"{len(km)} of {len(done)}" + (f" ({', '.join(str(k) for k in km)})" if km else "") + " | "
+              f"{len(after)} of {len(done)}" + (f" ({'; '.join(','.join(map(str, k)) for k in after)})" if after
+                                                else "") + " | "
               f"{sum(r['usable'] for r in done)} of {len(done)} | "
               f"{np.median([r['mm'] for r in done]):.2f} / {np.median([r['deg'] for r in done]):.3f} | "
               f"{np.median([r['chi2'] for r in done]):.3g} | "
@@ -124,7 +129,8 @@ def main(argv=None) -> int:
               f"{len(done)} flagged intrinsics, {sum(r['shapes'] for r in done)} intrinsics_shapes, "
               f"{sum(r['kinematics'] for r in done)} kinematics, "
               f"{sum(bool(r['measurement']) for r in done)} camera or measurement, "
-              f"{sum(bool(r['km']) for r in done)} kinematics or measurement; "
+              f"{sum(bool(r['km']) for r in done)} kinematics or measurement, "
+              f"{sum(bool(r['after']) for r in done)} inconsistent after outliers; "
               f"{sum(r['usable'] for r in done)} usable")
     print(f"\n{time.perf_counter() - started:.0f} s")
     return 0
