@@ -322,33 +322,29 @@ def main(argv=None) -> int:
             rows = [(-offsets[c][0] - (args.time_offset - shifts[c]), offsets[c][1], bounds[c])
                     for offsets, shifts, bounds in clocked for c in offsets if offsets[c][1] is not None]
             if rows:
-                err, sig, bnd = (np.array(v) for v in zip(*rows, strict=True))
-                off_rmse, bound_offset = float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(bnd**2)))
-                off_nees = float(np.mean((err / sig) ** 2))
-                lo1, hi1 = chi2_mean_interval(1, len(rows))
-                frame = 1.0 / simulate_fps()
-                print(f"  time offsets, one per spin's clock ({len(rows)} clocks): RMSE {1000 * off_rmse:.2f} ms "
-                      f"({off_rmse / frame:.3f} frame; bound {1000 * bound_offset:.2f} ms, ratio "
-                      f"{off_rmse / bound_offset:.2f}), mean error {1000 * np.mean(err):+.2f} ms, reported 1 sigma "
-                      f"median {1000 * np.median(sig):.2f} ms, NEES {off_nees:.2f} (95 % interval [{lo1:.2f}, "
-                      f"{hi1:.2f}]: {'inside' if lo1 <= off_nees <= hi1 else 'OUTSIDE'}); readings refused on "
-                      f"{sum(o.get('refused', 0) for o in ok)} of {sum(o['spins'] for o in ok)} spins")
+                print_offsets(f"time offsets, one per spin's clock ({len(rows)} clocks)", *zip(*rows, strict=True),
+                              ok)
         timed = [(o["offset"], o["offset_sigma"]) for o in ok if o.get("offset_sigma") is not None]
         if synced_bound and method == "joint" and timed and args.clocks == "one":
             offsets, sigmas = np.array(timed).T
-            offsets = -offsets  # (the result's offset is camera minus encoder; --time-offset the encoder's lead)
-            off_rmse = float(np.sqrt(np.mean((offsets - args.time_offset) ** 2)))
-            bound_offset = float(np.sqrt(np.mean([r["offset_bound"] ** 2 for r in results])))
-            off_nees = float(np.mean(((offsets - args.time_offset) / sigmas) ** 2))
-            lo1, hi1 = chi2_mean_interval(1, len(timed))
-            frame = 1.0 / simulate_fps()
-            print(f"  time offset: RMSE {1000 * off_rmse:.2f} ms ({off_rmse / frame:.3f} frame; bound "
-                  f"{1000 * bound_offset:.2f} ms, ratio {off_rmse / bound_offset:.2f}), mean error "
-                  f"{1000 * (np.mean(offsets) - args.time_offset):+.2f} ms, reported 1 sigma median "
-                  f"{1000 * np.median(sigmas):.2f} ms, NEES {off_nees:.2f} (95 % interval [{lo1:.2f}, {hi1:.2f}]: "
-                  f"{'inside' if lo1 <= off_nees <= hi1 else 'OUTSIDE'}); readings refused (disagreeing with the "
-                  f"tracks) on {sum(o.get('refused', 0) for o in ok)} of {sum(o['spins'] for o in ok)} spins")
+            # (the result's offset is camera minus encoder; --time-offset the encoder's lead)
+            print_offsets("time offset", -offsets - args.time_offset, sigmas, [r["offset_bound"] for r in results], ok)
     return 0
+
+
+def print_offsets(label: str, errors, sigmas, bounds, ok: list) -> None:
+    """The clocks' offsets' line: RMSE of ``errors`` (s, estimate less truth, encoder minus camera) against the RMS
+    of ``bounds``, mean error, the reported 1 sigma (median of ``sigmas``), NEES and the readings refused in ``ok``."""
+    errors, sigmas, bounds = (np.asarray(v, dtype=float) for v in (errors, sigmas, bounds))
+    rmse, bound = float(np.sqrt(np.mean(errors**2))), float(np.sqrt(np.mean(bounds**2)))
+    nees = float(np.mean((errors / sigmas) ** 2))
+    low, high = chi2_mean_interval(1, len(errors))
+    frame = 1.0 / simulate_fps()
+    print(f"  {label}: RMSE {1000 * rmse:.2f} ms ({rmse / frame:.3f} frame; bound {1000 * bound:.2f} ms, ratio "
+          f"{rmse / bound:.2f}), mean error {1000 * np.mean(errors):+.2f} ms, reported 1 sigma median "
+          f"{1000 * np.median(sigmas):.2f} ms, NEES {nees:.2f} (95 % interval [{low:.2f}, {high:.2f}]: "
+          f"{'inside' if low <= nees <= high else 'OUTSIDE'}); readings refused (disagreeing with the tracks) on "
+          f"{sum(o.get('refused', 0) for o in ok)} of {sum(o['spins'] for o in ok)} spins")
 
 
 def simulate_fps() -> float:
