@@ -202,7 +202,7 @@ class EncoderPrior:
         mean over ``frames`` frames, which a spin's real changes of speed hardly leave."""
         order = np.argsort(self.frame_times)
         rate = self.at(delta)[1][order]
-        if len(rate) < 2 * frames:
+        if len(rate) <= 2 * frames:  # (no rate with a full running mean on each side)
             return 0.0
         smooth = np.convolve(rate, np.full(frames, 1.0 / frames), mode="same")
         inner = slice(frames, len(rate) - frames)

@@ -490,6 +490,15 @@ def cmd_track(args: argparse.Namespace) -> int:
         dataset = _track_videos(args, arm, params)
     dataset.save(output, overwrite=args.overwrite)
     print(dataset.summary())
+    starts = dataset.metadata.get("recording", {}).get("video_starts")
+    for k, start in enumerate(starts or ()):  # videos on a joint time series: where each was placed
+        m = dataset[k]
+        if start is None or m.spin_readings is None:
+            print(f"measurement {k} ({m.name}): no joint readings attached (not synced)")
+        else:
+            print(f"measurement {k} ({m.name}): placed at {start['start_s']:.3f} s on the joint series' clock "
+                  f"(correlation {start['correlation']:.2f}), frames {start['frames_kept'][0]}-"
+                  f"{start['frames_kept'][1]} kept, readings attached on clock {m.spin_readings.clock!r}")
     print(f"wrote {output}")
     return 0
 

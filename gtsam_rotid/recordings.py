@@ -479,6 +479,9 @@ def _tracked(source, frame_range, camera: Camera, tracker: Callable, tracker_par
 
 #: A video's joint readings cover its frames' span and this much (s) on each side.
 READINGS_MARGIN_S = 1.0
+#: A video's frames must come to rest (the spin starts or stops within it) for its place on a joint time series to
+#: be measured: the tenth percentile of its frame-to-frame motion at most this fraction of the ninetieth.
+STILL_MOTION_RATIO = 0.3
 #: With readings, a video's frames this close (s) to the ends of its pose's span in the joint series (where the
 #: other joints start or stop moving) are left out: the readings' smoothing there mixes in the arm's move.
 SPIN_MARGIN_S = 0.1
@@ -504,9 +507,13 @@ def _video_readings(loaded: _LoadedJoints, k: int, motion: list, first: int, fps
     start = centre - found.offset  # the series' time of frame ``first``
     info = {"start_s": None if not np.isfinite(start) else float(start), "correlation": float(found.score),
             "rival_start_s": None if found.rival is None else float(centre - found.rival), "held_s": [t0, t1]}
-    if not np.isfinite(start) or found.rival is not None or found.score < MIN_OFFSET_CORRELATION:
+    moving = np.asarray(motion[1:], dtype=float)
+    resting = len(moving) >= 3 and np.percentile(moving, 10) <= STILL_MOTION_RATIO * np.percentile(moving, 90)
+    if not np.isfinite(start) or not resting or found.rival is not None or found.score < MIN_OFFSET_CORRELATION:
+        # (a video whose images never come to rest has no start or stop to line up: a steady spin's motion is
+        # flat, and a placement found in it was a third of a second off at a correlation of 0.85)
         why = ("the spin never starts or stops within the video, or the images never change" if not
-               np.isfinite(start) else f"another start ({info['rival_start_s']:.3f} s) fits as well"
+               np.isfinite(start) or not resting else f"another start ({info['rival_start_s']:.3f} s) fits as well"
                if found.rival is not None else f"image and joint motion correlate only {found.score:.2f}")
         print(f"warning: {label}: where its frames fall on the joint time series' clock could not be measured "
               f"({why}); its spin readings are not attached (no synced mode for it)", file=sys.stderr)
@@ -537,8 +544,7 @@ def _held_frames(tracks: list[Track], frame_times: np.ndarray, held_s, label: st
         print(f"warning: {label}: fewer than 2 tracks within its pose's span of the joint series; its frames are "
               "kept whole", file=sys.stderr)
         return tracks, [int(np.min([t.frames[0] for t in tracks])), int(np.max([t.frames[-1] for t in tracks]))]
-    frames = np.flatnonzero(inside)
-    return kept, [int(frames[0]), int(frames[-1])]
+    return kept, [int(min(t.frames[0] for t in kept)), int(max(t.frames[-1] for t in kept))]
 
 
 def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | str | os.PathLike, arm: Arm, *,
@@ -617,6 +623,12 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
     from .trackparams import tracker_metadata
     tracker, described, corner_tracks = default_tracker(tracker, tracker_params)
     measurements, placed = [], []
+    # each video's camera clock: its path from the videos' common folder (the same video twice, for two of its
+    # spins: numbered)
+    paths = [os.path.abspath(v) for v in videos]
+    common = os.path.commonpath(paths) if len(paths) > 1 else os.path.dirname(paths[0])
+    clocks = [os.path.relpath(path, common) if path != common else os.path.basename(path) for path in paths]
+    clocks = [c if clocks.count(c) == 1 else f"{k}:{c}" for k, c in enumerate(clocks)]
     with tqdm(total=n, desc="videos", unit="video", disable=not progress, file=sys.stderr) as bar:
         for k, (source, frame_range) in enumerate(zip(sources, checked_ranges, strict=True)):
             spin_joint = None if spin_joints is None else spin_joints[k]
@@ -626,7 +638,7 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
                                      progress, motion)
             spin_readings = None
             if motion is not None:
-                clock = labels[k] if labels.count(labels[k]) == 1 else f"{k}:{labels[k]}"
+                clock = clocks[k]
                 spin_readings, found = _video_readings(loaded, k, motion, first, rate, arm, spin_joint,
                                                        _label(k, labels), clock)
                 if spin_readings is not None:

@@ -544,14 +544,17 @@ def synced_words(synced, offset_s: float | None, sigma_s: float | None, n_measur
              if v.get("why") == "cover" else
              (f"encoders: measurement {k}'s readings disagree with the spin its tracks show (likelihood ratio "
               f"{v['chi2']:.0f} for {v['dof']} frames): not used; check the joint's sense and scale in the readings, "
-              "their clock, or their noise (CalibrationOptions.encoder_sigma_deg)")
+              "their clock (a video's: its frame rate, track --fps), or their noise "
+              "(CalibrationOptions.encoder_sigma_deg)")
              for k, v in sorted((refused or {}).items())]
     if not synced:
         return lines
     which = "every spin" if len(synced) == n_measurements else "measurements " + ", ".join(str(k) for k in synced)
     head = f"encoders: the spinning joint's readings set the spin's angle in every frame of {which} (synced)"
     if offsets:
-        lines.append(head + f"; each of the {len(offsets)} camera clocks its own offset from the encoder's:")
+        lines.append(head + f"; each of the {len(offsets)} camera clocks its own offset from the encoder's (a video "
+                     "placed on a joint time series by image motion is a clock of its own: its offset is what that "
+                     "placement left):")
         for clock, v in offsets.items():
             ks = ", ".join(str(k) for k in v.get("measurements") or ())
             words = _offset_words(v["offset_s"], v.get("sigma_s"), prior_sigma_s, v.get("noise_share"))

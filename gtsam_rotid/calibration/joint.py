@@ -452,6 +452,8 @@ def _time_offset_sigma(graph, result: gtsam.Values, sync: _Sync, i: int, correla
     dated = [d for d in dated if d is not None]
     information = sum(d[0] for d in dated)
     share = min(sum(d[1] for d in dated) / information, 1.0) if information > 0 else 1.0
+    if not (np.isfinite(share) and np.isfinite(variance)):
+        share = 1.0  # (no measure of what dates the frames: they are not taken as dated)
     if share > DATING_NOISE_MAX:
         return {"time_offset_sigma_s": float(sync.sigma), "time_offset_noise_share": share}
     pull = share / (1.0 - share) * (sync.now[i] - sync.mean)

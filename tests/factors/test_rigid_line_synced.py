@@ -209,3 +209,13 @@ def test_input_checks(spin):
         EncoderPrior([0.0], [0.0, 1.0], [0.0, 1.0], 0.0)
     with pytest.raises(ValueError, match="sign"):
         EncoderPrior([0.0], [0.0, 1.0], [0.0, 1.0], 1e-3, sign=0.5)
+
+
+def test_the_readings_rate_noise_is_zero_without_a_full_running_mean():
+    """EncoderPrior.rate_noise with exactly twice the running mean's frames has no rate with a full mean on each
+    side: 0 (it was the median of nothing, NaN, which made a synced offset's 1 sigma NaN)."""
+    times = np.linspace(0.0, 2.0, 201)
+    prior = EncoderPrior(np.linspace(0.5, 1.5, 30), times, 0.3 * times**2, np.radians(0.05))
+    assert prior.rate_noise(0.0, frames=15) == 0.0
+    assert np.isfinite(EncoderPrior(np.linspace(0.5, 1.5, 31), times, 0.3 * times**2, np.radians(0.05))
+                       .rate_noise(0.0, frames=15))
