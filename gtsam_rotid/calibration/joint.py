@@ -431,11 +431,10 @@ def _time_offset_sigma(graph, result: gtsam.Values, sync: _Sync, i: int, correla
                        keys) -> dict:
     """Clock ``i``'s estimated time offset's 1 sigma (s, ``time_offset_sigma_s``) and the share of its information
     that its readings' own noise makes (``time_offset_noise_share``): its cluster-robust marginal (as the pose's),
-    scaled as
-    the pose's where the axes' scatter scaled it; where the noise makes more than DATING_NOISE_MAX of the
-    information, the prior's sigma (the readings cannot date the frames), else widened for the pull towards the
-    prior's mean that noise in the offset's column gives (errors in variables: the estimate moves from the mean by
-    1 - share of the true offset's distance). None where held or indeterminate."""
+    scaled as the pose's where the axes' scatter scaled it; where the noise makes more than DATING_NOISE_MAX of the
+    information (or nothing measures it), the prior's sigma (the readings cannot date the frames), else widened for
+    the pull towards the prior's mean that noise in the offset's column gives (errors in variables: the estimate
+    moves from the mean by 1 - share of the true offset's distance). None where held or indeterminate."""
     if sync.sigma is None:
         return {"time_offset_sigma_s": None}
     try:
