@@ -79,7 +79,14 @@ from .rigid import (
     spin_chunk_index,
     spin_priors,
 )
-from .rigid_line import EncoderPrior, RigidLineFactor, RigidTracks, closest_spin, make_rigid_line_factor
+from .rigid_line import (
+    EncoderPrior,
+    RigidLineFactor,
+    RigidTracks,
+    closest_spin,
+    make_rigid_line_factor,
+    readings_cover,
+)
 
 __all__ = [
     "EncoderPrior",
@@ -116,6 +123,7 @@ __all__ = [
     "make_rigid_line_factor",
     "project",
     "projected_circle",
+    "readings_cover",
     "rigid_spin_residuals",
     "rot3_from_line",
     "spin_chunk_index",

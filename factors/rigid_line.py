@@ -140,6 +140,14 @@ class RigidTracks:
         return self._indices[q]
 
 
+def readings_cover(frame_times, times) -> bool:
+    """Whether every frame time lies within the readings' ``times`` (encoder clock), or beyond them by at most their
+    median interval (where :class:`EncoderPrior`'s line beyond the readings is one step of theirs)."""
+    frame_times, times = np.asarray(frame_times, dtype=float), np.asarray(times, dtype=float)
+    step = float(np.median(np.diff(times)))
+    return bool(frame_times.min() >= times[0] - step and frame_times.max() <= times[-1] + step)
+
+
 class EncoderPrior:
     """Readings of the spinning joint as a prior on a rigid spin's per-frame angles (synced mode).
 
@@ -190,11 +198,8 @@ class EncoderPrior:
         self._values, self._slopes = _smoothed(self.times, self.angles, float(smoothing_s))
 
     def covers(self, delta: float = 0.0) -> bool:
-        """Whether every frame's time (plus ``delta``) lies within the readings, or beyond them by at most their
-        median interval (where the prior's line beyond the readings, :meth:`at`, is one step of theirs)."""
-        shifted = self.frame_times + delta
-        step = float(np.median(np.diff(self.times)))
-        return bool(shifted.min() >= self.times[0] - step and shifted.max() <= self.times[-1] + step)
+        """Whether every frame's time (plus ``delta``) lies within the readings (:func:`readings_cover`)."""
+        return readings_cover(self.frame_times + delta, self.times)
 
     def rate_noise(self, delta: float, frames: int = 15) -> float:
         """The variance (rad^2/s^2) that the readings' own noise puts on the frames' rates (``at``'s derivative),

@@ -20,14 +20,16 @@ from .camera import Camera
 from .camerafiles import load_camera
 from .dataset import Dataset, Measurement, SpinReadings
 from .errors import ArmError, InputError, ValidationError
-from .recordings import MIN_SPIN_DEG, STILL_TOLERANCE_DEG, JointFile, _spin_runs, _still_pose
+from .recordings import (
+    MIN_SPIN_DEG,
+    READINGS_MARGIN_S,
+    SPIN_MARGIN_S,
+    STILL_TOLERANCE_DEG,
+    JointFile,
+    _spin_runs,
+    _still_pose,
+)
 from .trackrun import default_tracker, tracked_frames, tracker_description
-
-#: Images this close (s) to a spin's first or last joint state are left out (the stamps' own jitter).
-SPIN_MARGIN_S = 0.1
-#: A spin's readings (Measurement.spin_readings, synced mode) reach this far (s) beyond its first and last joint
-#: state: the joint at rest there, so that the estimated clocks' offset can move the frames within them.
-READINGS_MARGIN_S = 1.0
 
 
 def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | None = None,

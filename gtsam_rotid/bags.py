@@ -21,7 +21,7 @@ import numpy as np
 from .camera import Camera
 from .camerafiles import camera_from_document
 from .errors import CameraError, RecordingError
-from .frames import small_grey
+from .frames import with_motion
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
@@ -330,16 +330,17 @@ class Bag:
     def image_motion(self, topic: str, size: int = 64) -> tuple[np.ndarray, np.ndarray]:
         """(stamps, motion) of every image on ``topic``, in the bag's order: motion is the mean absolute difference
         (grey levels) of each image from the one before, at ``size`` pixels across (0 for the first)."""
-        stamps, motion, receive, previous = [], [], [], None
+        stamps, motion, receive = [], [], []
         self._bits[topic] = bits = self._topic_bits(topic)
-        for i, (stamp, message, msgtype, received) in enumerate(self.messages(topic)):
-            image = decode_image(message, msgtype, f"{self.path}, topic {topic}, image {i}", bits)
-            small = small_grey(image, size)
-            motion.append(0.0 if previous is None or previous.shape != small.shape
-                          else float(np.mean(np.abs(small - previous))))
-            stamps.append(stamp)
-            receive.append(received)
-            previous = small
+
+        def images():
+            for i, (stamp, message, msgtype, received) in enumerate(self.messages(topic)):
+                stamps.append(stamp)
+                receive.append(received)
+                yield decode_image(message, msgtype, f"{self.path}, topic {topic}, image {i}", bits)
+
+        for _ in with_motion(images(), motion, size):
+            pass
         self._receive[topic] = np.asarray(receive, dtype=np.int64)
         return np.asarray(stamps), np.asarray(motion)
 

@@ -477,13 +477,16 @@ def _tracked(source, frame_range, camera: Camera, tracker: Callable, tracker_par
                           progress), first
 
 
-#: A video's joint readings cover its frames' span and this much (s) on each side.
+#: A spin's readings (Measurement.spin_readings, synced mode: a video's, or a bag's spin's) reach this far (s) beyond
+#: its frames' span (a bag: beyond its first and last joint state), so that the estimated clocks' offset can move
+#: the frames within them.
 READINGS_MARGIN_S = 1.0
 #: A video's frames must come to rest (the spin starts or stops within it) for its place on a joint time series to
 #: be measured: the tenth percentile of its frame-to-frame motion at most this fraction of the ninetieth.
 STILL_MOTION_RATIO = 0.3
-#: With readings, a video's frames this close (s) to the ends of its pose's span in the joint series (where the
-#: other joints start or stop moving) are left out: the readings' smoothing there mixes in the arm's move.
+#: With readings, a video's frames (a bag's images) this close (s) to the ends of its pose's span in the joint
+#: series (where the other joints start or stop moving) are left out: the readings' smoothing there mixes in the
+#: arm's move, and the stamps have their own jitter.
 SPIN_MARGIN_S = 0.1
 
 

@@ -13,7 +13,14 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import RotIdError
-from ..factors import RigidLineFactor, axis_point_residuals, cal3_s2, image_line_from_rot3, rot3_from_line
+from ..factors import (
+    RigidLineFactor,
+    axis_point_residuals,
+    cal3_s2,
+    image_line_from_rot3,
+    readings_cover,
+    rot3_from_line,
+)
 from ..graph import (
     Model,
     SpinModel,
@@ -405,8 +412,7 @@ def _uncovered_readings(measurements, sync: _Sync) -> dict[int, dict]:
         frames = np.concatenate([t.frames for t in m.tracks if t.frames is not None])
         times = m.spin_readings.frame_times[frames] + sync.offset(k)
         first, last = float(m.spin_readings.times[0]), float(m.spin_readings.times[-1])
-        step = float(np.median(np.diff(m.spin_readings.times)))  # (as EncoderPrior.covers: one step beyond)
-        if times.min() < first - step or times.max() > last + step:
+        if not readings_cover(times, m.spin_readings.times):
             out[k] = {"why": "cover", "readings": [first, last], "frames": [float(times.min()), float(times.max())]}
     return out
 
