@@ -35,7 +35,8 @@ scenes outside their 99.9 % region (the "confident wrong numbers"; the target is
 dataset the calibration saw, :meth:`Dataset.save`) and ``scene.json`` (the true ``arm_T_camera`` as a 4x4 matrix
 and the tracker's numbers). ``--load DIR`` re-runs only the calibration on every saved scene and prints the same
 table (tracker columns as saved), in seconds: for re-evaluating an estimator change without rendering.
-``--spin-model free|rigid`` and ``--axis-floor-px PX`` calibrate with those ``CalibrationOptions``, ``--method
+``--spin-model free|rigid``, ``--axis-floor-px PX`` and ``--track-offset-px PX`` calibrate with those
+``CalibrationOptions``, ``--method
 weighted|paper`` with that estimator (default ``joint``); ``--json FILE``
 also writes every row's numbers. ``--load DIR --synced`` adds each spin's joint readings (:func:`with_readings`)
 and calibrates synced.
@@ -403,13 +404,15 @@ def main(argv=None) -> int:
                         help="the calibration's estimator (default: joint)")
     parser.add_argument("--axis-floor-px", type=float, default=None,
                         help="CalibrationOptions.axis_floor_px (default: what the tracker wrote into the dataset)")
+    parser.add_argument("--track-offset-px", type=float, default=None,
+                        help="CalibrationOptions.track_offset_px (default: what the tracker wrote into the dataset)")
     parser.add_argument("--json", default=None, metavar="FILE", help="also write the rows (every number) to FILE")
     parser.add_argument("--synced", action="store_true", help="with --load: add each spin's joint readings (the "
                         "simulator's spin read at 100/s, 0.02 deg noise) and calibrate synced")
     parser.add_argument("--poses", default="sampled", choices=("sampled", "planned"),
                         help="the simulator's sampled arm poses, or gtsam_rotid.planning's at a perturbed guess")
     args = parser.parse_args(argv)
-    options = CalibrationOptions(axis_floor_px=args.axis_floor_px,
+    options = CalibrationOptions(axis_floor_px=args.axis_floor_px, track_offset_px=args.track_offset_px,
                                  **({} if args.spin_model is None else {"spin_model": args.spin_model}))
     started = time.perf_counter()
     if args.synced and args.load is None:

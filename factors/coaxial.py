@@ -430,6 +430,29 @@ class CoaxialLineFactor:
         per_track = G[:, 3:6, 3:6] - np.einsum("jki,jkl->jil", G[:, 1:3, 3:6], state.M)
         return w[:, None, None] * per_track
 
+    def track_translation_scores(self, x=None, intrinsics: bool = False) -> np.ndarray:
+        """(m, 3, 2) how each track's score (:meth:`track_scores`, summed: the line's gradient) moves when all its
+        pixels move by one image translation ``t`` (px): ``V_j t`` to first order, ``V_j = sum_n J_n^T w_n n_n^T``
+        (``J`` the projected Jacobian, whose projection carries the circles' re-solve; ``n`` the residual's
+        derivative by the pixel, :meth:`.coaxial_tracks.CoaxialTracks.pixel_normals`; ``w`` the row weights
+        squared). A tracker's offset that follows a track (a blob centroid pulled by shading, a corner drifting on a
+        surface that turns) ``t_j ~ N(0, tau^2 I)``, independent across tracks, adds ``tau^2 sum_j V_j V_j^T`` to the
+        line's meat."""
+        _line_only(self, intrinsics)
+        state = self._at(x)
+        tracks = self.tracks
+        irls = self._scales(state)[0]
+        J = self._jacobian(state, irls)  # (N, 3), each row scaled by its track's weight
+        row = self._per_row(irls)
+        normals = tracks.pixel_normals(state.ev)
+        flat_track = tracks._flat(np.broadcast_to(tracks._layout.row_track[:, None], state.ev.V[0].shape))
+        out = np.empty((tracks.n_tracks, 3, 2))
+        for u in range(2):
+            weighted = J * tracks._flat(normals[u] * row)[:, None]
+            for k in range(3):
+                out[:, k, u] = np.bincount(flat_track, weights=weighted[:, k], minlength=tracks.n_tracks)
+        return out
+
     def information(self, x=None) -> np.ndarray:
         """(3, 3) ``J^T J`` of the (weighted) factor: the Schur complement of the full graph's Gauss-Newton
         Hessian, from the per-track sums (no N-sized work)."""

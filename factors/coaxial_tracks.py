@@ -478,6 +478,21 @@ class CoaxialTracks:
         H_dr = np.column_stack([self._flat(ev.V[1]), self._flat(ev.V[2])])
         return e, H_R, H_dr
 
+    def pixel_normals(self, ev) -> np.ndarray:
+        """(2, rows, L) the residuals' derivative by the observed pixel ``(u_x, u_y)`` at the evaluation ``ev`` (of
+        :meth:`_evaluate`): the curve's unit normal at each closest point (the closest phase moves with the pixel,
+        but the residual is stationary in it). The residual's numerator ``l = G5 + G6 s + G7 c`` is linear in the
+        pixel (``G = C8 (1, u_x, u_y)``) and its denominator ``|z[:2]|`` does not depend on it."""
+        C, s, c = ev.rows[_C8], ev.s, ev.c
+        sc, cc = s * c, c * c
+        Z = ev.rows[_Z]
+        z2 = Z[0][:, None] + Z[1][:, None] * s + Z[2][:, None] * c + Z[3][:, None] * sc + Z[4][:, None] * cc
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / np.sqrt(z2)
+        # C8's row of G_i's coefficient of u_x (column 1) and of u_y (column 2): C[3 i + column]
+        return np.stack([(C[15 + u][:, None] + C[18 + u][:, None] * s + C[21 + u][:, None] * c) * inv
+                         for u in (1, 2)])
+
     def phases(self, R, d, r) -> np.ndarray:
         """Closest phases (N,) in [-pi, pi] at the given variables."""
         ev = self._evaluate(*self._variables(R, d, r))

@@ -752,6 +752,19 @@ class RigidLineFactor(CoaxialLineFactor):
         Je = np.einsum("lsn,sn->ln", self._projected(state)[:q], state.ev.e) * row * row
         return self.tracks.track_sums(Je).T
 
+    def track_translation_scores(self, x=None, intrinsics: bool = False) -> np.ndarray:
+        """(m, 3, 2) how each track's score (:meth:`track_scores`) moves when all its pixels move by one image
+        translation ``t`` (px): ``V_j t`` to first order, ``V_j = -sum_n P_n^T w_n`` (the residual is the model's pixel
+        less the observed; ``P`` the projected Jacobian,
+        whose projection carries the re-solved circles, phases and spin angles; ``w`` the row weights squared); with
+        ``intrinsics`` (m, 8, 2), as :meth:`track_scores`. See
+        :meth:`.coaxial.CoaxialLineFactor.track_translation_scores`."""
+        state = self._at(x)
+        row = self._per_row(self._scales(state)[0])
+        q = self._pixel_columns(intrinsics)
+        P = self._projected(state)[:q] * -(row * row)
+        return np.stack([self.tracks.track_sums(P[:, u]).T for u in range(2)], axis=-1)
+
     def track_information(self, x=None, intrinsics: bool = False) -> np.ndarray:
         """(m, 3, 3) each track's ``J_j^T J_j`` (weighted, the spin projected out); with ``intrinsics`` (m, 8, 8),
         as :meth:`track_scores`."""

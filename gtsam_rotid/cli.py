@@ -128,6 +128,7 @@ def cmd_simulate(args) -> int:
 
 #: ``calibrate``'s flags by the CalibrationOptions field each sets (its errors name the flag)
 CALIBRATE_FLAGS = {"joint_sigma_deg": "--joint-sigma-deg", "axis_floor_px": "--axis-floor-px",
+                   "track_offset_px": "--track-offset-px",
                    "joint_offsets": "--joint-offsets", "joint_offset_sigma_deg": "--joint-offset-sigma-deg",
                    "refine_intrinsics": "--refine-intrinsics", "intrinsics_sigma": "--intrinsics-sigma",
                    "sync_encoders": "--no-sync", "encoder_sigma_deg": "--encoder-sigma-deg",
@@ -155,7 +156,8 @@ def cmd_calibrate(args) -> int:
                          f"--time-offset), got {args.time_offset_sigma:g}")
     try:
         options = CalibrationOptions(
-            joint_sigma_deg=args.joint_sigma_deg, axis_floor_px=args.axis_floor_px, joint_offsets=offsets,
+            joint_sigma_deg=args.joint_sigma_deg, axis_floor_px=args.axis_floor_px,
+            track_offset_px=args.track_offset_px, joint_offsets=offsets,
             joint_offset_sigma_deg=args.joint_offset_sigma_deg, refine_intrinsics=intrinsics,
             intrinsics_sigma=tuple(args.intrinsics_sigma or DEFAULT_INTRINSICS_SIGMA), sync_encoders=not args.no_sync,
             encoder_sigma_deg=args.encoder_sigma_deg, time_offset_s=args.time_offset,
@@ -436,7 +438,8 @@ def cmd_check(args) -> int:
             raise InputError(f"{args.calibration} was calibrated with another robot model than {args.dataset}'s ("
                              + ", ".join(f"{key}: {pose.robot.get(key)!r} vs {now.get(key)!r}" for key in differ)
                              + ")")
-    options = CalibrationOptions(joint_sigma_deg=pose.joint_sigma_deg, axis_floor_px=pose.axis_floor_px)
+    options = CalibrationOptions(joint_sigma_deg=pose.joint_sigma_deg, axis_floor_px=pose.axis_floor_px,
+                                 track_offset_px=pose.track_offset_px)
     if pose.joint_offsets:  # the calibration's kinematics: the readings plus the offsets it refined
         print("joint offsets of the calibration applied to the readings: " + ", ".join(
             f"{name} {np.degrees(v):+.3f} deg" for name, v in pose.joint_offsets.items()))
@@ -689,6 +692,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--axis-floor-px", type=float, default=None, metavar="PX",
                    help="the image axes' floor: an error in px that all of a spin's tracks share (default: the "
                         "value the tracker wrote into the dataset, 0 for tracks of unknown origin)")
+    p.add_argument("--track-offset-px", type=float, default=None, metavar="PX",
+                   help="each track's own offset: an error in px that follows one track over its whole arc, "
+                        "independent across tracks (default: the value the tracker wrote into the dataset, 0 for "
+                        "tracks of unknown origin)")
     p.add_argument("--joint-offsets", nargs="*", default=None, metavar="JOINT",
                    help="refine the zero offsets of these joints (before the spinning one) with the pose; no names: "
                         "every joint between the first and the spinning one (the first joint's offset turns the "

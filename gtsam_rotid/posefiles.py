@@ -36,6 +36,8 @@ class PoseFile(NamedTuple):
     joint_offsets: dict | None = None
     offsets_covariance: np.ndarray | None = None
     pose_offsets_covariance: np.ndarray | None = None
+    #: a result of ours: each track's own offset (px) its covariance assumed
+    track_offset_px: float | None = None
 
 
 def load_pose(path: str | os.PathLike, arm: Arm | None = None) -> PoseFile:
@@ -58,7 +60,7 @@ def load_pose(path: str | os.PathLike, arm: Arm | None = None) -> PoseFile:
         result = load_result(path)
         return PoseFile(result.arm_T_camera, result.covariance, "a gtsam_rotid result", result.joint_sigma_deg,
                         result.axis_floor_px, result.robot or None, result.joint_offsets,
-                        result.joint_offsets_covariance, result.pose_offsets_covariance)
+                        result.joint_offsets_covariance, result.pose_offsets_covariance, result.track_offset_px)
     if isinstance(document, dict) and document.get("format") == FORMAT_MARKER:
         return _transform(document, path, arm)
     if isinstance(document, dict) and "transformation" in document:

@@ -139,6 +139,8 @@ class CalibrationReport:
     joint_sigma_deg: float = 0.0
     #: the image axes' prior floor (px) the covariance includes (``result.axis_floor_px``)
     axis_floor_px: float = 0.0
+    #: each track's own offset (px) the covariance includes (``result.track_offset_px``)
+    track_offset_px: float = 0.0
     #: the joint offsets refined with the pose (joint name -> deg) and their 1σ (deg); None: kinematics as given
     joint_offsets_deg: dict | None = None
     joint_offsets_sigma_deg: dict = field(default_factory=dict)
@@ -238,7 +240,7 @@ class CalibrationReport:
                               self.time_offset_prior_sigma_s, self.readings_refused, self.time_offset_noise_share,
                               self.time_offsets),
                 *readings_ignored_words(self.readings_ignored, self.method),
-                tracking_words(self.axis_floor_px)]
+                tracking_words(self.axis_floor_px, self.track_offset_px)]
 
     def _uncertainty_lines(self) -> list[str]:
         q = self.quaternion_xyzw
@@ -365,6 +367,7 @@ class CalibrationReport:
             "chi2": {k: (f(v) if isinstance(v, float) else v) for k, v in self.chi2.to_dict().items()},
             "joint_sigma_deg": f(self.joint_sigma_deg),
             "axis_floor_px": f(self.axis_floor_px),
+            "track_offset_px": f(self.track_offset_px),
             "joint_offsets_deg": None if self.joint_offsets_deg is None
             else {k: f(v) for k, v in self.joint_offsets_deg.items()},
             "joint_offsets_sigma_deg": {k: f(v) for k, v in self.joint_offsets_sigma_deg.items()},
@@ -617,7 +620,8 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         crossing_miss_mm=1000.0 * float(np.max(geometry.miss)) if crossing else None, ambiguous=ambiguous,
         axis_consistency=getattr(result, "axis_consistency", None),
         joint_sigma_deg=float(getattr(result, "joint_sigma_deg", 0.0)), untrusted=untrusted,
-        axis_floor_px=float(getattr(result, "axis_floor_px", 0.0)), verdict=verdict(result), next_pose=planned,
+        axis_floor_px=float(getattr(result, "axis_floor_px", 0.0)),
+        track_offset_px=float(getattr(result, "track_offset_px", 0.0)), verdict=verdict(result), next_pose=planned,
         joint_offsets_deg=None if getattr(result, "joint_offsets", None) is None
         else {k: float(np.degrees(v)) for k, v in result.joint_offsets.items()},
         joint_offsets_sigma_deg=dict(getattr(result, "joint_offsets_sigma_deg", {})),

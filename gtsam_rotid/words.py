@@ -88,7 +88,7 @@ def summary(result: CalibrationResult) -> str:
                                                       result.readings_refused, result.time_offset_noise_share,
                                                       result.time_offsets))
     lines.extend("  " + line for line in readings_ignored_words(result.readings_ignored, result.method))
-    lines.append("  " + tracking_words(result.axis_floor_px))
+    lines.append("  " + tracking_words(result.axis_floor_px, result.track_offset_px))
     for m in result.measurements:
         why = outlier_words(m, intrinsics_suspected(result.untrusted), kinematics_suspected(result.untrusted))
         flag = f"  OUTLIER ({why})" if m.outlier else ""
@@ -582,15 +582,22 @@ def _offset_words(offset_s: float, sigma_s: float | None, prior_sigma_s: float |
     return line
 
 
-def tracking_words(axis_floor_px: float) -> str:
-    """What a covariance with the image axes' prior floor ``axis_floor_px`` (px; 0: none) assumes, in words."""
+def tracking_words(axis_floor_px: float, track_offset_px: float = 0.0) -> str:
+    """What a covariance with the image axes' prior floor ``axis_floor_px`` and each track's own offset
+    ``track_offset_px`` (px; 0: none) assumes, in words."""
+    offset = (f"each track taken as shifted by an image offset of its own, {track_offset_px:g} px 1σ per coordinate "
+              "(a tracker's error that follows a feature over its whole arc: a centroid pulled by shading, a corner "
+              "drifting on a turning surface; CalibrationOptions.track_offset_px / --track-offset-px)"
+              if track_offset_px > 0.0 else "")
     if axis_floor_px > 0.0:
         return (f"tracking: each image axis taken as uncertain by at least {axis_floor_px:g} px (an error all of a "
                 "spin's tracks share, the tracker's), in the covariance (CalibrationOptions.axis_floor_px / "
-                "--axis-floor-px)")
+                "--axis-floor-px)" + (f"; {offset}" if offset else ""))
+    if offset:
+        return f"tracking: {offset}, in the covariance; no floor on the image axes"
     return ("tracking: the tracks' errors taken as independent, no floor on the image axes (tracks of unknown "
             "origin or simulated; declare a tracker's shared error with CalibrationOptions.axis_floor_px / "
-            "--axis-floor-px)")
+            "--axis-floor-px, one that follows each track with --track-offset-px)")
 
 
 def _listed(items, conjunction: str) -> str:

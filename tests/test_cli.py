@@ -160,6 +160,17 @@ def test_calibrate_refines_intrinsics_and_exports_the_camera(noise_free_dataset,
     assert refused.returncode != 0 and "invalid choice: 'k1'" in refused.stderr
 
 
+def test_calibrate_takes_the_tracks_own_offsets(noise_free_dataset, tmp_path):
+    from gtsam_rotid.export import load_result
+
+    out = tmp_path / "result.json"
+    result = run("calibrate", str(noise_free_dataset), "--track-offset-px", "0.2", "-o", str(out))
+    assert "an image offset of its own, 0.2 px" in result.stdout
+    assert load_result(out).track_offset_px == 0.2
+    refused = run("calibrate", str(noise_free_dataset), "--track-offset-px", "-1", check=False)
+    assert refused.returncode != 0 and "--track-offset-px must be None or a finite number >= 0" in refused.stderr
+
+
 def test_calibrate_refuses_to_overwrite_and_keeps_the_old_file(noise_free_dataset, tmp_path):
     dataset = tmp_path / "without_truth"
     shutil.copytree(noise_free_dataset, dataset)

@@ -487,6 +487,13 @@ def test_tracking_with_a_floor_gives_it_in_pixels(floor):
     assert "independent" not in words
 
 
+@pytest.mark.parametrize("floor", [0.0, 0.09])
+def test_tracking_with_track_offsets_gives_them_in_pixels(floor):
+    words = tracking_words(floor, 0.15)
+    assert "an image offset of its own, 0.15 px" in words and "--track-offset-px" in words
+    assert ("at least" in words) == (floor > 0.0) and "independent, no floor" not in words
+
+
 def test_tracking_without_a_floor_says_the_errors_are_taken_as_independent_and_how_to_declare_one():
     words = tracking_words(0.0)
     assert "independent" in words and "no floor" in words

@@ -25,7 +25,7 @@ from ..factors import axis_offsets_residuals, axis_point_residuals
 from ..graph import Model, axis_test_points, offset_axis_test_points, track_huber
 from ..uncertainty import chi2_sf
 from .lm import _builder
-from .options import CalibrationError, CalibrationOptions, tracker_floor_px
+from .options import CalibrationError, CalibrationOptions, with_tracker_defaults
 from .setup import _setup
 from .stage1 import _checked, _stage1
 from .stage2 import _axis_distances
@@ -164,15 +164,13 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
         covariance = np.diag([np.radians(deg)] * 3 + [mm / 1000.0] * 3) ** 2
     prior = np.diag(WEAK_PRIOR**2)
     options = CalibrationOptions() if options is None else options
-    if options.axis_floor_px is None:
-        options = replace(options, axis_floor_px=tracker_floor_px(metadata))  # (the floor calibrate takes)
+    options = with_tracker_defaults(options, metadata)  # (the floor and offsets calibrate takes)
     measurements = [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements]
     # the test rests on stage 1's free-phase lines alone: where a spin's ellipses are thin their linearised
     # covariance understates the line's scatter, so they are jackknifed (stage1._thin), as for `weighted`
     # (random Panda poses at 1.5 px^2: the true pose was called changed, chi-square 31 for 6 dof; 8.2 with it)
     setup = replace(_setup(arm, camera, measurements, options, minimum=1), thin_check=True)
     stage1 = _pose_free_stage1(arm, camera, measurements, arm_T_camera, setup, options)
-    floor = setup.floor_covariance
     variance = [max(s.sigma2, float(np.median([t.sigma2 for t in stage1]))) for s in stage1]
 
     def rows(pose: gtsam.Pose3):
@@ -180,12 +178,12 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
         out = []
         for k, s in enumerate(stage1):  # the projected-axis factor's own distances and Jacobian
             e, J, _ = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), s.image_axis)
-            _, cov = _axis_distances(camera, setup.axes[k], s, pose, variance[k], setup, k)
+            _, cov = _axis_distances(camera, setup.axes[k], s, pose, variance[k], setup, k, floor=True)
             if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J)) and np.all(np.isfinite(cov))):
                 raise CalibrationError(f"spin {k}: the calibration puts its wrist axis behind the camera or out of "
                                        "the image; is the pose the camera's optical frame in the arm's root frame "
                                        "(x right, y down, z forward)?")
-            out.append((e, J, cov if floor is None else cov + floor))
+            out.append((e, J, cov))
         return out
 
     at_pose = rows(arm_T_camera)

@@ -43,9 +43,10 @@ from .offsets import determined_offsets
 from .opinion import _second_opinion
 from .options import INTRINSICS, CalibrationError, Method
 from .result import CalibrationResult
-from .stage1 import _circles, _noise_variance, _Stage1, _track_correlation, _track_stats
+from .stage1 import _circles, _noise_variance, _Stage1, _track_correlation, _track_offset_meat, _track_stats
 from .stage2 import (
     _axis_consistency,
+    _axis_floors,
     _axis_rows,
     _finish,
     _prior_floor_covariance,
@@ -100,12 +101,13 @@ def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anch
     reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, fit.chi2, tied)
     variances = {k: stage1[k].sigma2 for k in used}
     rows = _axis_rows(camera, setup, stage1, used, fit.pose, variances)  # (one pass for the three below)
+    floors = _axis_floors(camera, setup, stage1, used, fit.pose)
     _with_axis_covariances(reports, used, rows)
-    consistency = _axis_consistency(rows, setup, options)
+    consistency = _axis_consistency(rows, floors, options)
     solved = _Solved(fit.pose, None, pose_information(fit.graph, values, POSE_KEY), Method.WEIGHTED, True,
                      fit.iterations, fit.graph.error(values))
     result = _finish(solved, reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(fit.graph, values),
-                     consistency=consistency, prior=_prior_floor_covariance(rows, setup))
+                     consistency=consistency, prior=_prior_floor_covariance(rows, floors))
     return Fitted(replace(result, alternatives=_outside(fit.alternatives, result)), stage1)
 
 
@@ -326,7 +328,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         # then lost on 6 poses planned for offsets and intrinsics); the dense marginal is None where the pose
         # itself is indeterminate, which the observability analysis of ``info`` then says
         covariance = joint_marginal_covariance(graph, result, [POSE_KEY], 6)
-    correlated = _meats(keys, result, stage1, sigmas, used)
+    correlated = _meats(keys, result, stage1, sigmas, used, setup.track_offset_px)
     if covariance is not None and correlated:  # errors shared along a track: the cluster-robust covariance
         robust = sandwich_marginal(graph, result, POSE_KEY, 6, correlated)
         covariance = covariance if robust is None else robust
@@ -354,8 +356,9 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                 offsets_covariance = robust
         determined = determined_offsets(offsets_covariance, offsets.sigma)
     out = _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
-                  consistency=_axis_consistency(rows, setup, options, fitted=determined),
-                  prior=_prior_floor_covariance(rows, setup))
+                  consistency=_axis_consistency(rows, _axis_floors(camera, setup, stage1, used, pose), options,
+                                                fitted=determined),
+                  prior=_prior_floor_covariance(rows, _axis_floors(camera, setup, stage1, used, pose, offsets=False)))
     if shapes is not None:  # (judged, at the axes' scale that a camera change leaves, by run._checked_model)
         out = replace(out, intrinsics_shapes=shapes)
     if intrinsics is not None:
@@ -492,7 +495,8 @@ def _intrinsics_shapes(arm, camera, measurements, setup, stage1, used, result: g
                                                 circles, lines, rest=rest, intrinsics=prior, sync=sync,
                                                 solved=_solved(keys, result))
         # the meats again, in this graph: where a factor has the intrinsics, its meat spans them too
-        extra = _with_floor(_meats(free_keys, values, stage1, sigmas, used), camera, setup, free_keys, used, values)
+        extra = _with_floor(_meats(free_keys, values, stage1, sigmas, used, setup.track_offset_px), camera, setup,
+                            free_keys, used, values)
         step = np.asarray(graph.linearize(values).optimize().at(INTRINSICS_KEY))
         covariance = sandwich_marginal(graph, values, INTRINSICS_KEY, 5, extra)
         both = joint_marginal_covariance(graph, values, [POSE_KEY, INTRINSICS_KEY], 11)
@@ -549,10 +553,11 @@ def _judged(shapes: dict, scale: float) -> dict:
     return out
 
 
-def _meats(keys, values: gtsam.Values, stage1, sigmas, used) -> dict:
+def _meats(keys, values: gtsam.Values, stage1, sigmas, used, track_offset_px: float = 0.0) -> dict:
     """Each measurement's extra meat for :func:`sandwich_marginal` (a variance in units of its pixel noise,
     information ``H E H``): its tracks' correlation (:func:`_track_correlation`) plus stage 1's jackknife excess of
-    its line, keyed by the line variable, or by ``(line, intrinsics)`` where its factor has the intrinsics variable.
+    its line, plus each track's own offset of ``track_offset_px`` (:func:`_track_offset_meat`), keyed by the line
+    variable, or by ``(line, intrinsics)`` where its factor has the intrinsics variable.
 
     A meat on the line alone would then understate its bound: the factor ties the line to the intrinsics (a focal
     length and a line's tilt trade within one measurement), so ``D`` confined to the line's block is not below a
@@ -566,11 +571,12 @@ def _meats(keys, values: gtsam.Values, stage1, sigmas, used) -> dict:
         if factor is None:
             continue
         line = stage1[k].rotation_info @ stage1[k].excess @ stage1[k].rotation_info / sigmas[k] ** 2
-        if getattr(factor, "intrinsics_key", None) is None:
-            out[keys[k].line_key] = _track_correlation(factor, values) + line
-        else:
-            out[(keys[k].line_key, factor.intrinsics_key)] = (_track_correlation(factor, values, intrinsics=True)
-                                                              + _lifted(factor, values, line))
+        both = getattr(factor, "intrinsics_key", None) is not None
+        meat = (_track_correlation(factor, values, intrinsics=both)
+                + (_lifted(factor, values, line) if both else line))
+        if track_offset_px > 0.0:
+            meat = meat + _track_offset_meat(factor, values, track_offset_px, intrinsics=both)
+        out[(keys[k].line_key, factor.intrinsics_key) if both else keys[k].line_key] = meat
     return out
 
 

@@ -4,7 +4,7 @@ raised when it cannot be done.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import StrEnum
 
 import numpy as np
@@ -108,6 +108,14 @@ class CalibrationOptions:
     #: (``metadata["tracker"]["axis_floor_px"]``, :func:`gtsam_rotid.tracking.tracker_metadata`), else 0 (tracks of
     #: unknown origin and simulated ones, whose noise is independent by construction).
     axis_floor_px: float | None = None
+    #: weighted, joint: each track's own offset (px, 1 sigma per image coordinate): every track is taken to be
+    #: shifted by one image translation of its own, independent across tracks (a blob centroid pulled by shading in
+    #: a recess, a corner drifting on a surface that turns towards the camera: errors that follow a track over its
+    #: whole arc and that its own points cannot average out). Its information is not in the fit's weights; what it
+    #: passes into the estimate (through each track's leverage on its image axis) is added to the covariance and to
+    #: the axes' tests. None (default): the tracker's value in the dataset's metadata
+    #: (``metadata["tracker"]["track_offset_px"]``), else 0.
+    track_offset_px: float | None = None
     #: joint: refine offsets (zero-position errors common to every pose; the reading plus the offset is the joint's
     #: angle) of joints before the spinning one with the pose: ``True`` every joint between the first and the
     #: spinning one (the first joint's offset turns the arm as the pose does), or a list of joint names. None
@@ -165,6 +173,11 @@ class CalibrationOptions:
                 or self.axis_floor_px < 0):
             raise InputError(f"CalibrationOptions.axis_floor_px must be None or a finite number >= 0, "
                              f"got {self.axis_floor_px!r}")
+        if self.track_offset_px is not None and (isinstance(self.track_offset_px, bool) or not isinstance(
+                self.track_offset_px, int | float | np.number) or not np.isfinite(self.track_offset_px)
+                or self.track_offset_px < 0):
+            raise InputError(f"CalibrationOptions.track_offset_px must be None or a finite number >= 0, "
+                             f"got {self.track_offset_px!r}")
         if self.joint_offsets is False:
             self.joint_offsets = None
         if self.joint_offsets is not None and self.joint_offsets is not True:
@@ -236,11 +249,31 @@ def checked_intrinsics_sigma(sigma, name: str = "intrinsics_sigma") -> tuple[flo
 def tracker_floor_px(metadata: dict) -> float:
     """The image axes' prior floor (px) the dataset's tracker wrote (``metadata["tracker"]["axis_floor_px"]``);
     0 when it names none."""
+    return _tracker_px(metadata, "axis_floor_px")
+
+
+def tracker_offset_px(metadata: dict) -> float:
+    """Each track's own offset (px) the dataset's tracker wrote (``metadata["tracker"]["track_offset_px"]``); 0
+    when it names none."""
+    return _tracker_px(metadata, "track_offset_px")
+
+
+def with_tracker_defaults(options: CalibrationOptions, metadata: dict) -> CalibrationOptions:
+    """``options`` with the tracker's values (:func:`tracker_floor_px`, :func:`tracker_offset_px`) where they are
+    None."""
+    if options.axis_floor_px is None:
+        options = replace(options, axis_floor_px=tracker_floor_px(metadata))
+    if options.track_offset_px is None:
+        options = replace(options, track_offset_px=tracker_offset_px(metadata))
+    return options
+
+
+def _tracker_px(metadata: dict, name: str) -> float:
     tracker = metadata.get("tracker")
-    value = tracker.get("axis_floor_px") if isinstance(tracker, dict) else None
+    value = tracker.get(name) if isinstance(tracker, dict) else None
     if value is None:
         return 0.0
     if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
-        raise InputError(f"the dataset's metadata[\"tracker\"][\"axis_floor_px\"] must be a finite number >= 0 "
+        raise InputError(f"the dataset's metadata[\"tracker\"][\"{name}\"] must be a finite number >= 0 "
                          f"(px), got {value!r}")
     return float(value)

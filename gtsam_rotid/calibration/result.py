@@ -207,6 +207,8 @@ class CalibrationResult:
     joint_sigma_deg: float = 0.0
     #: the image axes' prior floor (px) the covariance includes (CalibrationOptions.axis_floor_px, resolved)
     axis_floor_px: float = 0.0
+    #: each track's own offset (px) the covariance includes (CalibrationOptions.track_offset_px, resolved)
+    track_offset_px: float = 0.0
     #: why the covariance cannot be trusted although the poses determine the calibration (kind -> measurement
     #: indices involved); see :data:`UNTRUSTED_KINDS` and :func:`gtsam_rotid.words.untrusted_words`
     untrusted: dict[str, list[int]] = field(default_factory=dict)
@@ -348,6 +350,7 @@ class CalibrationResult:
             "axis_consistency": None if self.axis_consistency is None else self.axis_consistency.to_dict(),
             "joint_sigma_deg": self.joint_sigma_deg,
             "axis_floor_px": self.axis_floor_px,
+            "track_offset_px": self.track_offset_px,
             "untrusted": self.untrusted,
             "robot": self.robot,
             "dataset": self.dataset,
@@ -396,6 +399,7 @@ class CalibrationResult:
             else AxisConsistency.from_dict(data["axis_consistency"]),
             joint_sigma_deg=float(data.get("joint_sigma_deg", 0.0)),
             axis_floor_px=float(data.get("axis_floor_px", 0.0)),
+            track_offset_px=float(data.get("track_offset_px", 0.0)),
             untrusted={str(k): [int(i) for i in v] for k, v in data.get("untrusted", {}).items()},
             robot=dict(data.get("robot") or {}),
             dataset=dict(data.get("dataset") or {}),

@@ -19,7 +19,7 @@ from .joint import Fitted, _joint, _judged, _weighted
 from .lm import _builder
 from .modelcheck import IMPROVEMENT_Z, intrinsics_check, kinematics_check
 from .offsets import MAX_OFFSET_SIGMAS, OffsetsPrior, offsets_from_axes, shifted
-from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method, tracker_floor_px
+from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method, with_tracker_defaults
 from .result import CalibrationResult, MeasurementReport, OutlierKind
 from .setup import _Setup, arc_span_deg
 from .stage2 import _check_scale, _paper, _refined_stage1
@@ -61,8 +61,7 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
     except ValueError:
         raise InputError(f"unknown method {method!r}; choose one of {[m.value for m in Method]}") from None
     options = CalibrationOptions() if options is None else options
-    if options.axis_floor_px is None:
-        options = replace(options, axis_floor_px=tracker_floor_px(metadata))
+    options = with_tracker_defaults(options, metadata)
     measurements = [m if isinstance(m, Measurement) else Measurement(*m) for m in measurements]
     for k, m in enumerate(measurements):  # as a Dataset checks them (a Dataset's are checked already)
         problem = arm.limit_problem(m.joint_angles)
@@ -234,7 +233,8 @@ def _calibrate(arm, camera, measurements, method, options, index, given_camera: 
         if method is Method.JOINT:
             return replace(_checked_model(arm, camera, measurements, setup, choice.stage1, choice.joint),
                            alternatives=[*choice.alternatives, *choice.joint.alternatives],
-                           joint_sigma_deg=options.joint_sigma_deg, axis_floor_px=setup.floor_px), setup
+                           joint_sigma_deg=options.joint_sigma_deg, axis_floor_px=setup.floor_px,
+                           track_offset_px=setup.track_offset_px), setup
         runs, anchors = [(runs[choice.best][0], choice.stage1)], [anchors[choice.best]]
         alternatives = choice.alternatives
     init_pose, stage1 = runs[0]
@@ -243,7 +243,8 @@ def _calibrate(arm, camera, measurements, method, options, index, given_camera: 
     return replace(_checked_model(arm, camera, measurements, setup, fitted.stage1, fitted.result),
                    alternatives=[*alternatives, *fitted.result.alternatives],
                    joint_sigma_deg=0.0 if method is Method.PAPER else options.joint_sigma_deg,
-                   axis_floor_px=0.0 if method is Method.PAPER else setup.floor_px), setup
+                   axis_floor_px=0.0 if method is Method.PAPER else setup.floor_px,
+                   track_offset_px=0.0 if method is Method.PAPER else setup.track_offset_px), setup
 
 
 def _offsets_start(arm, camera, measurements, method, options, index) -> tuple[list, OffsetsPrior]:

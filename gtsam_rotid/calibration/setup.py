@@ -43,6 +43,8 @@ class _Setup:
     turning: list[float] = field(default_factory=list)
     #: the image axes' prior floor (px, ``CalibrationOptions.axis_floor_px`` resolved by ``calibrate``)
     floor_px: float = 0.0
+    #: each track's own offset (px, ``CalibrationOptions.track_offset_px`` resolved by ``calibrate``)
+    track_offset_px: float = 0.0
     #: the joint offsets the calibration refines (:class:`gtsam_rotid.calibration.offsets.OffsetsPrior`; the
     #: measurements' readings, hence ``axes``, are already shifted by its ``start``); None: the kinematics as given
     offsets: object | None = None
@@ -108,7 +110,9 @@ def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: C
     turning = [max((_turning_deg(t.ideal) for t in p.usable.values()), default=0.0) for p in prepared]
     index = list(range(len(measurements))) if index is None else list(index)
     return _Setup(axes, prepared, lines, noise, index, camera.K, turning=turning,
-                  floor_px=float(options.axis_floor_px or 0.0), spin_joints=[m.spin_joint for m in measurements])
+                  floor_px=float(options.axis_floor_px or 0.0),
+                  track_offset_px=float(options.track_offset_px or 0.0),
+                  spin_joints=[m.spin_joint for m in measurements])
 
 
 def test_point_jacobian(arm: Arm, joint_angles, step: float = 1e-6, joint: str | None = None) -> np.ndarray:

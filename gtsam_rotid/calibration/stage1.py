@@ -71,6 +71,9 @@ class _Stage1:
     #: (3, 3) the jackknife's excess over the linearised line covariance (tangent, in units of the pixel noise
     #: variance ``sigma2``); zero where the linearisation holds
     excess: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    #: (3, 3) the image axis' covariance (px, not scaled by the pixel noise) that the tracks' own offsets
+    #: (``CalibrationOptions.track_offset_px``, :func:`_track_offset_meat`) give; None without them
+    offset_axis_cov: np.ndarray | None = None
 
 
 def _circles(keys: MeasurementKeys, values) -> list[np.ndarray]:
@@ -226,6 +229,19 @@ def _track_correlation(factor, values, sigma2: float = 1.0, intrinsics: bool = F
     return root @ ((U * excess) @ U.T) @ root.T
 
 
+def _track_offset_meat(factor, values, tau_px: float, intrinsics: bool = False) -> np.ndarray:
+    """(3, 3) (with ``intrinsics`` (8, 8), where the factor has them) the meat that each track's own image translation
+    ``t_j ~ N(0, tau_px^2 I)``, independent across tracks, adds to the factor's variable(s): ``tau^2 sum_j V_j
+    V_j^T`` (``V_j`` the factor's ``track_translation_scores``: how the gradient moves with the translation), in
+    the factor's own units (its information's). A shift that follows a track over its whole arc moves the image
+    axis through that track's leverage, more for the few long arcs that carry a line, which no number of other
+    tracks averages out (the ambient scenes' blob centroids pulled by shading, corners drifting on turning
+    surfaces: 0.1-0.3 px)."""
+    V = factor.track_translation_scores(values, intrinsics=intrinsics)
+    meat = tau_px**2 * np.einsum("jau,jbu->ab", V, V)
+    return 0.5 * (meat + meat.T)
+
+
 def _axis_watch(builder: RotIdGraph, k: int, prepared):
     """What stage 1's LM watches: the image axis at the corners of the tracks' bounding box."""
     corners = np.array([np.min([t.ideal.min(axis=0) for t in prepared.usable.values()], axis=0),
@@ -279,10 +295,14 @@ def _stage1_result(builder, graph, keys, result, stats, skip, iterations, option
     cov_R = (V / np.maximum(w, 1e-12 * max(w.max(), 1e-300))) @ V.T
     circles = dict(zip(keys.tracks, _circles(keys, result), strict=True))
     sigma2 = _noise_variance(stats, 3, options)
+    offset = None
+    if keys.coaxial is not None and (options.track_offset_px or 0.0) > 0.0:  # (the graph is at unit pixel noise)
+        plain = cov_R @ _track_offset_meat(keys.coaxial, result, options.track_offset_px) @ cov_R
+        offset = J @ plain @ J.T
     if keys.coaxial is not None:  # errors shared along a track: the cluster-robust line covariance
         cov_R = cov_R + cov_R @ _track_correlation(keys.coaxial, result, sigma2) @ cov_R
     return _Stage1(keys, R, circles, line, J @ cov_R @ J.T, sigma2, sum(n for _, n in stats.values()), skip,
-                   iterations, stats, info, cov_R)
+                   iterations, stats, info, cov_R, offset_axis_cov=offset)
 
 
 def _jackknife(builder: RotIdGraph, measurement, k: int, pose: gtsam.Pose3, prepared, s: _Stage1,

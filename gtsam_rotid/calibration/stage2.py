@@ -87,10 +87,11 @@ def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup
 
 
 def _axis_distances(camera: Camera, axis, stage1: _Stage1, pose: gtsam.Pose3, sigma2: float | None = None,
-                    setup: _Setup | None = None, k: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    setup: _Setup | None = None, k: int | None = None,
+                    floor: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Distances of the projected FK test points to the stage-1 image axis, and their covariance (at the
     measurement's own pixel noise variance unless ``sigma2`` is given; with ``setup`` plus the joint-angle noise'
-    of measurement ``k``, :meth:`_Setup.tie_covariance`)."""
+    of measurement ``k``, :meth:`_Setup.tie_covariance`; with ``floor`` too the prior floor's, :func:`_floor_of`)."""
     points = np.array([pose.transformTo(p) for p in axis_test_points(axis)])
     pixels = camera.project(points, distort=False)
     e = line_distances(stage1.image_axis, pixels)
@@ -99,7 +100,38 @@ def _axis_distances(camera: Camera, axis, stage1: _Stage1, pose: gtsam.Pose3, si
     extra = None if setup is None else setup.tie_covariance(camera, k, stage1.image_axis, pose)
     if extra is not None:
         cov = cov + extra
+    F = _floor_of(setup, stage1, pixels) if floor else None
+    if F is not None:
+        cov = cov + F
     return e, cov
+
+
+def _floor_of(setup: _Setup, stage1: _Stage1, pixels: np.ndarray) -> np.ndarray | None:
+    """(2, 2) the prior floor on a measurement's test-point distances (``pixels``: the test points' images): the
+    floor all image axes share (:attr:`_Setup.floor_covariance`) plus what its tracks' own offsets give its axis
+    (``stage1.offset_axis_cov``, ``CalibrationOptions.track_offset_px``); None with neither. Like the floor, the
+    offsets are not in the fit's weights: what they pass into the estimate is added to its covariance
+    (:func:`_prior_floor_covariance`), and they are in the axes' test."""
+    F = setup.floor_covariance
+    if stage1.offset_axis_cov is not None:
+        offset = line_distance_covariance(stage1.offset_axis_cov, pixels)
+        F = offset if F is None else F + offset
+    return F
+
+
+def _axis_floors(camera: Camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3,
+                 offsets: bool = True) -> list | None:
+    """Per used measurement, :func:`_floor_of` at ``pose`` (None for a measurement without one); None where no
+    measurement has one. Without ``offsets`` only the floor all axes share (the joint fit's covariance carries the
+    tracks' own offsets in its sandwich, :func:`.joint._meats`)."""
+    if not offsets:
+        F = setup.floor_covariance
+        return None if F is None else [F] * len(used)
+    floors = []
+    for k in used:
+        points = np.array([pose.transformTo(p) for p in axis_test_points(setup.axes[k])])
+        floors.append(_floor_of(setup, stage1[k], camera.project(points, distort=False)))
+    return floors if any(F is not None for F in floors) else None
 
 
 def _with_axis_covariances(reports, used: list[int], rows) -> None:
@@ -129,10 +161,11 @@ def _chi2(camera, setup: _Setup, stage1, pose, sigma2: dict[int, float] | None =
     return np.array(out)
 
 
-def _axis_consistency(rows, setup: _Setup, options, fitted: int = 0) -> AxisConsistency | None:
+def _axis_consistency(rows, floors: list | None, options, fitted: int = 0) -> AxisConsistency | None:
     """The test of :class:`AxisConsistency` about the estimate ``pose`` on the used measurements' ``rows`` there
     (:func:`_axis_rows` at ``pose`` without the floor, each measurement's line at the pixel noise variance the fit
-    weighted it by; the prior floor is added here); None without redundancy (fewer than 4 measurements).
+    weighted it by; the prior floor, ``floors`` of :func:`_axis_floors`, is added here); None without redundancy
+    (fewer than 4 measurements).
 
     The chi-square is the axes' own minimum: at the pose that fits them best with those weights (linearised about
     ``pose``), which is what has ``2 n - 6`` dof. At ``pose`` itself (the joint fit's, which weights the
@@ -143,8 +176,8 @@ def _axis_consistency(rows, setup: _Setup, options, fitted: int = 0) -> AxisCons
     dof = 2 * len(rows) - 6 - fitted
     if dof <= 0:
         return None
-    F = setup.floor_covariance
-    rows = rows if F is None else [(e, cov + F, J) for e, cov, J in rows]
+    if floors is not None:
+        rows = [(e, cov if F is None else cov + F, J) for (e, cov, J), F in zip(rows, floors, strict=True)]
     chi2 = _refitted_chi2(rows, 0.0)
     if not np.isfinite(chi2):  # the FK axes do not even project: no agreement to measure
         return AxisConsistency(np.inf, dof, 0.0, np.inf)
@@ -161,16 +194,13 @@ def _axis_rows(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3
                sigma2: dict[int, float], floor: bool = False,
                axes: dict | None = None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per used measurement: its test points' distances to its image axis, their covariance (pixel noise at
-    ``sigma2[k]`` and joint-angle noise, :func:`_axis_distances`; with ``floor`` the prior floor's
-    :attr:`_Setup.floor_covariance` too) and their (2, 6) Jacobian by the pose. ``axes`` (k -> FK axis) replaces
+    ``sigma2[k]`` and joint-angle noise, :func:`_axis_distances`; with ``floor`` the prior floor's, :func:`_floor_of`,
+    too) and their (2, 6) Jacobian by the pose. ``axes`` (k -> FK axis) replaces
     ``setup.axes`` (other kinematics, :func:`.modelcheck.kinematics_check`)."""
     rows = []
-    F = setup.floor_covariance if floor else None
     for k in used:
         axis = setup.axes[k] if axes is None else axes[k]
-        e, cov = _axis_distances(camera, axis, stage1[k], pose, sigma2[k], setup, k)
-        if F is not None:
-            cov = cov + F
+        e, cov = _axis_distances(camera, axis, stage1[k], pose, sigma2[k], setup, k, floor=floor)
         J = axis_point_residuals(camera.K, pose, axis_test_points(axis), stage1[k].image_axis)[1]
         rows.append((e, cov, J))
     return rows
@@ -227,21 +257,21 @@ def _axis_floor(rows, target: float) -> tuple[float, np.ndarray | None]:
     return float(np.sqrt(tau2)), increment if np.all(np.isfinite(increment)) else None
 
 
-def _prior_floor_covariance(rows, setup: _Setup) -> np.ndarray | None:
-    """The pose covariance (6x6, Pose3 tangent) that the prior floor's errors (:attr:`_Setup.floor_covariance`,
-    ``F`` on every used axis' test-point distances) pass into an estimate fitted without them, to first order:
-    ``H^-1 (sum_k J_k^T W_k F W_k J_k) H^-1`` with the fit's own weights ``W_k = V_k^-1`` (``rows``: the used
+def _prior_floor_covariance(rows, floors: list | None) -> np.ndarray | None:
+    """The pose covariance (6x6, Pose3 tangent) that the prior floor's errors (``floors`` of :func:`_axis_floors`,
+    ``F_k`` on each used axis' test-point distances) pass into an estimate fitted without them, to first order:
+    ``H^-1 (sum_k J_k^T W_k F_k W_k J_k) H^-1`` with the fit's own weights ``W_k = V_k^-1`` (``rows``: the used
     measurements' :func:`_axis_rows` at the estimate without the floor: the pixel noise at the fit's variance and
     the joint-angle noise) and ``H = sum_k J_k^T W_k J_k``: the sandwich's part that the floor adds. None without a
     floor or when the axes alone do not determine the pose."""
-    F = setup.floor_covariance
-    if F is None:
+    if floors is None:
         return None
     H, meat = np.zeros((6, 6)), np.zeros((6, 6))
-    for _, cov, J in rows:
+    for (_, cov, J), F in zip(rows, floors, strict=True):
         WJ = np.linalg.solve(cov, J)
         H += J.T @ WJ
-        meat += WJ.T @ F @ WJ
+        if F is not None:
+            meat += WJ.T @ F @ WJ
     try:
         H_inv = np.linalg.inv(H)
     except np.linalg.LinAlgError:

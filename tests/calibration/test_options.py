@@ -42,3 +42,5 @@ def test_axis_floor_option_is_checked():
     for bad in (-0.1, float("nan"), True, "0.1"):
         with pytest.raises(InputError, match="axis_floor_px must be None or a finite number >= 0"):
             CalibrationOptions(axis_floor_px=bad)
+        with pytest.raises(InputError, match="track_offset_px must be None or a finite number >= 0"):
+            CalibrationOptions(track_offset_px=bad)

@@ -196,3 +196,22 @@ def test_the_axes_floor_comes_from_the_trackers_metadata_unless_given(noisy_scen
     broken = Dataset(dataset.arm, dataset.camera, list(dataset), metadata={"tracker": {"axis_floor_px": -1}})
     with pytest.raises(InputError, match=r'metadata\["tracker"\]\["axis_floor_px"\] must be a finite number'):
         calibrate(broken)
+
+
+def test_the_tracks_own_offsets_come_from_the_trackers_metadata_unless_given(noisy_scene):
+    from gtsam_rotid.estimate import CalibrationOptions
+
+    dataset, _ = noisy_scene
+    bare = calibrate(dataset)
+    assert bare.track_offset_px == 0.0 and "--track-offset-px" in summary(bare)
+    named = Dataset(dataset.arm, dataset.camera, list(dataset), metadata={"tracker": {"track_offset_px": 0.3}})
+    offset = calibrate(named)
+    assert offset.track_offset_px == 0.3 and "an image offset of its own, 0.3 px" in summary(offset)
+    assert np.all(offset.sigma_mm_arm > bare.sigma_mm_arm) and np.all(offset.sigma_deg > bare.sigma_deg)
+    np.testing.assert_array_equal(offset.arm_T_camera.matrix(), bare.arm_T_camera.matrix())  # (not in the weights)
+    given = calibrate(named, options=CalibrationOptions(track_offset_px=0.0))  # the option wins
+    np.testing.assert_array_equal(given.covariance, bare.covariance)
+    assert type(offset).from_dict(offset.to_dict()).track_offset_px == 0.3
+    broken = Dataset(dataset.arm, dataset.camera, list(dataset), metadata={"tracker": {"track_offset_px": "x"}})
+    with pytest.raises(InputError, match=r'metadata\["tracker"\]\["track_offset_px"\] must be a finite number'):
+        calibrate(broken)

@@ -555,6 +555,50 @@ def test_track_scores_are_each_tracks_gradient(measurement):
     np.testing.assert_allclose(S.sum(axis=0), -(A.T @ b), rtol=1e-8, atol=1e-9 * np.abs(A.T @ b).max())
 
 
+def test_track_translation_scores_are_the_gradients_change_when_a_track_moves(measurement):
+    """V_j t is how the line's gradient moves when every pixel of track j moves by t (the circles re-solved): against
+    central differences of the summed scores of factors built on the moved pixels."""
+    m = measurement
+    values = line_values(m.line)
+    # exact at zero residual; with noise the projected Jacobian drops the residual-weighted second derivatives (as
+    # Gauss-Newton does, see the module's caveat): there it is first order, within 1 % of the change's size
+    for pixels, rtol, share in ((m.exact, 1e-5, 1e-6), (m.noisy, 0.0, 0.01)):
+        factor = make_coaxial_line_factor(L(0), pixels, m.K, m.circles, sigma_px=SIGMA, tol=1e-14)
+        V = factor.track_translation_scores(values)
+        assert V.shape == (len(pixels), 3, 2)
+        for j in (0, len(pixels) // 2):
+            for u in range(2):
+                def gradient(sign, j=j, u=u, pixels=pixels, step=1e-3):
+                    moved = [p.copy() for p in pixels]
+                    moved[j][:, u] += sign * step
+                    f = make_coaxial_line_factor(L(0), moved, m.K, m.circles, sigma_px=SIGMA, tol=1e-14)
+                    return f.track_scores(values).sum(axis=0)
+
+                numeric = (gradient(1.0) - gradient(-1.0)) / 2e-3
+                np.testing.assert_allclose(V[j, :, u], numeric, rtol=rtol, atol=share * np.linalg.norm(numeric))
+
+
+def test_tracks_own_translations_move_the_line_as_their_scores_say(measurement, rng):
+    """Each track moved by a small image translation of its own (the pixels otherwise exact): the line the factor
+    then fits moves by ``-H^-1 sum_j V_j t_j`` to first order, which is what the track-offset meat
+    ``tau^2 sum_j V_j V_j^T`` propagates (calibration.stage1._track_offset_meat). (First order: at 0.05 px the
+    line's weakest direction moves by 0.7 of it, at 0.01 px 0.94, at 0.002 px 0.99.)"""
+    m = measurement
+    values = line_values(m.line)
+    factor = make_coaxial_line_factor(L(0), m.exact, m.K, m.circles, sigma_px=SIGMA, tol=1e-14)
+    V, H = factor.track_translation_scores(values), factor.information(values)
+    t = 0.003 * rng.standard_normal((len(m.exact), 2))
+    moved = make_coaxial_line_factor(L(0), [p + t[j] for j, p in enumerate(m.exact)], m.K, m.circles,
+                                     sigma_px=SIGMA, tol=1e-14)
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(moved.factor)
+    solved = gtsam.LevenbergMarquardtOptimizer(graph, values, tight_params()).optimize().atRot3(L(0))
+    shift = m.line.localCoordinates(solved)
+    predicted = -np.linalg.solve(H, np.einsum("jau,ju->a", V, t))
+    assert np.linalg.norm(shift) > 1e-7  # (the translations move it)
+    np.testing.assert_allclose(shift, predicted, rtol=0, atol=0.03 * np.linalg.norm(predicted))
+
+
 def whitened_meat(m, offsets_px: float, draws: int, rng) -> np.ndarray:
     """Mean over noise draws of H^-1/2 (sum_j s_j s_j^T) H^-1/2 at the true line: white pixel noise of SIGMA plus
     a constant offset per track (standard deviation ``offsets_px`` per coordinate)."""

@@ -315,6 +315,41 @@ def test_intrinsics_variable(measurement):
                                atol=1e-9)
 
 
+def test_track_translation_scores_are_the_gradients_change_when_a_track_moves(measurement):
+    """V_j t is how the line's (and the intrinsics') gradient moves when every pixel of track j moves by t (the
+    circles, phases and spin angles re-solved): against central differences of factors built on the moved pixels."""
+    from gtsam.symbol_shorthand import K
+
+    from gtsam_rotid.factors import cal3_s2
+
+    m = measurement
+    values = line_values(m.line)
+    values.insert(K(0), cal3_s2(m.K))
+
+    def factor_on(pixels):
+        tracks, phi0, theta = start(m, m.noisy)  # the same start for every factor
+        tracks = RigidTracks(list(zip(pixels, m.frames, strict=True)))
+        return make_rigid_line_factor(L(0), tracks, m.K, m.circles, phi0, theta, sigma_px=SIGMA, tol=1e-14,
+                                      intrinsics_key=K(0))
+
+    # exact at zero residual; with noise first order (the projected Jacobian drops the residual-weighted second
+    # derivatives, as Gauss-Newton does): within 1 % of the change's size
+    for pixels, rtol, share in ((m.exact, 1e-5, 1e-6), (m.noisy, 0.0, 0.01)):
+        V = factor_on(pixels).track_translation_scores(values, intrinsics=True)
+        assert V.shape == (len(pixels), 8, 2)
+        np.testing.assert_allclose(factor_on(pixels).track_translation_scores(values), V[:, :3], rtol=1e-12,
+                                   atol=0)
+        for j in (0, len(pixels) // 2):
+            for u in range(2):
+                def gradient(sign, j=j, u=u, pixels=pixels, step=1e-3):
+                    moved = [p.copy() for p in pixels]
+                    moved[j][:, u] += sign * step
+                    return factor_on(moved).track_scores(values, intrinsics=True).sum(axis=0)
+
+                numeric = (gradient(1.0) - gradient(-1.0)) / 2e-3
+                np.testing.assert_allclose(V[j, :, u], numeric, rtol=rtol, atol=share * np.linalg.norm(numeric))
+
+
 def test_per_track_scores_and_information_span_the_intrinsics(measurement):
     """With an intrinsics variable, each track's score and information can span it too (the cluster-robust meat
     over the line and the intrinsics together): summed, they are the linearised factor's gradient and Gauss-Newton
