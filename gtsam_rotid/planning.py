@@ -38,8 +38,9 @@ from .calibration.options import (
     checked_intrinsics_sigma,
     checked_offset_sigma_deg,
     tracker_floor_px,
+    tracker_offset_px,
 )
-from .calibration.stage1 import measured_noise
+from .calibration.stage1 import MeasuredNoise, measured_noise
 from .camera import Camera
 from .collisions import ArmCollisions
 from .dataset import Dataset
@@ -954,9 +955,9 @@ def dataset_information(dataset: Dataset, arm_T_camera: gtsam.Pose3, options: Pl
     """The information (6x6) of an existing dataset's tracks at ``arm_T_camera``: what new poses add to. With
     ``measured`` (default) the recording is counted as ``calibrate`` would count it: each measurement at the pixel
     noise its own tracks show (its line fitted alone, :func:`gtsam_rotid.calibration.stage1.measured_noise`, without
-    the tracks that fit leaves out) and with the floor of the dataset's tracker (its metadata; none where it names
-    no tracker); otherwise at the plan's pixel noise and axis floor (quicker: no fit). With
-    ``options.refine_intrinsics``, on the pose and fx, fy, cx, cy too (the rigid spin), with
+    the tracks that fit leaves out) and with the floor and the tracks' own offsets of the dataset's tracker (its
+    metadata; none where it names no tracker); otherwise at the plan's pixel noise and axis floor (quicker: no fit).
+    With ``options.refine_intrinsics``, on the pose and fx, fy, cx, cy too (the rigid spin), with
     ``options.joint_offsets`` on the offsets too (in that order; without their priors, which the plan adds)."""
     options = PlanOptions() if options is None else options
     intrinsics = options.refine_intrinsics
@@ -965,19 +966,21 @@ def dataset_information(dataset: Dataset, arm_T_camera: gtsam.Pose3, options: Pl
                          spin_model=spin_model, intrinsics_key=_INTRINSICS_KEY if intrinsics else None,
                          joint_offsets=options.joint_offsets)
     graph, values = _nuisance_graph(builder, arm_T_camera)
-    floor_px, noise = options.axis_floor_px, [(options.pixel_sigma, {})] * len(dataset)
+    floor_px, noise = options.axis_floor_px, [MeasuredNoise(options.pixel_sigma, {})] * len(dataset)
     if measured:
         floor_px = tracker_floor_px(dataset.metadata)
         noise = measured_noise(dataset.arm, dataset.camera, list(dataset), arm_T_camera,
-                               CalibrationOptions(spin_model=spin_model))
+                               CalibrationOptions(spin_model=spin_model,
+                                                  track_offset_px=tracker_offset_px(dataset.metadata)))
     floor = 2.0 * floor_px**2 * np.eye(2)
     for k, measurement in enumerate(dataset):
         if noise[k] is None:  # (a measurement that cannot be fitted alone: calibrate leaves it out too)
             continue
-        sigma, outliers = noise[k]
+        # the tracks' own offsets, as the floor, on its image axis (here in the weights: an information)
+        tie = floor if noise[k].offset_covariance is None else floor + noise[k].offset_covariance
         try:
-            builder.add_measurement(graph, values, k, measurement, tie_covariance=floor, skip_tracks=outliers,
-                                    track_sigmas=dict.fromkeys(range(len(measurement.tracks)), sigma))
+            builder.add_measurement(graph, values, k, measurement, tie_covariance=tie, skip_tracks=noise[k].outliers,
+                                    track_sigmas=dict.fromkeys(range(len(measurement.tracks)), noise[k].sigma))
         except InputError:
             continue
     if graph.size() == 0:

@@ -174,6 +174,10 @@ def test_a_recorded_dataset_is_counted_at_its_own_noise_and_trackers_floor(scene
     floored = Dataset(dataset.arm, dataset.camera, list(dataset), metadata={"tracker": {"axis_floor_px": 0.3}})
     with_floor = np.sqrt(np.diag(np.linalg.inv(dataset_information(floored, truth.arm_T_camera, plan))))
     assert np.all(with_floor >= sigma["measured"] * (1 - 1e-9)) and np.any(with_floor > 1.2 * sigma["measured"])
+    # and so are its tracks' own offsets
+    offsets = Dataset(dataset.arm, dataset.camera, list(dataset), metadata={"tracker": {"track_offset_px": 0.5}})
+    with_offsets = np.sqrt(np.diag(np.linalg.inv(dataset_information(offsets, truth.arm_T_camera, plan))))
+    assert np.all(with_offsets >= sigma["measured"] * (1 - 1e-9)) and np.any(with_offsets > 1.2 * sigma["measured"])
 
 
 def test_refine_intrinsics_plans_for_the_pose_marginal(kinova):

@@ -14,6 +14,7 @@ from ..camera import Camera
 from ..errors import RotIdError
 from ..factors import (
     image_line_from_rot3,
+    line_distance_covariance,
     line_distances,
     rot3_from_line,
 )
@@ -23,6 +24,7 @@ from ..graph import (
     RotIdGraph,
     align_line,
     axis_in_camera,
+    axis_test_points,
     chi2_quantile,
     initial_circle,
     track_huber,
@@ -525,12 +527,21 @@ def _start_line(camera: Camera, axis, image_axis: np.ndarray, pose: gtsam.Pose3)
     return line if image_axis is None else align_line(line, plane_normal(camera.K, image_axis))
 
 
+class MeasuredNoise(NamedTuple):
+    """A measurement's pixel noise (px per image coordinate), the tracks stage 1 leaves out (track -> reason), and
+    the (2, 2) covariance (px²) that its tracks' own offsets (``CalibrationOptions.track_offset_px``) give its image
+    axis' test-point distances at the pose (None without them)."""
+
+    sigma: float
+    outliers: dict[int, str]
+    offset_covariance: np.ndarray | None = None
+
+
 def measured_noise(arm, camera: Camera, measurements, pose: gtsam.Pose3, options: CalibrationOptions | None = None
-                   ) -> list[tuple[float, dict[int, str]] | None]:
-    """Each measurement's pixel noise (px per image coordinate) and the tracks that stage 1 leaves out as outliers
-    (track -> reason), as ``calibrate`` measures them: its line fitted alone to its tracks, started about the FK
-    axis seen from ``pose``. None for a measurement that cannot be fitted alone (too few usable tracks, no finite
-    residuals). For counting what a recording already knows at its own noise (the planner)."""
+                   ) -> list[MeasuredNoise | None]:
+    """Each measurement's :class:`MeasuredNoise` as ``calibrate`` measures it: its line fitted alone to its tracks,
+    started about the FK axis seen from ``pose``. None for a measurement that cannot be fitted alone (too few usable
+    tracks, no finite residuals). For counting what a recording already knows at its own noise (the planner)."""
     options = CalibrationOptions() if options is None else options
     out = []
     for m in measurements:
@@ -540,5 +551,12 @@ def measured_noise(arm, camera: Camera, measurements, pose: gtsam.Pose3, options
         except (RotIdError, np.linalg.LinAlgError, RuntimeError):
             out.append(None)
             continue
-        out.append((float(np.sqrt(s.sigma2)), dict(s.outliers)) if np.isfinite(s.sigma2) and s.sigma2 > 0 else None)
+        if not (np.isfinite(s.sigma2) and s.sigma2 > 0):
+            out.append(None)
+            continue
+        offset = None
+        if s.offset_axis_cov is not None:
+            points = np.array([pose.transformTo(p) for p in axis_test_points(setup.axes[0])])
+            offset = line_distance_covariance(s.offset_axis_cov, camera.project(points, distort=False))
+        out.append(MeasuredNoise(float(np.sqrt(s.sigma2)), dict(s.outliers), offset))
     return out
