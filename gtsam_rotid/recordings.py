@@ -550,6 +550,28 @@ def _held_frames(tracks: list[Track], frame_times: np.ndarray, held_s, label: st
     return kept, [int(min(t.frames[0] for t in kept)), int(max(t.frames[-1] for t in kept))]
 
 
+def _check_distinct_frames(videos: list[Path], ranges: list[tuple[int, int | None]], labels: list[str]) -> None:
+    """Two measurements whose frames overlap in the same video (the same file given twice, for the same spin) would
+    each take the other's spin under their own arm pose: an :class:`InputError` naming both."""
+    seen: dict[str, list[int]] = {}
+    for k, video in enumerate(videos):
+        seen.setdefault(os.path.realpath(video), []).append(k)
+    for same in seen.values():
+        for a, i in enumerate(same):
+            for j in same[a + 1:]:
+                (s_i, e_i), (s_j, e_j) = ranges[i], ranges[j]
+                if s_i < (math.inf if e_j is None else e_j) and s_j < (math.inf if e_i is None else e_i):
+                    raise InputError(f"{_label(i, labels)} and {_label(j, labels)} are the same video "
+                                     f"({videos[i]}) with overlapping frames ({_range(ranges[i])} and "
+                                     f"{_range(ranges[j])}): each measurement needs its own spin, at its own arm "
+                                     "pose (a video that holds several spins: give each its frame range)")
+
+
+def _range(frame_range: tuple[int, int | None]) -> str:
+    start, stop = frame_range
+    return f"frames {start}:{'' if stop is None else stop}"
+
+
 def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | str | os.PathLike, arm: Arm, *,
                  tracker: Callable | None = None, tracker_params: Any = None,
                  frame_ranges: Sequence[tuple[int | None, int | None] | None] | None = None,
@@ -583,7 +605,8 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
             cannot be placed on the series' clock (no frame rate, a spin that never starts or stops within it,
             two places that fit alike) gets none, with a warning.
 
-    Every video is checked before any tracking (missing, unreadable, empty, a range beyond a folder's end);
+    Every video is checked before any tracking (missing, unreadable, empty, a range beyond a folder's end, the same
+    video's frames given to two measurements);
     a range beyond a video's end, frames of another size than the camera's, or fewer than 2 tracks in a video
     raise a :class:`RecordingError` naming the video.
     """
@@ -623,6 +646,7 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
     series = readings and loaded is not None and loaded.unwrapped is not None
     sources = [open_source(v) for v in videos]  # fail fast, before the slow tracking
     checked_ranges = [checked_range(r, v) for r, v in zip(frame_ranges, videos, strict=True)]
+    _check_distinct_frames(videos, checked_ranges, labels)
     from .trackparams import tracker_metadata
     tracker, described, corner_tracks = default_tracker(tracker, tracker_params)
     measurements, placed = [], []

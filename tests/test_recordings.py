@@ -568,6 +568,15 @@ def test_make_dataset_errors(tmp_path, arm, camera):
         make_dataset(videos, POSES, other, arm, tracker=FakeTracker(), progress=False)
     with pytest.raises(InputError, match="one per video"):
         make_dataset(videos, POSES, camera, arm, tracker=tracker, frame_ranges=[None], progress=False)
+    # the same video twice: its spins must not overlap (nothing is tracked before the check)
+    twice, tracker = [videos[0], videos[1], videos[0]], FakeTracker()
+    with pytest.raises(InputError, match=r"measurement 0 \(pose_a.*\) and measurement 2 \(pose_a.*\) are the same "
+                                         r"video .* overlapping frames \(frames 0: and frames 4:8\)"):
+        make_dataset(twice, POSES, camera, arm, tracker=tracker, frame_ranges=[None, None, (4, 8)], progress=False)
+    assert tracker.calls == []
+    made = make_dataset(twice, POSES, camera, arm, tracker=FakeTracker(), frame_ranges=[(0, 4), None, (4, 8)],
+                        progress=False)  # two spins of one video
+    assert len(made) == 3
 
 
 # ---------------------------------------------------------------------------------------------- command line
