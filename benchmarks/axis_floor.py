@@ -1,4 +1,6 @@
-"""The corner tracker's prior floor on the image axes (``trackparams.AXIS_FLOOR_PX``), measured on rendered scenes.
+"""The corner tracker's errors on the image axes, measured on rendered scenes: as a floor shared by every axis
+(``trackparams.CORNER_AXIS_FLOOR_PX``), or with ``--track-offsets`` as each track's own offset
+(``trackparams.TRACK_OFFSET_PX``).
 
 For each scene saved by ``benchmarks/ambient.py --save DIR``: the calibration (``joint``, no prior floor), and for
 each strong measurement it used (not weak: enough tracks and arc), the two test points of its FK axis projected by
@@ -13,7 +15,12 @@ second moment, as a covariance must; DerSimonian and Laird's estimator of a rand
 heavy-tailed error and leaves its tail out; then the RMS and median of the errors in units of their 1 sigma at a
 few floors (heavy tails show as an RMS well above 1 where the median sits inside).
 
-Run: ``python benchmarks/axis_floor.py --load DIR`` (one core, about 40 s per scene).
+With ``--track-offsets`` the same errors are held by each track's own image offset instead: the calibration runs
+with ``track_offset_px`` 1 and no floor, and each strong measurement's ``MeasurementReport.axis_offset_covariance``
+is ``O_k``, what a 1 px offset per track gives its test points' distances; a ``tau`` makes their covariance
+``V_k + tau^2 O_k`` (no sqrt(2): ``tau`` is ``track_offset_px``).
+
+Run: ``python benchmarks/axis_floor.py --load DIR [--track-offsets]`` (one core, about 40 s per scene).
 """
 
 from __future__ import annotations
@@ -30,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from ambient import DATASET_DIR, SCENE_FILE, true_axis_distances  # noqa: E402  (ambient.py --save's layout)
 
 
-def scene_rows(root: Path) -> tuple[list[dict], bool] | None:
+def scene_rows(root: Path, offsets: bool = False) -> tuple[list[dict], bool] | None:
     """The strong measurements' test-point distances from the truth and their covariance, and whether the
     calibration called its covariance usable; None when the scene has no dataset or is refused."""
     import gtsam
@@ -44,30 +51,33 @@ def scene_rows(root: Path) -> tuple[list[dict], bool] | None:
     dataset = Dataset.load(root / DATASET_DIR)
     truth = gtsam.Pose3(np.array(document["arm_T_camera"], dtype=float))
     try:
-        result = calibrate(dataset, options=CalibrationOptions(axis_floor_px=0.0))
+        result = calibrate(dataset, options=CalibrationOptions(axis_floor_px=0.0,
+                                                               track_offset_px=1.0 if offsets else 0.0))
     except RotIdError:
         return None
-    out = [{"e": e, "cov": np.asarray(m.axis_test_covariance, dtype=float)}
+    out = [{"e": e, "cov": np.asarray(m.axis_test_covariance, dtype=float),
+            "unit": np.asarray(m.axis_offset_covariance, dtype=float) if offsets else np.eye(2)}
            for m, e in zip(result.measurements, true_axis_distances(result, dataset, truth), strict=True)
-           if m.used and not m.weak and m.axis_test_covariance is not None]
+           if m.used and not m.weak and m.axis_test_covariance is not None
+           and (not offsets or m.axis_offset_covariance is not None)]
     return out, bool(result.covariance_usable)
 
 
-def _stacked(rows: list[dict]) -> tuple[np.ndarray, np.ndarray]:
-    """The rows' distances (k, 2) and their covariances (k, 2, 2)."""
-    return np.array([r["e"] for r in rows]), np.array([r["cov"] for r in rows])
+def _stacked(rows: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows' distances (k, 2), their covariances (k, 2, 2) and what ``tau^2`` multiplies (k, 2, 2)."""
+    return np.array([r["e"] for r in rows]), np.array([r["cov"] for r in rows]), np.array([r["unit"] for r in rows])
 
 
-def _squared(E: np.ndarray, V: np.ndarray, tau: float) -> np.ndarray:
-    """Each row's squared error over its covariance with ``tau^2`` added (2 dof per row)."""
-    return np.einsum("ki,ki->k", E, np.linalg.solve(V + tau**2 * np.eye(2), E[..., None])[..., 0])
+def _squared(E: np.ndarray, V: np.ndarray, U: np.ndarray, tau: float) -> np.ndarray:
+    """Each row's squared error over its covariance with ``tau^2 U`` added (2 dof per row)."""
+    return np.einsum("ki,ki->k", E, np.linalg.solve(V + tau**2 * U, E[..., None])[..., 0])
 
 
 def ml_tau(rows: list[dict]) -> float:
-    """The maximum-likelihood common floor (px) on a grid of 1 000 values up to 1 px."""
-    E, V = _stacked(rows)
+    """The maximum-likelihood ``tau`` (px) on a grid of 1 000 values up to 1 px."""
+    E, V, U = _stacked(rows)
     taus = np.linspace(0.0, 1.0, 1001)
-    nll = [np.sum(np.linalg.slogdet(V + tau**2 * np.eye(2))[1]) + np.sum(_squared(E, V, tau)) for tau in taus]
+    nll = [np.sum(np.linalg.slogdet(V + tau**2 * U)[1]) + np.sum(_squared(E, V, U, tau)) for tau in taus]
     return float(taus[int(np.argmin(nll))])
 
 
@@ -97,10 +107,15 @@ def z_stats(rows: list[dict], tau: float) -> tuple[float, float]:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--load", required=True, metavar="DIR", help="scenes saved by benchmarks/ambient.py --save")
+    parser.add_argument("--track-offsets", action="store_true",
+                        help="measure each track's own offset (track_offset_px) instead of a floor on every axis")
     args = parser.parse_args(argv)
+    offsets = args.track_offsets
+    as_option = (lambda tau: tau) if offsets else (lambda tau: tau / np.sqrt(2))
+    option = "track_offset_px" if offsets else "axis_floor_px"
     scenes = {}
     for root in sorted(p for p in Path(args.load).iterdir() if p.is_dir()):
-        got = scene_rows(root)
+        got = scene_rows(root, offsets)
         if got is None:
             print(f"{root.name}: no calibration")
             continue
@@ -119,13 +134,13 @@ def main(argv=None) -> int:
             continue
         moment, ml = moment_tau(rows), ml_tau(rows)
         rms, median = z_stats(rows, ml)
-        print(f"{name}: {len(rows)} strong measurements; moment tau {moment:.3f} px -> axis_floor_px "
-              f"{moment / np.sqrt(2):.3f}; Gaussian maximum-likelihood tau {ml:.3f} px -> {ml / np.sqrt(2):.3f}, "
+        print(f"{name}: {len(rows)} strong measurements; moment tau {moment:.3f} px -> {option} "
+              f"{as_option(moment):.3f}; Gaussian maximum-likelihood tau {ml:.3f} px -> {as_option(ml):.3f}, "
               f"where |error| / 1 sigma has RMS {rms:.2f}, median {median:.2f} (Gaussian: 1, 0.83)")
     rows = [r for n in groups["all scenes"] for r in scenes[n][0]]
-    for tau in (0.0, 0.05, 0.1, 0.2):
+    for tau in (0.0, 0.05, 0.1, 0.15, 0.2):
         rms, median = z_stats(rows, tau)
-        print(f"  all scenes at tau {tau:.2f} px (floor {tau / np.sqrt(2):.3f}): RMS {rms:.2f}, median {median:.2f}")
+        print(f"  all scenes at tau {tau:.2f} px ({option} {as_option(tau):.3f}): RMS {rms:.2f}, median {median:.2f}")
     return 0
 
 

@@ -47,6 +47,7 @@ from .stage1 import _circles, _noise_variance, _Stage1, _track_correlation, _tra
 from .stage2 import (
     _axis_consistency,
     _axis_floors,
+    _axis_offsets,
     _axis_rows,
     _finish,
     _prior_floor_covariance,
@@ -102,7 +103,7 @@ def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anch
     variances = {k: stage1[k].sigma2 for k in used}
     rows = _axis_rows(camera, setup, stage1, used, fit.pose, variances)  # (one pass for the three below)
     floors = _axis_floors(camera, setup, stage1, used, fit.pose)
-    _with_axis_covariances(reports, used, rows)
+    _with_axis_covariances(reports, used, rows, _axis_offsets(camera, setup, stage1, used, fit.pose))
     consistency = _axis_consistency(rows, floors, options)
     solved = _Solved(fit.pose, None, pose_information(fit.graph, values, POSE_KEY), Method.WEIGHTED, True,
                      fit.iterations, fit.graph.error(values))
@@ -319,7 +320,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, chi2, tied)
     variances = {k: sigmas[k] ** 2 for k in used}
     rows = _axis_rows(camera, setup, stage1, used, pose, variances)  # (one pass for the three below)
-    _with_axis_covariances(reports, used, rows)
+    _with_axis_covariances(reports, used, rows, _axis_offsets(camera, setup, stage1, used, pose))
     try:
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
     except RuntimeError:

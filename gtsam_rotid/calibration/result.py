@@ -66,6 +66,10 @@ class MeasurementReport:
     #: image axis with where another ``arm_T_camera`` (a ground truth) puts the FK axis. Weighted and joint, the
     #: measurements used; None otherwise
     axis_test_covariance: list[list[float]] | None = None
+    #: the covariance (px^2, 2x2) that its tracks' own offsets (``track_offset_px``) give the same distances (the
+    #: calibration adds it to ``axis_test_covariance`` in the axes' test and in what it passes into the estimate);
+    #: None without them
+    axis_offset_covariance: list[list[float]] | None = None
     #: the longest arc among its kept tracks (deg, about its fitted circle: :func:`circle_arc_span_deg`; about the
     #: track's own ellipse for a measurement left out before stage 1); None when unknown
     arc_span_deg: float | None = None

@@ -112,11 +112,27 @@ def _floor_of(setup: _Setup, stage1: _Stage1, pixels: np.ndarray) -> np.ndarray 
     (``stage1.offset_axis_cov``, ``CalibrationOptions.track_offset_px``); None with neither. Like the floor, the
     offsets are not in the fit's weights: what they pass into the estimate is added to its covariance
     (:func:`_prior_floor_covariance`), and they are in the axes' test."""
-    F = setup.floor_covariance
-    if stage1.offset_axis_cov is not None:
-        offset = line_distance_covariance(stage1.offset_axis_cov, pixels)
+    F, offset = setup.floor_covariance, _offset_of(stage1, pixels)
+    if offset is not None:
         F = offset if F is None else F + offset
     return F
+
+
+def _offset_of(stage1: _Stage1, pixels: np.ndarray) -> np.ndarray | None:
+    """(2, 2) what a measurement's tracks' own offsets give its test-point distances (``pixels``: the test points'
+    images); None without them."""
+    return None if stage1.offset_axis_cov is None else line_distance_covariance(stage1.offset_axis_cov, pixels)
+
+
+def _axis_offsets(camera: Camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3) -> list | None:
+    """Per used measurement, :func:`_offset_of` at ``pose``; None where no measurement has track offsets."""
+    out = [_offset_of(stage1[k], _test_pixels(camera, setup.axes[k], pose)) for k in used]
+    return out if any(o is not None for o in out) else None
+
+
+def _test_pixels(camera: Camera, axis, pose: gtsam.Pose3) -> np.ndarray:
+    """(2, 2) the images of an FK axis' two test points under ``pose``."""
+    return camera.project(np.array([pose.transformTo(p) for p in axis_test_points(axis)]), distort=False)
 
 
 def _axis_floors(camera: Camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3,
@@ -127,18 +143,18 @@ def _axis_floors(camera: Camera, setup: _Setup, stage1, used: list[int], pose: g
     if not offsets:
         F = setup.floor_covariance
         return None if F is None else [F] * len(used)
-    floors = []
-    for k in used:
-        points = np.array([pose.transformTo(p) for p in axis_test_points(setup.axes[k])])
-        floors.append(_floor_of(setup, stage1[k], camera.project(points, distort=False)))
+    floors = [_floor_of(setup, stage1[k], _test_pixels(camera, setup.axes[k], pose)) for k in used]
     return floors if any(F is not None for F in floors) else None
 
 
-def _with_axis_covariances(reports, used: list[int], rows) -> None:
+def _with_axis_covariances(reports, used: list[int], rows, offsets: list | None = None) -> None:
     """Each used measurement's report (``reports[k]``) gains its test points' distance covariance, from its row of
-    :func:`_axis_rows` (without the floor) at the estimate (:attr:`MeasurementReport.axis_test_covariance`)."""
-    for k, (_, cov, _) in zip(used, rows, strict=True):
+    :func:`_axis_rows` (without the floor) at the estimate (:attr:`MeasurementReport.axis_test_covariance`), and
+    what its tracks' own offsets add there (``offsets``, :func:`_axis_offsets`)."""
+    for i, (k, (_, cov, _)) in enumerate(zip(used, rows, strict=True)):
         reports[k].axis_test_covariance = np.asarray(cov, dtype=float).tolist()
+        if offsets is not None and offsets[i] is not None:
+            reports[k].axis_offset_covariance = np.asarray(offsets[i], dtype=float).tolist()
 
 
 def _chi2(camera, setup: _Setup, stage1, pose, sigma2: dict[int, float] | None = None) -> np.ndarray:

@@ -239,6 +239,12 @@ def test_declared_track_offsets_hold_errors_that_follow_each_track(noisy_scene, 
     # the axes' test includes them: without, the same axes disagree more
     bare = calibrate(shifted, options=CalibrationOptions(track_offset_px=0.0))
     assert result.axis_consistency.chi2 < bare.axis_consistency.chi2
+    # each used measurement reports what they add to its test points' distances (benchmarks/axis_floor.py reads it)
+    for m, b in zip(result.measurements, bare.measurements, strict=True):
+        assert b.axis_offset_covariance is None
+        if m.used:
+            offset = np.asarray(m.axis_offset_covariance)
+            assert offset.shape == (2, 2) and np.linalg.eigvalsh(offset).min() > 0.0
 
 
 def test_the_papers_refusal_names_thin_evidence_whatever_ran_before():
