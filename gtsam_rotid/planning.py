@@ -49,7 +49,7 @@ from .factors import cal3_s2
 from .graph import MIN_TRACK_EXTENT_PX, RotIdGraph
 from .initialise import MIN_ELLIPSE_POINTS
 from .simulate import SceneConfig, SpinScene
-from .trackparams import AXIS_FLOOR_PX
+from .trackparams import CORNER_AXIS_FLOOR_PX
 from .uncertainty import Observability, analyse_observability, marginal_information, pose_information
 
 #: A camera guess farther than this (m) from the arm's base is taken for a mistake of units.
@@ -86,9 +86,10 @@ class PlanOptions:
     spin_seconds: float = 20.0
     fps: float = 30.0
     wrist_speed: float = 0.5
-    #: pixel noise of a tracked point, and the tracker's floor on each image axis (px; 0 for simulated tracks)
+    #: pixel noise of a tracked point, and the tracker's floor on each image axis (px; 0 for simulated tracks; the
+    #: default stands for the corner tracker's errors, :data:`gtsam_rotid.trackparams.CORNER_AXIS_FLOOR_PX`)
     pixel_sigma: float = 0.5
-    axis_floor_px: float = AXIS_FLOOR_PX["auto"]
+    axis_floor_px: float = CORNER_AXIS_FLOOR_PX
     #: the texture: features at these distances from the spinning axis and along it from the joint origin (m);
     #: None: the end effector's own surface (the spinning links' collision hulls: 10th-90th percentile along the
     #: axis, half to all of the 90th-percentile radius) when collisions are checked, else the simulator's

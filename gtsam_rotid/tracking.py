@@ -43,6 +43,7 @@ from .trackfilter import _blob_area, _filter, _inside, _kept_patches, filter_tra
 from .trackparams import (
     AXIS_FLOOR_PX,
     FEATURES,
+    TRACK_OFFSET_PX,
     RejectedTrack,
     RejectReason,
     TrackerParams,
@@ -51,9 +52,9 @@ from .trackparams import (
 )
 
 #: Also importable from here: the settings, results and track tests live in their own modules.
-__all__ = ["AXIS_FLOOR_PX", "FEATURES", "Centres", "RejectReason", "RejectedTrack", "Tracker", "TrackerParams",
-           "TrackingResult", "filter_tracks", "frame_source", "loo_residuals", "refine_centres", "split_at_jumps",
-           "track", "tracker_metadata"]
+__all__ = ["AXIS_FLOOR_PX", "FEATURES", "TRACK_OFFSET_PX", "Centres", "RejectReason", "RejectedTrack", "Tracker",
+           "TrackerParams", "TrackingResult", "filter_tracks", "frame_source", "loo_residuals", "refine_centres",
+           "split_at_jumps", "track", "tracker_metadata"]
 
 #: File name endings read as images when ``frames`` is a folder.
 

@@ -22,7 +22,7 @@ from .calibration.tuning import (
     RESTART_P,
 )
 from .planning import Plan, Prediction
-from .trackparams import AXIS_FLOOR_PX
+from .trackparams import TRACK_OFFSET_PX
 from .uncertainty import Observability
 
 
@@ -254,7 +254,7 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
         elif kind == "intrinsics":
             out.append(intrinsics_words(result))
         elif kind == "intrinsics_shapes":
-            out.append(intrinsics_shapes_words(result.intrinsics_shapes, result.axis_floor_px))
+            out.append(intrinsics_shapes_words(result.intrinsics_shapes, result.axis_floor_px, result.track_offset_px))
         elif kind == "kinematics":
             out.append(joint_offset_words(result))
         elif kind == "camera_or_measurement":
@@ -343,20 +343,21 @@ def _camera_change(i: dict) -> str:
             f"{cy:+.3g} px)")
 
 
-def intrinsics_shapes_words(shapes: dict | None, floor_px: float | None = None) -> str:
+def intrinsics_shapes_words(shapes: dict | None, floor_px: float | None = None, offset_px: float = 0.0) -> str:
     """Why a result whose tracks' shapes ask for other intrinsics is not trusted (``result.intrinsics_shapes``).
     Two causes read alike: a camera file that is off, and a bias of the tracked pixels that a pose's tracks share
-    (features on highlights or silhouette edges that do not move with the surface). ``floor_px`` (the result's
-    ``axis_floor_px``): at 0 the calibration took the tracks as unbiased, and the words say how to allow for the
-    tracker's bias."""
+    (features on highlights or silhouette edges that do not move with the surface). ``floor_px`` and ``offset_px``
+    (the result's ``axis_floor_px``, ``track_offset_px``): both 0, the calibration took the tracks as unbiased, and
+    the words say how to allow for the tracker's bias."""
     advice = ("Calibrate again with the intrinsics refined (calibrate --refine-intrinsics; CalibrationOptions("
               "refine_intrinsics=True)), or check the camera file (is it this camera's, at this resolution?)")
-    if floor_px is not None and floor_px <= 0.0:
-        advice += (". A bias of the tracked pixels shared by a pose's tracks bends the shapes alike, and this "
-                   "calibration took the tracks as unbiased (no image-axis floor: the dataset does not name its "
-                   "tracker and CalibrationOptions.axis_floor_px is 0). If the camera is calibrated, calibrate "
-                   f"again with the floor of a corner tracker (--axis-floor-px {AXIS_FLOOR_PX['corners']:g}; "
-                   f"CalibrationOptions(axis_floor_px={AXIS_FLOOR_PX['corners']:g}))")
+    if floor_px is not None and floor_px <= 0.0 and offset_px <= 0.0:
+        corner = TRACK_OFFSET_PX["corners"]
+        advice += (". A bias of the tracked pixels that follows a pose's tracks bends the shapes alike, and this "
+                   "calibration took the tracks as unbiased (no track offsets and no image-axis floor: the dataset "
+                   "does not name its tracker and CalibrationOptions.track_offset_px and axis_floor_px are 0). If "
+                   f"the camera is calibrated, calibrate again with the track offsets of a corner tracker "
+                   f"(--track-offset-px {corner:g}; CalibrationOptions(track_offset_px={corner:g}))")
     else:
         advice += (", and the tracks (a bias shared by a pose's tracks, such as features on highlights or edges that "
                    "do not move with the surface, reads the same way)")

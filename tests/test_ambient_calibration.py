@@ -16,7 +16,7 @@ from gtsam_rotid.calibration import stage2
 from gtsam_rotid.estimate import CalibrationOptions, calibrate
 from gtsam_rotid.meshrender import MeshRenderConfig
 from gtsam_rotid.pixels import dataset_from_video
-from gtsam_rotid.tracking import AXIS_FLOOR_PX, TrackerParams, tracker_metadata
+from gtsam_rotid.tracking import TRACK_OFFSET_PX, TrackerParams, tracker_metadata
 from gtsam_rotid.words import summary
 
 CHI2_999_6DOF = 22.458
@@ -71,14 +71,15 @@ def test_a_textured_scene_whose_axes_share_a_bias_holds_its_covariance(monkeypat
 UR5 = Path(__file__).parent / "data" / "ur5_photo_seed0"
 
 
-def test_a_precise_pose_that_no_other_checks_is_held_by_the_trackers_floor():
+def test_a_precise_pose_that_no_other_checks_is_held_by_the_trackers_track_offsets():
     """The tracked UR5 photo scene of the ambient benchmark (seed 0, 20 s spins, the default tracker). Its sixth
     pose (21 tracks, an arc of 272 deg) has an image axis 0.33 px off the truth, ten times its 1 sigma, and alone
     determines two directions of the pose (leverage 1: the other poses' axes are 30x less precise there), so the
     axes' test cannot see it. Without a floor the error is far outside the covariance; only the camera check
     flags it (the biased axis reads as a camera change: cx and cy some 16-27 px off, at P 1e-6; the camera file is
-    exact), where it had been called usable; with the default tracker's floor, which the tracker now writes into
-    its datasets, the covariance holds the error."""
+    exact), where it had been called usable; with the default tracker's track offsets, which the tracker writes
+    into its datasets, the covariance holds the error (the pose's axis rests on a few long arcs, through whose
+    leverage their own offsets move it)."""
     dataset = Dataset.load(UR5 / "dataset")
     truth = gtsam.Pose3(np.array(json.loads((UR5 / "truth.json").read_text(encoding="utf-8"))["arm_T_camera"]))
 
@@ -91,12 +92,13 @@ def test_a_precise_pose_that_no_other_checks_is_held_by_the_trackers_floor():
     assert bare.axis_floor_px == 0.0 and bare.axis_consistency.consistent
     assert chi2(bare) > 10 * CHI2_999_6DOF  # measured: 527
     assert not bare.covariance_usable and set(bare.untrusted) == {"intrinsics_shapes"}
-    # the words name both causes: the camera file, and the tracks taken as unbiased (with the floor to try)
-    assert "check the camera file" in summary(bare) and f"--axis-floor-px {AXIS_FLOOR_PX['corners']:g}" in summary(bare)
+    # the words name both causes: the camera file, and the tracks taken as unbiased (with the offsets to try)
+    corner = TRACK_OFFSET_PX["corners"]
+    assert "check the camera file" in summary(bare) and f"--track-offset-px {corner:g}" in summary(bare)
 
     dataset.metadata["tracker"] = tracker_metadata(TrackerParams())
     result = calibrate(dataset)
-    assert result.axis_floor_px == AXIS_FLOOR_PX["auto"] > 0.0
-    assert f"at least {AXIS_FLOOR_PX['auto']:g} px" in summary(result)
+    assert result.track_offset_px == TRACK_OFFSET_PX["auto"] > 0.0 and result.axis_floor_px == 0.0
+    assert f"an image offset of its own, {TRACK_OFFSET_PX['auto']:g} px" in summary(result)
     assert not result.covariance_usable or chi2(result) < CHI2_999_6DOF, (chi2(result), summary(result))
     assert np.max(np.abs(result.error_to(truth)[3:])) < 0.005

@@ -30,7 +30,7 @@ from gtsam_rotid.recordings import (
     read_frames,
     read_joint_file,
 )
-from gtsam_rotid.trackparams import AXIS_FLOOR_PX
+from gtsam_rotid.trackparams import AXIS_FLOOR_PX, TRACK_OFFSET_PX
 
 K = np.array([[520.5, 0.0, 31.25], [0.0, 522.0, 23.75], [0.0, 0.0, 1.0]])
 DIST = np.array([0.11, -0.21, 0.0012, -0.0008, 0.031])
@@ -618,9 +618,9 @@ def test_cli_track_writes_a_dataset(tmp_path, arm, fake_tracking_module, capsys)
     np.testing.assert_allclose([loaded.joint_angles(k) for k in range(3)], expected, rtol=0, atol=1e-12)
     assert loaded[1].frame_span() == (1, 4)
     assert loaded.metadata["recording"]["joint_options"]["degrees"] is True
-    # the default tracker's tracks: the dataset states its features' image axes' floor for the calibration
+    # the default tracker's tracks: the dataset states its features' errors (floor, track offsets) for calibrate
     assert loaded.metadata["tracker"] == {"features": "auto", "axis_floor_px": AXIS_FLOOR_PX["corners"],
-                                          "corner_tracks": 3}
+                                          "track_offset_px": TRACK_OFFSET_PX["corners"], "corner_tracks": 3}
     with pytest.raises(DatasetExistsError, match="--overwrite"):
         cmd_track(args)
     assert cmd_track(track_parser().parse_args([*argv, "--overwrite"])) == 0
