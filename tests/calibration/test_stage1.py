@@ -4,6 +4,7 @@ covariance and its jackknife."""
 import gtsam
 import numpy as np
 import pytest
+from offset_tracks import with_offsets
 
 from gtsam_rotid import Dataset, Measurement, Track, estimate, simulate
 from gtsam_rotid.calibration import initial, lm, stage1
@@ -64,19 +65,6 @@ def test_good_tracks_whose_noise_levels_differ_are_kept():
 # pixel errors shared along a track (a tracker's bias): the cluster-robust covariance
 
 
-def with_track_offsets(dataset, sigma_px: float, seed: int) -> Dataset:
-    """The dataset with one constant random offset (sigma_px per coordinate) added to every pixel of each track."""
-    from gtsam_rotid.dataset import Track
-
-    rng = np.random.default_rng(seed)
-    measurements = []
-    for m in dataset:
-        tracks = [Track.from_any(t) for t in m.tracks]
-        measurements.append(Measurement(m.joint_angles, [Track(t.pixels + sigma_px * rng.standard_normal(2),
-                                                               t.frames) for t in tracks]))
-    return Dataset(dataset.arm, dataset.camera, measurements)
-
-
 def no_track_correlation(factor, values, sigma2=1.0, intrinsics=False) -> np.ndarray:
     """:func:`stage1._track_correlation` when the tracks' errors are taken as white."""
     return np.zeros((8, 8) if intrinsics else (3, 3))
@@ -100,7 +88,7 @@ def test_errors_shared_along_a_track_widen_the_covariance(method, monkeypatch):
 
     options = estimate.CalibrationOptions(outlier_track_z=1e9)
     dataset, truth = simulate.reference_scene(seed=3, noise_var=0.04, duration=10.0, n_features=60)
-    biased = calibrate(with_track_offsets(dataset, 0.2, seed=7), method=method, options=options)
+    biased = calibrate(with_offsets(dataset, 0.2, seed=7), method=method, options=options)
     white = calibrate(dataset, method=method, options=options)
     for module in (stage1, joint_stage):
         monkeypatch.setattr(module, "_track_correlation", no_track_correlation)

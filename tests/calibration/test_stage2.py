@@ -3,9 +3,10 @@ out, the image axes' consistency test, its covariance scale and its floor."""
 
 import numpy as np
 import pytest
+from offset_tracks import with_offsets
 from thin_tracks import _thin
 
-from gtsam_rotid import Dataset, Measurement, Track, simulate
+from gtsam_rotid import Dataset, Measurement, simulate
 from gtsam_rotid.calibration import stage2
 from gtsam_rotid.calibration.result import OutlierKind
 from gtsam_rotid.estimate import CalibrationError, CalibrationResult, calibrate
@@ -52,18 +53,6 @@ def test_a_wrong_reading_that_hides_behind_a_good_measurement_is_ambiguous(seed)
         assert any(2 in (a.left_out, a.instead_of) for a in close)
         assert "AMBIGUOUS" in summary(result)
         assert "leaving out measurement" in ambiguity_words(result)
-
-
-def with_measurement_offsets(dataset, sigma_px: float, seed: int) -> Dataset:
-    """The dataset with one constant random image offset (sigma_px per coordinate) shared by every pixel of each
-    measurement: an error common to all of a measurement's tracks, which per-track scores cannot see."""
-    rng = np.random.default_rng(seed)
-    measurements = []
-    for m in dataset:
-        offset = sigma_px * rng.standard_normal(2)
-        tracks = [Track.from_any(t) for t in m.tracks]
-        measurements.append(Measurement(m.joint_angles, [Track(t.pixels + offset, t.frames) for t in tracks]))
-    return Dataset(dataset.arm, dataset.camera, measurements)
 
 
 @pytest.mark.parametrize("method", ["joint", "weighted"])
@@ -148,7 +137,7 @@ def test_axes_that_disagree_beyond_their_noise_scale_the_covariance(noisy_scene,
     from gtsam_rotid.estimate import CalibrationOptions
 
     dataset, _ = noisy_scene
-    shifted = with_measurement_offsets(dataset, 4.0, seed=5)
+    shifted = with_offsets(dataset, 4.0, seed=5, per_track=False)
     result = calibrate(shifted, method="joint")
     unscaled = calibrate(shifted, method="joint", options=CalibrationOptions(axis_consistency_p=0.0))
     test = result.axis_consistency
@@ -176,7 +165,7 @@ def test_axes_that_disagree_with_too_few_measurements_to_scale_are_not_trusted(n
     """With four measurements the axes' scatter has 2 dof: it shows that they disagree but cannot say by how much
     (the scale's mean is unbounded), so the result is not trusted, and the words say why and what to do."""
     dataset, _ = noisy_scene
-    four = with_measurement_offsets(Dataset(dataset.arm, dataset.camera, list(dataset)[:4]), 4.0, seed=5)
+    four = with_offsets(Dataset(dataset.arm, dataset.camera, list(dataset)[:4]), 4.0, seed=5, per_track=False)
     result = calibrate(four, method="joint")
     test = result.axis_consistency
     assert test.dof == 2 and test.p_value < 0.01 and not test.consistent
@@ -190,6 +179,13 @@ def test_axes_that_disagree_with_too_few_measurements_to_scale_are_not_trusted(n
     assert clean.axis_consistency.consistent and clean.covariance_usable
 
 
+def assert_holds(result, truth) -> None:
+    """Called usable, and its error inside its covariance's 99.9 % region (6 dof)."""
+    error = result.error_to(truth.arm_T_camera)
+    assert result.covariance_usable, summary(result)
+    assert float(error @ np.linalg.solve(result.covariance, error)) < 22.458, summary(result)
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_a_declared_floor_holds_errors_that_each_measurements_tracks_share(noisy_scene, seed):
     """One image offset per measurement (0.3 px per coordinate, shared by all its tracks) shifts each image axis by
@@ -198,26 +194,12 @@ def test_a_declared_floor_holds_errors_that_each_measurements_tracks_share(noisy
     from gtsam_rotid.estimate import CalibrationOptions
 
     dataset, truth = noisy_scene
-    shifted = with_measurement_offsets(dataset, 0.3, seed)
+    shifted = with_offsets(dataset, 0.3, seed, per_track=False)
     result = calibrate(shifted, options=CalibrationOptions(axis_floor_px=0.3))
-    error = result.error_to(truth.arm_T_camera)
-    assert result.covariance_usable, summary(result)
-    assert float(error @ np.linalg.solve(result.covariance, error)) < 22.458, summary(result)
+    assert_holds(result, truth)
     # the axes' test weights each axis with the floor too: the scale reads only the scatter beyond it
     bare = calibrate(shifted, options=CalibrationOptions(axis_floor_px=0.0))
     assert result.axis_consistency.chi2 < bare.axis_consistency.chi2
-
-
-def with_track_offsets(dataset, sigma_px: float, seed: int) -> Dataset:
-    """The dataset with one constant random image offset (sigma_px per coordinate) of each track's own, independent
-    across tracks: a tracker's error that follows a feature over its whole arc."""
-    rng = np.random.default_rng(seed)
-    measurements = []
-    for m in dataset:
-        tracks = [Track.from_any(t) for t in m.tracks]
-        measurements.append(Measurement(m.joint_angles, [Track(t.pixels + sigma_px * rng.standard_normal(2), t.frames)
-                                                         for t in tracks]))
-    return Dataset(dataset.arm, dataset.camera, measurements)
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -229,11 +211,9 @@ def test_declared_track_offsets_hold_errors_that_follow_each_track(noisy_scene, 
     from gtsam_rotid.estimate import CalibrationOptions
 
     dataset, truth = noisy_scene
-    shifted = with_track_offsets(dataset, 0.5, seed)
+    shifted = with_offsets(dataset, 0.5, seed)
     result = calibrate(shifted, options=CalibrationOptions(track_offset_px=0.5))
-    error = result.error_to(truth.arm_T_camera)
-    assert result.covariance_usable, summary(result)
-    assert float(error @ np.linalg.solve(result.covariance, error)) < 22.458, summary(result)
+    assert_holds(result, truth)
     assert result.axis_consistency.consistent and result.track_offset_px == 0.5
     assert "each track taken as shifted by an image offset of its own, 0.5 px" in summary(result)
     # the axes' test includes them: without, the same axes disagree more
