@@ -42,6 +42,7 @@ from .dataset import Dataset, Measurement, SpinReadings, Track
 from .errors import ArmError, InputError, RecordingError, ValidationError
 from .files import VIDEO_SUFFIXES, image_files, natural_key
 from .frames import (  # noqa: F401 (read_frames: re-export)
+    _range_text,
     checked_range,
     frames_of,
     open_source,
@@ -562,14 +563,9 @@ def _check_distinct_frames(videos: list[Path], ranges: list[tuple[int, int | Non
                 (s_i, e_i), (s_j, e_j) = ranges[i], ranges[j]
                 if s_i < (math.inf if e_j is None else e_j) and s_j < (math.inf if e_i is None else e_i):
                     raise InputError(f"{_label(i, labels)} and {_label(j, labels)} are the same video "
-                                     f"({videos[i]}) with overlapping frames ({_range(ranges[i])} and "
-                                     f"{_range(ranges[j])}): each measurement needs its own spin, at its own arm "
-                                     "pose (a video that holds several spins: give each its frame range)")
-
-
-def _range(frame_range: tuple[int, int | None]) -> str:
-    start, stop = frame_range
-    return f"frames {start}:{'' if stop is None else stop}"
+                                     f"({videos[i]}) with overlapping frames (frames {_range_text(*ranges[i])} and "
+                                     f"frames {_range_text(*ranges[j])}): each measurement needs its own spin, at "
+                                     "its own arm pose (a video that holds several spins: give each its frame range)")
 
 
 def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | str | os.PathLike, arm: Arm, *,

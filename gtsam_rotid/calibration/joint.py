@@ -102,8 +102,9 @@ def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anch
     reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, fit.chi2, tied)
     variances = {k: stage1[k].sigma2 for k in used}
     rows = _axis_rows(camera, setup, stage1, used, fit.pose, variances)  # (one pass for the three below)
-    floors = _axis_floors(camera, setup, stage1, used, fit.pose)
-    _with_axis_covariances(reports, used, rows, _axis_offsets(camera, setup, stage1, used, fit.pose))
+    axis_offsets = _axis_offsets(camera, setup, stage1, used, fit.pose)
+    floors = _axis_floors(setup, axis_offsets, len(used))
+    _with_axis_covariances(reports, used, rows, axis_offsets)
     consistency = _axis_consistency(rows, floors, options)
     solved = _Solved(fit.pose, None, pose_information(fit.graph, values, POSE_KEY), Method.WEIGHTED, True,
                      fit.iterations, fit.graph.error(values))
@@ -320,7 +321,8 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, chi2, tied)
     variances = {k: sigmas[k] ** 2 for k in used}
     rows = _axis_rows(camera, setup, stage1, used, pose, variances)  # (one pass for the three below)
-    _with_axis_covariances(reports, used, rows, _axis_offsets(camera, setup, stage1, used, pose))
+    axis_offsets = _axis_offsets(camera, setup, stage1, used, pose)
+    _with_axis_covariances(reports, used, rows, axis_offsets)
     try:
         covariance = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
     except RuntimeError:
@@ -357,9 +359,9 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                 offsets_covariance = robust
         determined = determined_offsets(offsets_covariance, offsets.sigma)
     out = _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
-                  consistency=_axis_consistency(rows, _axis_floors(camera, setup, stage1, used, pose), options,
+                  consistency=_axis_consistency(rows, _axis_floors(setup, axis_offsets, len(used)), options,
                                                 fitted=determined),
-                  prior=_prior_floor_covariance(rows, _axis_floors(camera, setup, stage1, used, pose, offsets=False)))
+                  prior=_prior_floor_covariance(rows, _axis_floors(setup, None, len(used))))
     if shapes is not None:  # (judged, at the axes' scale that a camera change leaves, by run._checked_model)
         out = replace(out, intrinsics_shapes=shapes)
     if intrinsics is not None:

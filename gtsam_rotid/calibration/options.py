@@ -168,16 +168,11 @@ class CalibrationOptions:
                 raise InputError(f"CalibrationOptions.{name} must be a finite number >= 0, got {value!r}")
         if self.axis_consistency_p is not None and not 0.0 <= self.axis_consistency_p < 1.0:
             raise InputError(f"CalibrationOptions.axis_consistency_p must be in [0, 1), got {self.axis_consistency_p}")
-        if self.axis_floor_px is not None and (isinstance(self.axis_floor_px, bool) or not isinstance(
-                self.axis_floor_px, int | float | np.number) or not np.isfinite(self.axis_floor_px)
-                or self.axis_floor_px < 0):
-            raise InputError(f"CalibrationOptions.axis_floor_px must be None or a finite number >= 0, "
-                             f"got {self.axis_floor_px!r}")
-        if self.track_offset_px is not None and (isinstance(self.track_offset_px, bool) or not isinstance(
-                self.track_offset_px, int | float | np.number) or not np.isfinite(self.track_offset_px)
-                or self.track_offset_px < 0):
-            raise InputError(f"CalibrationOptions.track_offset_px must be None or a finite number >= 0, "
-                             f"got {self.track_offset_px!r}")
+        for name in ("axis_floor_px", "track_offset_px"):  # (None: the tracker's, from the dataset's metadata)
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int | float | np.number)
+                                      or not np.isfinite(value) or value < 0):
+                raise InputError(f"CalibrationOptions.{name} must be None or a finite number >= 0, got {value!r}")
         if self.joint_offsets is False:
             self.joint_offsets = None
         if self.joint_offsets is not None and self.joint_offsets is not True:

@@ -527,6 +527,17 @@ def _start_line(camera: Camera, axis, image_axis: np.ndarray, pose: gtsam.Pose3)
     return line if image_axis is None else align_line(line, plane_normal(camera.K, image_axis))
 
 
+def _test_pixels(camera: Camera, axis, pose: gtsam.Pose3) -> np.ndarray:
+    """(2, 2) the images of an FK axis' two test points under ``pose``."""
+    return camera.project(np.array([pose.transformTo(p) for p in axis_test_points(axis)]), distort=False)
+
+
+def _offset_of(stage1: _Stage1, pixels: np.ndarray) -> np.ndarray | None:
+    """(2, 2) what a measurement's tracks' own offsets give its test-point distances (``pixels``: the test points'
+    images, :func:`_test_pixels`); None without them."""
+    return None if stage1.offset_axis_cov is None else line_distance_covariance(stage1.offset_axis_cov, pixels)
+
+
 class MeasuredNoise(NamedTuple):
     """A measurement's pixel noise (px per image coordinate), the tracks stage 1 leaves out (track -> reason), and
     the (2, 2) covariance (px²) that its tracks' own offsets (``CalibrationOptions.track_offset_px``) give its image
@@ -554,9 +565,6 @@ def measured_noise(arm, camera: Camera, measurements, pose: gtsam.Pose3, options
         if not (np.isfinite(s.sigma2) and s.sigma2 > 0):
             out.append(None)
             continue
-        offset = None
-        if s.offset_axis_cov is not None:
-            points = np.array([pose.transformTo(p) for p in axis_test_points(setup.axes[0])])
-            offset = line_distance_covariance(s.offset_axis_cov, camera.project(points, distort=False))
+        offset = _offset_of(s, _test_pixels(camera, setup.axes[0], pose))
         out.append(MeasuredNoise(float(np.sqrt(s.sigma2)), dict(s.outliers), offset))
     return out

@@ -38,8 +38,10 @@ from .result import AMBIGUITY_CHI2, Alternative, AxisConsistency, CalibrationRes
 from .setup import _Setup
 from .stage1 import (
     _checked,
+    _offset_of,
     _Stage1,
     _stage1,
+    _test_pixels,
 )
 from .tuning import (
     DISTINCT_Z,
@@ -118,33 +120,21 @@ def _floor_of(setup: _Setup, stage1: _Stage1, pixels: np.ndarray) -> np.ndarray 
     return F
 
 
-def _offset_of(stage1: _Stage1, pixels: np.ndarray) -> np.ndarray | None:
-    """(2, 2) what a measurement's tracks' own offsets give its test-point distances (``pixels``: the test points'
-    images); None without them."""
-    return None if stage1.offset_axis_cov is None else line_distance_covariance(stage1.offset_axis_cov, pixels)
-
-
 def _axis_offsets(camera: Camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3) -> list | None:
     """Per used measurement, :func:`_offset_of` at ``pose``; None where no measurement has track offsets."""
     out = [_offset_of(stage1[k], _test_pixels(camera, setup.axes[k], pose)) for k in used]
     return out if any(o is not None for o in out) else None
 
 
-def _test_pixels(camera: Camera, axis, pose: gtsam.Pose3) -> np.ndarray:
-    """(2, 2) the images of an FK axis' two test points under ``pose``."""
-    return camera.project(np.array([pose.transformTo(p) for p in axis_test_points(axis)]), distort=False)
-
-
-def _axis_floors(camera: Camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3,
-                 offsets: bool = True) -> list | None:
-    """Per used measurement, :func:`_floor_of` at ``pose`` (None for a measurement without one); None where no
-    measurement has one. Without ``offsets`` only the floor all axes share (the joint fit's covariance carries the
-    tracks' own offsets in its sandwich, :func:`.joint._meats`)."""
-    if not offsets:
-        F = setup.floor_covariance
-        return None if F is None else [F] * len(used)
-    floors = [_floor_of(setup, stage1[k], _test_pixels(camera, setup.axes[k], pose)) for k in used]
-    return floors if any(F is not None for F in floors) else None
+def _axis_floors(setup: _Setup, offsets: list | None, n: int) -> list | None:
+    """Per used measurement (``n`` of them), the prior floor on its test-point distances: the floor all axes share
+    plus its tracks' own ``offsets`` (:func:`_axis_offsets`; None: only the shared floor, as the joint fit's
+    covariance carries the offsets in its sandwich, :func:`.joint._meats`); None where neither is there. As
+    :func:`_floor_of`, per measurement."""
+    F = setup.floor_covariance
+    if offsets is None:
+        return None if F is None else [F] * n
+    return [O if F is None else (F if O is None else F + O) for O in offsets]
 
 
 def _with_axis_covariances(reports, used: list[int], rows, offsets: list | None = None) -> None:
