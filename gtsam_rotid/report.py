@@ -443,6 +443,9 @@ def _strongest(block: np.ndarray) -> tuple[np.ndarray, float]:
 
 def _untrusted_suggestion(untrusted: list) -> str:
     """What to do about a calibration that is determined but not trusted, by the reasons it is not."""
+    if "swapped" in untrusted:
+        return ("give each video with its own arm pose (the order of the videos, or image folders, as the joint "
+                "rows') and calibrate again")
     if intrinsics_suspected(untrusted):
         return ("check the camera file (is it this camera's, at this resolution?) and calibrate the intrinsics again, "
                 "or refine them with the pose (calibrate --refine-intrinsics), recording more arm poses planned for "
@@ -593,8 +596,11 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         for sentence in reversed(untrusted_words(result)):
             words.insert(0, "NOT TRUSTED: " + sentence)
         suggestion = suggestion or _untrusted_suggestion(untrusted)
+    if "swapped" in untrusted:  # the data as given are wrong: put them right before adding a pose
+        suggestion = _untrusted_suggestion(untrusted)
     planned = None
-    if next_pose and dataset is not None and (ambiguous or not result.observability.is_observable):
+    if next_pose and dataset is not None and (ambiguous or not result.observability.is_observable) \
+            and "swapped" not in untrusted:
         planned = next_best_pose(result, dataset)
         if planned is not None:
             suggestion = (f"{suggestion}; the arm pose that helps most here (`gtsam-rotid plan --dataset` plans "

@@ -13,6 +13,7 @@ from .calibration.evidence import short_arc_words
 from .calibration.offsets import HELD_BY_PRIOR
 from .calibration.options import MIN_MEASUREMENTS
 from .calibration.result import AMBIGUITY_CHI2, AxisConsistency, CalibrationResult, MeasurementReport, OutlierKind
+from .calibration.swaps import swap_sentence
 from .calibration.tuning import (
     LONG_ARC_CONSISTENCY_P,
     MAX_CONSISTENCY_SCALE,
@@ -28,6 +29,8 @@ from .uncertainty import Observability
 
 def verdict(result: CalibrationResult) -> str:
     """One line: whether the calibration can be used and how well, or why not and what to do next."""
+    if result.swapped is not None:  # (the likelier cause of anything else wrong with it)
+        return "NOT USABLE: " + swap_sentence(result.swapped)
     if result.covariance_usable and result.converged:
         return (f"USABLE: 1σ at most {float(np.max(result.sigma_mm_arm)):.2f} mm and "
                 f"{float(np.max(result.sigma_deg)):.3f}° on every axis")
@@ -223,7 +226,11 @@ def untrusted_words(result: CalibrationResult) -> list[str]:
     by_index = {m.index: m for m in result.measurements}
     for kind, ks in result.untrusted.items():
         named = "; ".join(f"measurement {k} ({evidence_words(by_index[k])})" for k in ks if k in by_index)
-        if kind == "thin_evidence":
+        if kind == "swapped":
+            out.append(swap_sentence(result.swapped) if result.swapped is not None else
+                       f"measurements {' and '.join(str(k) for k in ks)} look swapped (videos or joint rows in the "
+                       "wrong order)")
+        elif kind == "thin_evidence":
             c = result.axis_consistency
             strong = sum(not m.weak and m.used for m in result.measurements)
             if c is not None and c.p_value < RESTART_P:

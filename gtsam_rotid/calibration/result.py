@@ -274,6 +274,12 @@ class CalibrationResult:
     #: tracks' spin (the likelihood ratio of their prior, and its degrees of freedom), {"why": "cover", "readings",
     #: "frames"} where they did not cover its frames (first and last, s on the encoder's clock)
     readings_refused: dict = field(default_factory=dict)
+    #: two measurements given in each other's place (videos or joint rows in the wrong order, :mod:`.swaps`): with
+    #: them exchanged the calibration is sound. ``measurements`` (their indices), ``miss_px`` (the FK axes' miss of
+    #: the image axes through the ellipses' centres as given), ``swapped_miss_px`` (exchanged), ``next_miss_px``
+    #: (the next best exchange), ``sigma_mm`` (the exchanged calibration's largest 1 sigma); None: not found, or not
+    #: looked for (a sound result)
+    swapped: dict | None = None
 
     @property
     def intrinsics(self) -> dict[str, float]:
@@ -381,6 +387,7 @@ class CalibrationResult:
             "time_offsets": self.time_offsets,
             "readings_refused": {str(k): v for k, v in self.readings_refused.items()},
             "readings_ignored": self.readings_ignored,
+            "swapped": self.swapped,
         }
 
     @classmethod
@@ -441,6 +448,10 @@ class CalibrationResult:
                 for c, v in data["time_offsets"].items()},
             readings_refused={int(k): dict(v) for k, v in (data.get("readings_refused") or {}).items()},
             readings_ignored=bool(data.get("readings_ignored", False)),
+            swapped=None if data.get("swapped") is None else {
+                "measurements": [int(k) for k in data["swapped"]["measurements"]],
+                **{k: None if data["swapped"].get(k) is None else float(data["swapped"][k])
+                   for k in ("miss_px", "swapped_miss_px", "next_miss_px", "sigma_mm")}},
         )
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:
@@ -454,6 +465,8 @@ class CalibrationResult:
 
 #: Why a determined calibration's covariance is not trusted (keys of ``CalibrationResult.untrusted``).
 UNTRUSTED_KINDS = {
+    "swapped": "two measurements look swapped: each one's tracks fit the other's joint angles (videos or joint rows "
+               "in the wrong order)",
     "thin_evidence": "the estimate rests on weak measurements (few tracks or short arcs) that nothing vouches for",
     "inconsistent": "the measurements disagree far beyond their noise",
     "inconsistent_after_outliers": "with the measurements that disagree left out, the others still disagree far "

@@ -11,7 +11,7 @@ import numpy as np
 from ..arm import Arm
 from ..camera import Camera
 from ..dataset import Dataset, Measurement
-from ..errors import InputError
+from ..errors import InputError, RotIdError
 from ..graph import chi2_quantile
 from .choice import choose_start
 from .initial import _initial, axis_miss_rms, poor_start
@@ -21,8 +21,9 @@ from .modelcheck import IMPROVEMENT_Z, intrinsics_check, kinematics_check
 from .offsets import MAX_OFFSET_SIGMAS, OffsetsPrior, offsets_from_axes, shifted
 from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method, with_tracker_defaults
 from .result import CalibrationResult, MeasurementReport, OutlierKind
-from .setup import _Setup, arc_span_deg
+from .setup import _Setup, _setup, arc_span_deg
 from .stage2 import _check_scale, _paper, _refined_stage1
+from .swaps import exchange_candidate, exchanged, swap_sentence
 from .tuning import (
     INITIAL_TOLERANCE,
     INTRINSICS_PASSES,
@@ -83,7 +84,18 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
     used = [measurements[k] for k in kept]
     # with refined intrinsics a first pass refines the camera only (the joint fit from the best start); the full
     # calibration then runs from it (its stages, starts and outlier tests see it), again while it moves
-    result, setup = _calibrate(arm, camera, used, method, options, kept, camera_pass=bool(options.refine_intrinsics))
+    try:
+        result, setup = _calibrate(arm, camera, used, method, options, kept,
+                                   camera_pass=bool(options.refine_intrinsics))
+    except CalibrationError as error:  # two measurements in each other's place explain many a refusal: say so first
+        swap = _confirmed_swap(arm, camera, used, method, options, kept)
+        if swap is None:
+            raise
+        raise CalibrationError(f"{swap_sentence(swap)}. The calibration itself said: {error}") from error
+    if _troubled(result):
+        swap = _confirmed_swap(arm, camera, used, method, options, kept, setup)
+        if swap is not None:
+            result = replace(result, swapped=swap)
     started = camera
     for _ in range(INTRINSICS_PASSES - 1):
         if result.camera is None or (_intrinsics_settled(result, started) and not setup.camera_pass):
@@ -115,11 +127,47 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
     return replace(result, untrusted=_untrusted(result, setup))
 
 
+def _troubled(result: CalibrationResult) -> bool:
+    """Something is wrong with the result: not converged or determined, ambiguous, its axes disagreeing, or a
+    measurement called an outlier."""
+    c = result.axis_consistency
+    return (not result.converged or not result.observability.is_observable or result.ambiguous
+            or (c is not None and not c.consistent) or any(m.outlier for m in result.measurements))
+
+
+def _confirmed_swap(arm, camera, measurements, method, options, index, setup: _Setup | None = None) -> dict | None:
+    """Two measurements given in each other's place (:mod:`.swaps`): the screened exchange
+    (:func:`.swaps.exchange_candidate`) where a calibration with the two exchanged is sound (converged, determined,
+    not ambiguous, its axes agreeing, no measurement an outlier, nothing untrusted): ``{"measurements": [a, b]``
+    (the caller's indices), ``"miss_px"``, ``"swapped_miss_px"``, ``"next_miss_px"`` (the screen's), ``"sigma_mm"``
+    (that calibration's largest 1 sigma)``}``; None otherwise. ``setup``: the calibration's (built here for a
+    refusal)."""
+    if setup is None:
+        try:
+            setup = _setup(arm, camera, measurements, options, index)
+        except RotIdError:
+            return None
+    candidate = exchange_candidate(camera, setup, options)
+    if candidate is None:
+        return None
+    a, b = candidate.pop("positions")
+    try:
+        other, other_setup = _calibrate(arm, camera, exchanged(measurements, a, b), method, options, index)
+    except RotIdError:
+        return None
+    if _troubled(other) or _untrusted(other, other_setup):
+        return None
+    return {"measurements": [int(index[a]), int(index[b])], **candidate,
+            "sigma_mm": float(np.max(other.sigma_mm_arm))}
+
+
 def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]:
-    """The reasons (see :data:`UNTRUSTED_KINDS`) not to trust a determined result's covariance."""
+    """The reasons (see :data:`UNTRUSTED_KINDS`) not to trust a determined result's covariance; two measurements
+    that look swapped first and whether or not the result is determined (their exchange is the likelier cause of
+    anything else found)."""
+    out = {} if result.swapped is None else {"swapped": [int(k) for k in result.swapped["measurements"]]}
     if not result.observability.is_observable or result.ambiguous:
-        return {}
-    out = {}
+        return out
     c = result.axis_consistency
     strong = [m.index for m in result.measurements if not m.weak and m.used]
     # weak measurements are trusted only where strong ones determine the pose without them and the axes agree

@@ -149,3 +149,11 @@ JACKKNIFE_Z = 3.40  # the normal's 99.97 % point: 99.9 % Bonferroni over the 3 d
 #: line's tilt scattered 2.4 times its linearised sigma over 16 noise draws, 1.0 times the jackknife's; the
 #: `weighted` estimate on it was 0.64 degrees off at a chi-square of 54)
 THIN_CURVATURE_SIGMAS = 2.0
+#: two measurements given in each other's place (:mod:`.swaps`): the exchange of two measurements' image axes
+#: (through their ellipses' centres) that the FK axes fit best is tried by calibrating again when it cuts their miss
+#: (px RMS, guess-free fit) to at most this fraction of the miss as given. Reference scene, 6 s spins: the axes
+#: through the centres miss by 3.9-6.8 px as recorded (a centre is not the axis' image), 23-30 px with two
+#: measurements exchanged, the next best exchange 14-18 px: a ratio can screen but not decide
+SWAP_SCREEN_RATIO = 0.5
+#: every pair is tried up to this many measurements; beyond, the pairs among this many that the FK axes miss most
+SWAP_ALL_PAIRS = 8

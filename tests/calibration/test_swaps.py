@@ -1,0 +1,76 @@
+"""calibration.swaps: two measurements given in each other's place (videos or joint rows in the wrong order) are
+named, by the result and by a refusal, and never where nothing was exchanged."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from gtsam_rotid import Dataset, simulate
+from gtsam_rotid.calibration.options import CalibrationOptions
+from gtsam_rotid.calibration.setup import _setup
+from gtsam_rotid.calibration.swaps import exchange_candidate
+from gtsam_rotid.estimate import CalibrationError, CalibrationResult, calibrate
+from gtsam_rotid.report import make_report
+from gtsam_rotid.simulate import SceneConfig
+from gtsam_rotid.words import summary, verdict
+
+
+def _scene(seed: int, duration: float = 6.0):
+    return simulate.simulate(SceneConfig(duration=duration), seed)
+
+
+def _exchanged(dataset: Dataset, a: int, b: int) -> Dataset:
+    """The dataset with the tracks of measurements ``a`` and ``b`` exchanged (their videos given in each other's
+    place); joint angles and everything else as recorded."""
+    ms = list(dataset)
+    ms[a], ms[b] = dataset[a].replace(tracks=dataset[b].tracks), dataset[b].replace(tracks=dataset[a].tracks)
+    return Dataset(dataset.arm, dataset.camera, ms, metadata=dataset.metadata)
+
+
+def test_a_result_names_the_exchanged_measurements(tmp_path):
+    dataset, _ = _scene(1)
+    result = calibrate(_exchanged(dataset, 1, 3), method="weighted")
+    assert result.swapped is not None and result.swapped["measurements"] == [1, 3]
+    assert result.swapped["swapped_miss_px"] <= 0.5 * result.swapped["miss_px"]
+    assert 0.0 < result.swapped["sigma_mm"] < 10.0  # the calibration with the two exchanged back is sound
+    assert not result.covariance_usable
+    assert next(iter(result.untrusted)) == "swapped"
+    assert verdict(result).startswith("NOT USABLE: measurements 1 and 3 look swapped")
+    assert "order of the videos" in summary(result)
+    report = make_report(result, _exchanged(dataset, 1, 3))
+    assert report.suggestion.startswith("give each video with its own arm pose") and report.next_pose is None
+    assert "NOT TRUSTED: measurements 1 and 3 look swapped" in report.to_text()
+    result.save(tmp_path / "r.json")
+    assert CalibrationResult.load(tmp_path / "r.json").swapped == result.swapped
+
+
+def test_a_refusal_names_the_exchanged_measurements():
+    dataset, _ = _scene(1)
+    with pytest.raises(CalibrationError, match=r"measurements 2 and 5 look swapped.*The calibration itself said"):
+        calibrate(_exchanged(dataset, 2, 5))
+
+
+def test_the_screen_finds_the_exchange_and_nothing_as_recorded():
+    dataset, _ = _scene(0, 10.0)
+    options = CalibrationOptions()
+    setup = _setup(dataset.arm, dataset.camera, list(dataset), options)
+    assert exchange_candidate(dataset.camera, setup, options) is None          # as recorded
+    lines = list(setup.centre_axes)
+    lines[0], lines[4] = lines[4], lines[0]
+    found = exchange_candidate(dataset.camera, replace(setup, centre_axes=lines), options)
+    assert found is not None and found["positions"] == [0, 4]
+    assert found["swapped_miss_px"] < 0.2 * min(found["miss_px"], found["next_miss_px"])
+    three = _setup(dataset.arm, dataset.camera, list(dataset)[:3], options)  # three axes fit any order
+    assert exchange_candidate(dataset.camera, replace(three, centre_axes=three.centre_axes[::-1]), options) is None
+
+
+def test_a_wrong_camera_is_not_called_a_swap():
+    dataset, _ = _scene(0, 10.0)
+    wrong = Dataset(dataset.arm, dataset.camera.with_intrinsics_changed(focal_factor=1.05), list(dataset),
+                    metadata=dataset.metadata)
+    result = calibrate(wrong)
+    assert not result.covariance_usable
+    assert result.swapped is None and "swapped" not in result.untrusted
+    assert "intrinsics" in result.untrusted
+    assert np.isfinite(result.sigma_px)
