@@ -129,3 +129,16 @@ def test_track_places_videos_on_the_joint_series_and_calibrate_says_each_clock(r
     assert all(m.spin_readings is None for m in Dataset.load(tmp_path / "bare"))
     assert main([*common[:-3], "--fps", "0", "-o", str(tmp_path / "x")]) != 0
     assert "--fps must be a positive number" in capsys.readouterr().err
+
+
+def test_a_wrong_frame_rate_is_caught_by_the_calibration(recorded):
+    """--fps 5 % high: every video is still placed (image motion lines up with joint motion at least as well as at
+    the true rate), but each spin's readings then run 5 % slow against its frames; the calibration refuses every
+    video's readings (their likelihood ratio far beyond their frames) and its words name the frame rate."""
+    dataset, _, folders, _, csv = recorded
+    made = make_dataset(folders, csv, dataset.camera, dataset.arm, fps=1.05 * FPS, progress=False)
+    assert all(m.spin_readings is not None for m in made)
+    result = calibrate(made)
+    assert result.synced == () and sorted(result.readings_refused) == list(range(6))
+    assert all(v["chi2"] > 100 * v["dof"] for v in result.readings_refused.values())
+    assert "its frame rate, track --fps" in summary(result)
