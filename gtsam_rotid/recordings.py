@@ -35,7 +35,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .arm import Arm
-from .bags import MIN_OFFSET_CORRELATION, estimate_time_offset
+from .bags import estimate_time_offset
 from .camera import Camera
 from .camerafiles import load_camera, parse_yaml  # noqa: F401 (parse_yaml: re-export)
 from .dataset import Dataset, Measurement, SpinReadings, Track
@@ -482,9 +482,22 @@ def _tracked(source, frame_range, camera: Camera, tracker: Callable, tracker_par
 #: its frames' span (a bag: beyond its first and last joint state), so that the estimated clocks' offset can move
 #: the frames within them.
 READINGS_MARGIN_S = 1.0
-#: A video's frames must come to rest (the spin starts or stops within it) for its place on a joint time series to
-#: be measured: the tenth percentile of its frame-to-frame motion at most this fraction of the ninetieth.
+#: A video's frames must come to rest at its start or its end (the spin starts or stops within it) for its place on
+#: a joint time series to be measured: its first or its last REST_PAIRS frame-to-frame motions at most
+#: STILL_MOTION_RATIO of the ninetieth percentile of them (three still frames). Image motion is far from linear in
+#: the joint's speed (a textured hand's frame difference is 0.8-0.95 of its steady value one frame into a half-second
+#: ramp), so a video cut inside its spin has no frame at rest, and its place is not measured: one cut at the end of
+#: its ramp was placed a third of a second off at a correlation of 0.85. (It was the tenth percentile, which refused
+#: videos trimmed to three still frames at each end, placed to within 24 ms.)
 STILL_MOTION_RATIO = 0.3
+REST_PAIRS = 2
+#: A video whose placement scores below this (:class:`gtsam_rotid.bags.TimeOffset`) gets no readings. A video is
+#: searched only where it overlaps its own pose's span, so the repeating recording's one-spin-later minimum, which
+#: sets a bag's MIN_OFFSET_CORRELATION (0.8), does not arise; its frames at rest are what make the placement
+#: (above). Six videos trimmed to three still frames at each end score 0.70-0.84 at placements within 24 ms; with
+#: their nine still frames, 0.86-0.91. A placement still wrong makes the readings disagree with the tracks, and the
+#: calibration refuses them.
+MIN_VIDEO_CORRELATION = 0.65
 #: With readings, a video's frames (a bag's images) this close (s) to the ends of its pose's span in the joint
 #: series (where the other joints start or stop moving) are left out: the readings' smoothing there mixes in the
 #: arm's move, and the stamps have their own jitter.
@@ -512,11 +525,14 @@ def _video_readings(loaded: _LoadedJoints, k: int, motion: list, first: int, fps
     info = {"start_s": None if not np.isfinite(start) else float(start), "correlation": float(found.score),
             "rival_start_s": None if found.rival is None else float(centre - found.rival), "held_s": [t0, t1]}
     moving = np.asarray(motion[1:], dtype=float)
-    resting = len(moving) >= 3 and np.percentile(moving, 10) <= STILL_MOTION_RATIO * np.percentile(moving, 90)
-    if not np.isfinite(start) or not resting or found.rival is not None or found.score < MIN_OFFSET_CORRELATION:
+    still = STILL_MOTION_RATIO * np.percentile(moving, 90) if len(moving) else 0.0
+    resting = len(moving) > 2 * REST_PAIRS and (moving[:REST_PAIRS].max() <= still
+                                                 or moving[-REST_PAIRS:].max() <= still)
+    if not np.isfinite(start) or not resting or found.rival is not None or found.score < MIN_VIDEO_CORRELATION:
         # (a video whose images never come to rest has no start or stop to line up: a steady spin's motion is
         # flat, and a placement found in it was a third of a second off at a correlation of 0.85)
-        why = ("the spin never starts or stops within the video, or the images never change" if not
+        why = ("the spin never starts or stops within the video: it neither begins nor ends with three frames at "
+               "rest, or the images never change" if not
                np.isfinite(start) or not resting else f"another start ({info['rival_start_s']:.3f} s) fits as well"
                if found.rival is not None else f"image and joint motion correlate only {found.score:.2f}")
         print(f"warning: {label}: where its frames fall on the joint time series' clock could not be measured "
