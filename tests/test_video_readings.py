@@ -144,14 +144,20 @@ def test_a_wrong_frame_rate_is_caught_by_the_calibration(recorded):
     assert "its frame rate, track --fps" in summary(result)
 
 
-def test_videos_trimmed_to_three_still_frames_are_placed(recorded):
+def test_videos_trimmed_to_three_still_frames_are_placed_and_synced(recorded):
     """Each video cut to three still frames before and after its spin (of its nine): image motion hardly lines up
     with the joints' over the ramps alone (correlation 0.70-0.84, below a bag's 0.8), but the frames at rest at its
-    ends date the spin's start and stop: every video is placed to within half a frame and gets its readings."""
-    dataset, _, folders, times, csv = recorded
+    ends date the spin's start and stop: every video is placed to within half a frame and gets its readings, and the
+    calibration syncs every one (one placed a third of a frame off had its good readings refused by the start's test
+    before its clock's offset was estimated) and holds its covariance."""
+    dataset, truth, folders, times, csv = recorded
     n = [len(t) for t in times]
     made = make_dataset(folders, csv, dataset.camera, dataset.arm, fps=FPS, progress=False,
                         frame_ranges=[(6, n[k] - 6) for k in range(len(folders))])
     for k, m in enumerate(made):
         assert m.spin_readings is not None, k
         assert abs(m.spin_readings.frame_times[6] - times[k][6]) < 0.5 / FPS, k
+    result = calibrate(made)
+    assert result.synced == tuple(range(6)) and not result.readings_refused
+    error = result.error_to(truth.arm_T_camera)
+    assert result.covariance_usable and float(error @ np.linalg.solve(result.covariance, error)) < CHI2_6_999

@@ -24,6 +24,12 @@ READINGS_Z = 3.09
 #: mirror image fits: z ~ 1e5; readings that never move, which drag the line: z 65-300), without refusing good
 #: readings at a start off its optimum (z 4 on the 6 s spins of a short scene, 12 on a spin of the test bags).
 READINGS_START_Z = 30.0
+#: ... a measurement beyond it is tested again at its clock's offset that reconciles it best, within this many of the
+#: offset's prior sigmas, on a grid of this step (s; then a tenth of it): at the start no offset has been estimated,
+#: and a video placed a third of a frame off failed it with good readings (``joint._best_offset_chi2``). Readings of
+#: the other sense, or that never move, no offset reconciles.
+READINGS_OFFSET_SIGMAS = 3.0
+READINGS_OFFSET_STEP_S = 0.01
 #: Synced: where the readings' own noise (through their rates) makes more than this share of the time offset's
 #: information, the readings cannot date the frames: the offset's 1 sigma is its prior's. A steady spin has no other
 #: (the offset came out 16-139 ms off at a 1 sigma of 39-51 ms under a 1 s prior), and readings with 1 degree of
