@@ -102,3 +102,26 @@ def test_a_precise_pose_that_no_other_checks_is_held_by_the_trackers_track_offse
     assert f"an image offset of its own, {TRACK_OFFSET_PX['auto']:g} px" in summary(result)
     assert not result.covariance_usable or chi2(result) < CHI2_999_6DOF, (chi2(result), summary(result))
     assert np.max(np.abs(result.error_to(truth)[3:])) < 0.005
+
+
+BLUR = Path(__file__).parent / "data" / "jaco2_photo_blur_seed0"
+
+
+def test_a_thin_poses_wrong_axis_is_not_blamed_on_the_robots_zero_positions():
+    """The blurred Jaco2 photo scene of the ambient benchmark (seed 0, 20 s spins, motion blur; tracks and truth in
+    ``tests/data``). Its pose of 18 tracks is left out as disagreeing and the other five still disagree mildly (P =
+    0.04); offsets of the joints' zero positions explain all six axes (P = 0.08) and had been called the likely
+    cause, sending the user to the robot's mastering although its kinematics are exact. Leaving out a thin pose
+    explains them too, and a thin pose's axis is the likelier to be wrong: the estimate, which rests on that, holds
+    its error within the covariance."""
+    dataset = Dataset.load(BLUR / "dataset")
+    truth = gtsam.Pose3(np.array(json.loads((BLUR / "truth.json").read_text(encoding="utf-8"))["arm_T_camera"]))
+    result = calibrate(dataset)
+    check = result.axis_consistency.kinematics
+    assert check["exact_p"] < 1e-3 and check["weak_one_out"] and not check["likely"], check
+    assert "kinematics" not in result.untrusted and "zero positions" not in summary(result)
+    left_out = [m for m in result.measurements if not m.used]
+    assert [m.index for m in left_out] == [check["one_out_measurement"]] and left_out[0].weak
+    error = result.error_to(truth)
+    # measured: 0.81 mm and 0.077 deg off, 1 sigma 6.9 mm and 0.53 deg (the axes' scatter scales it 5.2x), chi2 0.37
+    assert result.covariance_usable and float(error @ np.linalg.solve(result.covariance, error)) < CHI2_999_6DOF
