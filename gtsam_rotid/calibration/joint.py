@@ -463,7 +463,8 @@ def _best_offset_chi2(factor: RigidLineFactor, values: gtsam.Values, sync: _Sync
             shifted = gtsam.Values(values)
             shifted.update(factor.time_key, np.array([offset]))
             measured = factor.readings_test(shifted)
-            out.append((float("inf") if measured is None else float(measured[0]), float(offset)))
+            value = float("inf") if measured is None else float(measured[0])
+            out.append((value if np.isfinite(value) else float("inf"), float(offset)))
         return out
 
     reach = READINGS_OFFSET_SIGMAS * sync.sigma

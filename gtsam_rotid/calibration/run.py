@@ -92,16 +92,16 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
         if swap is None:
             raise
         raise CalibrationError(f"{swap_sentence(swap)}. The calibration itself said: {error}") from error
-    if _troubled(result):
-        swap = _confirmed_swap(arm, camera, used, method, options, kept, setup)
-        if swap is not None:
-            result = replace(result, swapped=swap)
     started = camera
     for _ in range(INTRINSICS_PASSES - 1):
         if result.camera is None or (_intrinsics_settled(result, started) and not setup.camera_pass):
             break
         started = result.camera
         result, setup = _calibrate(arm, started, used, method, options, kept, given_camera=camera)
+    if _troubled(result):  # (with refined intrinsics, at the camera the last pass started from, as its setup)
+        swap = _confirmed_swap(arm, started, used, method, options, kept, setup)
+        if swap is not None:
+            result = replace(result, swapped=swap)
     reports = [replace(r, index=kept[r.index]) for r in result.measurements]
     for k, p in enumerate(prepared):
         if k in kept:
