@@ -4,8 +4,9 @@
    of ``--durations`` s) with the tracks of two measurements exchanged (the pairs ``PAIRS``): whether ``calibrate``
    names the two (in its result's ``swapped`` or in its refusal), names others, or neither.
 2. **Not exchanged, but wrong**: the same scenes as recorded with the camera's focal length 5 % off, its principal
-   point 20 px off, or the second joint's readings 0.5 degrees off on every pose (results flagged for other reasons):
-   how many are called swapped (the target is none).
+   point 20 px off, or the second joint's readings 0.5 degrees off on every pose (troubled results, flagged or not:
+   six poses do not always see a wrong camera, README "Known limits"): how many are called swapped (the target is
+   none).
 
 Run: ``python benchmarks/swaps.py [--seeds 0,1,2] [--durations 6,10]`` (about 8 minutes on one core).
 """
