@@ -97,6 +97,18 @@ def _best_stage2(graph, starts, options, max_iterations: int | None = None,
     return min(_stage2_minima(graph, starts, options, max_iterations, anchor), key=lambda m: m[1])
 
 
+def guess_free_minima(K: np.ndarray, axes, lines, options) -> tuple[list, gtsam.NonlinearFactorGraph, list]:
+    """The guess-free fit of the FK ``axes`` to the image ``lines`` (one homogeneous line per axis): the pose
+    candidates from the back-projected planes (:func:`pose_candidates`), the unweighted stage-2 graph, and LM's minima
+    from every candidate (as :func:`_stage2_minima`), best first; no minima where no candidate puts the wrist in
+    front of the camera."""
+    normals = np.array([plane_normal(K, line) for line in lines])
+    candidates = pose_candidates(normals, axes, n_best=options.n_candidates)
+    graph = _stage2_graph(axes, lines, K, [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(axes))
+    minima = sorted(_stage2_minima(graph, candidates, options), key=lambda m: m[1]) if candidates else []
+    return candidates, graph, minima
+
+
 def _distinct(pose: gtsam.Pose3, others) -> bool:
     """``pose`` is turned more than TWIN_MIN_ANGLE_DEG from each of ``others`` (positions are not compared: along
     an undetermined direction they differ arbitrarily between starts of the same solution)."""
@@ -160,15 +172,10 @@ def _initial(arm, camera, measurements, options, index=None, tolerance: float = 
     refused (:func:`poor_start`); ``calibrate`` allows more here and checks again against stage 1's coaxial fits,
     which are far better where arcs are short."""
     setup = _setup(arm, camera, measurements, options, index)
-    K = camera.K
-    normals = np.array([plane_normal(K, line) for line in setup.centre_axes])
-    candidates = pose_candidates(normals, setup.axes, n_best=options.n_candidates)
+    candidates, graph, minima = guess_free_minima(camera.K, setup.axes, setup.centre_axes, options)
     if not candidates:
         raise CalibrationError("no pose candidate puts the wrist in front of the camera; check the joint angles "
                                "and that the tracks belong to the wrist")
-    unit = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(setup.axes)
-    graph = _stage2_graph(setup.axes, setup.centre_axes, K, unit)
-    minima = sorted(_stage2_minima(graph, candidates, options), key=lambda m: m[1])
     pose, error, _, best = minima[0]
     rms = np.sqrt(2.0 * error / (2 * len(setup.axes)))
     if rms > tolerance * options.max_initial_rms_px:

@@ -16,8 +16,7 @@ import gtsam
 import numpy as np
 
 from ..camera import Camera
-from ..initialise import plane_normal, pose_candidates
-from .initial import _stage2_graph, _stage2_minima
+from .initial import guess_free_minima
 from .setup import _Setup
 from .tuning import POSE_KEY, SWAP_ALL_PAIRS, SWAP_SCREEN_RATIO
 
@@ -30,13 +29,10 @@ def _fit(camera: Camera, axes, lines, options) -> tuple[float, np.ndarray]:
     on the unweighted stage-2 distances, as the calibration's start): its miss (px RMS over the test points) and
     each measurement's (px RMS); inf where no candidate puts the wrist in front of the camera."""
     n = len(axes)
-    normals = np.array([plane_normal(camera.K, line) for line in lines])
-    candidates = pose_candidates(normals, axes, n_best=options.n_candidates)
-    if not candidates:
+    _, graph, minima = guess_free_minima(camera.K, axes, lines, options)
+    if not minima:
         return float("inf"), np.full(n, np.inf)
-    unit = [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * n
-    graph = _stage2_graph(axes, lines, camera.K, unit)
-    pose, error, _, _ = min(_stage2_minima(graph, candidates, options), key=lambda m: m[1])
+    pose, error, _, _ = minima[0]
     values = gtsam.Values()
     values.insert(POSE_KEY, pose)
     each = np.array([np.sqrt(graph.at(k).error(values)) for k in range(n)])  # error = |r|^2 / 2 over 2 residuals
