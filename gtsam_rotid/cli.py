@@ -182,6 +182,9 @@ def cmd_demo(args) -> int:
     if args.noise_var is not None:
         raise InputError("--noise-var sets the pixel noise of simulated tracks: use it with --no-video (the video "
                          "demo's noise is the rendered image noise)")
+    if args.outlier_fraction is not None:
+        raise InputError("--outlier-fraction plants wrong simulated tracks: use it with --no-video (the video "
+                         "demo's tracks are the tracker's)")
     from .demo import DEMO_DURATION, demo_render_config, run_demo
 
     if args.renderer == "cylinder" and args.covering is not None:
@@ -189,7 +192,7 @@ def cmd_demo(args) -> int:
     config = demo_render_config(args.renderer, args.covering, args.seed)
     run_demo(args.out, seed=args.seed, duration=args.duration or DEMO_DURATION,
              n_measurements=args.n_measurements or 6, method=args.method, overwrite=args.overwrite,
-             render_config=config)
+             render_config=config, spin_joints=tuple(args.spin_joints or ()))
     return 0
 
 

@@ -82,10 +82,15 @@ def run_demo(out_dir: str | os.PathLike | None = None, *, seed: int = 0, duratio
              n_measurements: int = 6, method: str = "joint",
              render_config: RenderConfig | MeshRenderConfig | None = None,
              tracker_params: TrackerParams | None = None, overwrite: bool = False, progress: bool = True,
-             print: Callable[..., None] = builtins.print) -> DemoRun:
+             spin_joints: tuple[str, ...] = (), print: Callable[..., None] = builtins.print) -> DemoRun:
     """The whole pixel pipeline on the reference scene (seed ``seed``, ``n_measurements`` spins of ``duration``
     s): simulate the arm poses, render each spin, track it, calibrate with ``method``, and print the result and
     its error against the truth.
+
+    ``spin_joints``: spin each of these joints at every arm pose, one measurement each (default: the wrist alone;
+    :class:`gtsam_rotid.simulate.SceneConfig`). With the mesh renderer, a spin it cannot render (see
+    :func:`gtsam_rotid.meshrender.pose_problem`: a whole turn of another joint swings the hand far) is left out
+    before rendering, and named.
 
     With ``out_dir``: also write ``dataset/`` (the tracked dataset, with ``truth.json``), ``result.json``,
     ``tracking.txt`` (the tracking summary and its accuracy against the rendered truth) and one
@@ -100,15 +105,20 @@ def run_demo(out_dir: str | os.PathLike | None = None, *, seed: int = 0, duratio
     clock = time.perf_counter()
     seconds: dict[str, float] = {}
     out = None if out_dir is None else Path(out_dir)
+    spin_joints = tuple(spin_joints or ())
     if out is not None:
-        _check_demo_output(out, n_measurements, overwrite)
+        _check_demo_output(out, n_measurements * max(len(spin_joints), 1), overwrite)
     render_config = demo_render_config(seed=seed) if render_config is None else render_config
     drawn = (f"the robot's own meshes, the hand covered by {render_config.covering}"
              if isinstance(render_config, MeshRenderConfig) else "a dotted cylinder for the hand")
+    spins = "wrist spins" if not spin_joints else f"arm poses, each spinning {', '.join(spin_joints)},"
     print(f"gtsam-rotid demo from pixels: the reference scene (Kinova Jaco2, Xtion-like camera), seed {seed}, "
-          f"{n_measurements} wrist spins of {duration:g} s rendered, tracked and calibrated ({drawn})")
+          f"{n_measurements} {spins} {duration:g} s per spin, rendered, tracked and calibrated ({drawn})")
     start = time.perf_counter()
-    simulated, truth = simulate.reference_scene(seed=seed, duration=duration, n_measurements=n_measurements)
+    simulated, truth = simulate.reference_scene(seed=seed, duration=duration, n_measurements=n_measurements,
+                                                spin_joints=spin_joints)
+    if isinstance(render_config, MeshRenderConfig):
+        simulated, truth = _renderable(simulated, truth, render_config, print, max(len(spin_joints), 1))
     seconds["simulate"] = time.perf_counter() - start
     T = truth.arm_T_camera
     x, y, z = T.translation() * 1000.0
@@ -136,6 +146,34 @@ def run_demo(out_dir: str | os.PathLike | None = None, *, seed: int = 0, duratio
     seconds["total"] = time.perf_counter() - clock
     print(f"demo took {seconds['total']:.1f} s")
     return DemoRun(truth, scene, result, paths, seconds)
+
+
+def _renderable(simulated, truth, config: MeshRenderConfig, print: Callable[..., None], per_pose: int = 1):
+    """The simulated scene (``per_pose`` spins at each arm pose, in order) without the spins the mesh renderer
+    cannot render (each named by its arm pose and joint, with why)."""
+    from dataclasses import replace
+
+    from .dataset import Dataset
+    from .meshrender import load_arm_meshes, pose_problem
+
+    meshes = load_arm_meshes(simulated.arm)
+    keep = []
+    for k, m in enumerate(simulated):
+        problem = pose_problem(simulated.arm, simulated.camera, truth.arm_T_camera, m.joint_angles, config,
+                               meshes=meshes, spin_joint=m.spin_joint)
+        if problem is None:
+            keep.append(k)
+        else:
+            joint = simulated.arm.joint_names[simulated.arm.spin_index(m.spin_joint)]
+            print(f"the spin of {joint} at arm pose {k // per_pose} is left out: the mesh renderer cannot render "
+                  f"it: {problem}")
+    if len(keep) == len(simulated):
+        return simulated, truth
+    if not keep:
+        raise InputError("the mesh renderer can render none of the scene's spins (see above); try another --seed")
+    print(f"the {len(keep)} spins rendered are the measurements 0-{len(keep) - 1} below")
+    dataset = Dataset(simulated.arm, simulated.camera, [simulated[k] for k in keep], metadata=simulated.metadata)
+    return dataset, replace(truth, measurements=[truth.measurements[k] for k in keep])
 
 
 def _write_demo(out: Path, scene: VideoScene, truth, result, overwrite: bool) -> list[Path]:

@@ -85,33 +85,36 @@ def _shade(albedo: np.ndarray, normal: np.ndarray, view: np.ndarray, light: np.n
 
 
 class _Geometry:
-    """One measurement's scene: the still part in the camera frame, the spinning part in the link frame."""
+    """One measurement's scene: the still part in the camera frame, the spinning part in the frame of the spinning
+    joint (``spin_joint``, default the wrist: the meshes of that joint and of every joint after it turn with it)."""
 
     def __init__(self, arm: Arm, meshes: ArmMeshes, camera: Camera, arm_T_camera, joint_angles,
-                 config: MeshRenderConfig):
+                 config: MeshRenderConfig, spin_joint: str | None = None):
         self.camera = camera
         self.config = config
         q = arm.joint_angle_vector(joint_angles)
         self.joint_angles = q
         model = arm.model
-        wrist = model.getJointId(arm.wrist_joint)
+        self.spin_index = arm.spin_index(spin_joint)  # (an ArmError names a joint the arm does not have)
+        self.spin_joint = arm.joint_names[self.spin_index]
+        spinning = model.getJointId(self.spin_joint)
         moving_joints = set()
         for jid in range(model.njoints):
             j = jid
-            while j > 0 and j != wrist:
+            while j > 0 and j != spinning:
                 j = model.parents[j]
-            if j == wrist:
+            if j == spinning:
                 moving_joints.add(jid)
         camera_T_arm = arm_T_camera.inverse()
         self.cam_R_arm = camera_T_arm.rotation().matrix()
         self.cam_t_arm = camera_T_arm.translation()
-        arm_T_link = arm.arm_T_joint(q)
+        arm_T_link = arm.arm_T_joint(q, self.spin_joint)
         self.arm_R_link = arm_T_link.rotation().matrix()
         self.arm_t_link = arm_T_link.translation()
         link_T_camera = arm_T_link.inverse() * arm_T_camera
         self.link_R_cam = link_T_camera.rotation().matrix()  # at spin 0
         self.link_t_cam = link_T_camera.translation()  # camera centre in the link frame at spin 0
-        self.axis = arm.wrist_axis_local()
+        self.axis = arm.wrist_axis_local(self.spin_joint)
         self.e1, self.e2 = perpendicular_basis(self.axis)
         placements = {}
         for jid in set(meshes.joint_ids):
@@ -134,7 +137,7 @@ class _Geometry:
                 centre_local = (np.asarray(arm_T_camera.translation()) - t) @ R
                 self.still_boxes.append((meshes.names[i], v.min(axis=0), v.max(axis=0), centre_local))
         if not move_v:
-            raise ArmError(f"no visual geometry is attached to the wrist joint {arm.wrist_joint!r} or after it")
+            raise ArmError(f"no visual geometry is attached to the spinning joint {self.spin_joint!r} or after it")
         self.moving = _Caster(move_v, move_f, move_o)
         self.still = _Caster(still_v, still_f, still_o) if still_v else None
         arm_color = None if config.arm_color is None else _bgr(config.arm_color)
@@ -152,7 +155,7 @@ class _Geometry:
 
     # ------------------------------------------------------------------ frames of the spinning link
     def link_rotation(self, spin: float) -> np.ndarray:
-        """R(spin) about the local wrist axis: link(spin) = link(0) * R(spin)."""
+        """R(spin) about the spinning joint's local axis: link(spin) = link(0) * R(spin)."""
         return rotation_about_axis(self.axis, [spin])[0]
 
     def camera_in_link(self, spin: float) -> tuple[np.ndarray, np.ndarray]:
@@ -280,8 +283,8 @@ def _renderability(geometry: _Geometry) -> str | None:
     cam = geometry.link_to_camera(spins, points[::step]).reshape(-1, 3)
     inside = camera.in_image(camera.project(cam))
     if inside.mean() < cfg.min_in_image:
-        return (f"only {inside.mean():.0%} of the spinning links' projected vertices lie inside the image over the "
-                f"spin (min_in_image {cfg.min_in_image:.0%})")
+        return (f"only {inside.mean():.1%} of the spinning links' projected vertices lie inside the image over a "
+                f"whole turn (min_in_image {cfg.min_in_image:.0%})")
     # occlusion by the still links: a coarse grid of the swept region
     pixels = _region_pixels(geometry, step=3)
     if len(pixels) == 0:
@@ -303,7 +306,7 @@ def _renderability(geometry: _Geometry) -> str | None:
 
 
 def _swept_points(geometry: _Geometry, samples: int = 128) -> np.ndarray:
-    """Points (link frame) whose convex hull contains the solid the spinning links sweep about the wrist axis."""
+    """Points (link frame) whose convex hull contains the solid the spinning links sweep about the spin axis."""
     phi = np.linspace(0.0, 2.0 * np.pi, samples, endpoint=False)
     radius = geometry.max_radius / np.cos(np.pi / samples) * 1.001 + 1e-4
     ring = radius * (np.cos(phi)[:, None] * geometry.e1 + np.sin(phi)[:, None] * geometry.e2)
@@ -345,11 +348,12 @@ def _region_pixels(geometry: _Geometry, step: int = 1) -> np.ndarray:
 
 
 def pose_problem(arm: Arm, camera: Camera, arm_T_camera, joint_angles, config: MeshRenderConfig | None = None, *,
-                 meshes: ArmMeshes | None = None, package_dirs=None) -> str | None:
-    """Why the mesh renderer cannot render the arm at ``joint_angles`` seen from ``arm_T_camera``, or None
-    when it can: the camera inside a mesh's bounding box or inside the hand's swept volume, the spinning
-    links behind the camera, less than ``min_in_image`` of their projected vertices inside the image, or more
-    than 1 - ``min_visible_fraction`` of their projected area hidden by still links (8 spin angles)."""
+                 meshes: ArmMeshes | None = None, package_dirs=None, spin_joint: str | None = None) -> str | None:
+    """Why the mesh renderer cannot render the arm at ``joint_angles`` seen from ``arm_T_camera`` spinning
+    ``spin_joint`` (default the wrist), or None when it can: the camera inside a mesh's bounding box or inside the
+    spinning links' swept volume, the spinning links behind the camera, less than ``min_in_image`` of their
+    projected vertices inside the image, or more than 1 - ``min_visible_fraction`` of their projected area hidden by
+    still links (8 spin angles of a whole turn)."""
     config = MeshRenderConfig() if config is None else config
     meshes = load_arm_meshes(arm, package_dirs) if meshes is None else meshes
-    return _renderability(_Geometry(arm, meshes, camera, arm_T_camera, joint_angles, config))
+    return _renderability(_Geometry(arm, meshes, camera, arm_T_camera, joint_angles, config, spin_joint))

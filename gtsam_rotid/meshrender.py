@@ -6,13 +6,14 @@ The model
   a URDF's meshes found through ``package_dirs``), loaded with trimesh (pycollada for .dae), placed at the
   measurement's joint angles; a back wall perpendicular to the camera's optical axis at
   ``background_distance`` (a photograph, smooth noise or plain) and optionally a floor (the plane
-  ``z = floor_height`` of the arm-base frame, a wood-like noise). The geometry whose parent joint is the wrist
-  joint or one of its descendants (the hand, its fingers, the wrist ring) spins; everything else is still.
-- **Spin.** In frame f the wrist joint is turned by ``spin_angles[f]``: the spinning links sit at
-  ``arm_T_link(f) = arm_T_joint(q with q[wrist] + spin_f)`` (Pinocchio's wrist joint frame), so a point p
-  fixed in the link frame is at ``camera_T_arm * arm_T_link(f) * p``.
+  ``z = floor_height`` of the arm-base frame, a wood-like noise). The geometry whose parent joint is the spinning
+  joint (the measurement's ``spin_joint``, default the wrist) or one of its descendants (for the wrist: the hand,
+  its fingers, the wrist ring) spins; everything else is still.
+- **Spin.** In frame f the spinning joint is turned by ``spin_angles[f]``: the spinning links sit at
+  ``arm_T_link(f) = arm_T_joint(q with q[spin] + spin_f)`` (Pinocchio's frame of the spinning joint), so a point
+  p fixed in the link frame is at ``camera_T_arm * arm_T_link(f) * p``.
 - **Covering.** The spinning links carry a texture mapped in their own frame, so a surface point's colour
-  (albedo) never changes as it spins: cylindrical about the wrist axis (angle about the axis, offset along it;
+  (albedo) never changes as it spins: cylindrical about the spin axis (angle about the axis, offset along it;
   the angle's origin is the simulator's phase-0 direction ``e1``) on faces that face sideways, planar
   (triplanar-style, the two coordinates across the axis) on faces within 41 deg of the axis (caps).
   ``covering`` is one of ``"photo"`` (matplotlib's sample photographs), ``"text"`` (printed text on a light
@@ -34,7 +35,7 @@ The model
   per measurement, colour and depth per sub-sample. Per frame only the sub-samples inside the image region
   the spinning links can cover (their swept cylinder, projected once; within it, the bounds of the frame's
   projected vertices) are cast, against the spinning links alone, by turning the rays into the spinning
-  link's frame (inverse rotation about the wrist axis) instead of moving the mesh, with the still scene's
+  link's frame (inverse rotation about the spin axis) instead of moving the mesh, with the still scene's
   depth as the ray's far limit; the nearer surface wins. Ray casting is Intel Embree (``embreex``).
 
 Ground truth (:class:`MeshSpin`; ``frame`` arguments are frame numbers of the measurement, as in
@@ -105,7 +106,8 @@ class MeshSpin:
     """
 
     def __init__(self, k: int, arm: Arm, camera: Camera, arm_T_camera, joint_angles, all_spin_angles,
-                 frame_indices, config: MeshRenderConfig, fps: float | None, meshes: ArmMeshes):
+                 frame_indices, config: MeshRenderConfig, fps: float | None, meshes: ArmMeshes,
+                 spin_joint: str | None = None):
         self.measurement = k
         self.arm = arm
         self.camera = camera
@@ -116,7 +118,9 @@ class MeshSpin:
         self.frame_indices = np.asarray(frame_indices, dtype=np.int64)
         self.spin_angles = self._all_spin[self.frame_indices]
         self._step = np.gradient(self._all_spin) if len(self._all_spin) > 1 else np.zeros(1)
-        self._geometry = _Geometry(arm, meshes, camera, arm_T_camera, joint_angles, config)
+        self._geometry = _Geometry(arm, meshes, camera, arm_T_camera, joint_angles, config, spin_joint)
+        #: the joint that spins (its name in the model; the wrist's when the measurement names none)
+        self.spin_joint = self._geometry.spin_joint
         problem = _renderability(self._geometry)
         if problem is not None:
             raise InputError(f"measurement {k}: the mesh renderer cannot render this arm pose: {problem}")
@@ -259,10 +263,10 @@ class MeshSpin:
         return float(self._all_spin[int(frame)])
 
     def arm_T_link(self, frame: int):
-        """Pose (gtsam.Pose3) of the spinning link frame (the wrist joint frame) at a frame number."""
+        """Pose (gtsam.Pose3) of the spinning link frame (the spinning joint's frame) at a frame number."""
         q = self._geometry.joint_angles.copy()
-        q[self.arm.wrist_index] += self._spin_of(frame)
-        return self.arm.arm_T_joint(q)
+        q[self._geometry.spin_index] += self._spin_of(frame)
+        return self.arm.arm_T_joint(q, self.spin_joint)
 
     def surface_points(self, frame: int, pixels) -> np.ndarray:
         """Link-frame points (N, 3) that raw ``pixels`` (N, 2) see at frame number ``frame``; NaN where the
@@ -450,7 +454,7 @@ def render_mesh_measurement(dataset, truth, k: int, config: MeshRenderConfig | N
     k, mt, spin, selection, fps = scene_spin(dataset, truth, k, frames)
     meshes = load_arm_meshes(dataset.arm, package_dirs) if meshes is None else meshes
     return MeshSpin(k, dataset.arm, dataset.camera, truth.arm_T_camera, mt.joint_angles, spin, selection, config,
-                    fps, meshes)
+                    fps, meshes, dataset[k].spin_joint)
 
 
 def render_mesh_scene(dataset, truth, config: MeshRenderConfig | None = None, *, frames=None,

@@ -114,6 +114,14 @@ def _measurement_title(result, k: int, what: str, fit: TrackFit, digits: int) ->
     return title
 
 
+def _spin_axis_name(dataset, k: int) -> str:
+    """``wrist axis``, or ``axis of <joint>`` where measurement ``k`` spins another joint."""
+    joint = dataset[k].spin_joint
+    if dataset.arm.spins_wrist(joint):
+        return "wrist axis"
+    return f"axis of {dataset.arm.joint_names[dataset.arm.spin_index(joint)]}"
+
+
 def _draw_tracks(ax, result, dataset, k: int, fit: TrackFit, zoom: bool, legend: bool = True) -> None:
     camera = dataset.camera
     tracks = [Track.from_any(t).pixels for t in dataset[k].tracks]
@@ -132,7 +140,8 @@ def _draw_tracks(ax, result, dataset, k: int, fit: TrackFit, zoom: bool, legend:
         s = np.concatenate([-np.geomspace(1e3, 1e-3, 600), [0.0], np.geomspace(1e-3, 1e3, 600)])
         axis = _project_curve(camera, line_points(fit.line, s))
         ax.plot(axis[:, 0], axis[:, 1], "-", lw=2.0, color="tab:green")
-        handles.append(Line2D([], [], color="tab:green", lw=2.0, label="wrist axis projected by the estimate"))
+        handles.append(Line2D([], [], color="tab:green", lw=2.0,
+                              label=f"{_spin_axis_name(dataset, k)} projected by the estimate"))
     image_axis = result.measurements[k].image_axis if k < len(result.measurements) else None
     if image_axis is not None:  # the stage-1 image axis, when the result carries it (ideal pixels)
         _draw_image_line(ax, camera, np.asarray(image_axis, dtype=float))
@@ -539,7 +548,8 @@ def plot_overlay(frame, result, dataset, k: int, *, frame_number: int | None = N
 
     _show_frame(fitted, image, camera, alpha=0.45)
     _draw_tracks(fitted, result, dataset, k, fit, True)
-    fitted.set_title("4. circles fitted about the wrist axis, and that axis, projected by the estimate", fontsize=9)
+    fitted.set_title(f"4. circles fitted about the {_spin_axis_name(dataset, k)}, and that axis, projected by the "
+                     "estimate", fontsize=9)
 
     for ax in (detected, arcs, fitted):
         ax.set_xlim(*xlim)

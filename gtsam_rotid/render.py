@@ -2,7 +2,9 @@
 
 The model
 ---------
-- **Body.** The end effector is a stepped cylinder about the wrist axis: coaxial :class:`Section` s, by
+- **Body.** The end effector is a stepped cylinder about the spin axis (the measurement's truth: the wrist's, or
+  the axis of the joint it spins, ``Measurement.spin_joint``; the cylinder then stands for the links after that
+  joint and turns about its axis): coaxial :class:`Section` s, by
   default a wrist section (radius 3.5 cm, 0-5 cm along the axis) and a wider hand section (5.5 cm, 5-10 cm),
   inside the simulator's feature range (radius 3-6 cm, offset 0-10 cm). Sides are mid-grey, end caps a
   little darker, and each section's outline is a thin darker line (so the edge where the hand hides the
@@ -525,11 +527,6 @@ def scene_spin(dataset, truth, k, frames=None) -> tuple[int, object, np.ndarray,
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < len(dataset):
         raise InputError(f"measurement index {k!r} is outside the dataset's measurements 0..{len(dataset) - 1}")
     k = int(k)
-    joint = dataset[k].spin_joint
-    if not dataset.arm.spins_wrist(joint):
-        raise InputError(f"measurement {k} spins {joint!r}: the renderers spin the wrist joint "
-                         f"{dataset.arm.wrist_joint!r} only (its simulated tracks calibrate without video: "
-                         "demo --no-video)")
     mt = truth.measurements[k]
     spin = np.asarray(mt.spin_angles, dtype=float)
     if spin.ndim != 1 or spin.size == 0 or not np.all(np.isfinite(spin)):

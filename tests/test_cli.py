@@ -309,6 +309,8 @@ def test_demo_from_video_runs_the_whole_pipeline(tmp_path):
     assert sorted(p.name for p in out.glob("overlay_m*.png")) == [f"overlay_m{k}.png" for k in range(4)]
     refused = run("demo", "--noise-var", "1", check=False)  # pixel noise belongs to simulated tracks
     assert refused.returncode == 1 and "--no-video" in refused.stderr
+    planted = run("demo", "--outlier-fraction", "0.1", check=False)  # so do planted wrong tracks
+    assert planted.returncode == 1 and "--no-video" in planted.stderr and "--outlier-fraction" in planted.stderr
 
 
 def test_calibrate_syncs_the_readings_a_dataset_carries(tmp_path):

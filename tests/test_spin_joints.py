@@ -82,13 +82,64 @@ def test_simulated_spins_of_another_joint_move_the_hand_as_the_arm_does(noise_fr
             np.testing.assert_allclose(track.pixels, pixels, atol=1e-9)
 
 
-def test_the_renderers_refuse_another_joints_spin_by_name(noise_free):
+def test_the_mesh_renderer_spins_the_measurements_joint_as_the_arm_kinematics_turn_it(noise_free):
+    from gtsam_rotid import meshrender as mr
+
+    dataset, truth = noise_free
+    assert dataset[0].spin_joint == J5 and dataset[1].spin_joint == J6  # (the same arm pose)
+    meshes = mr.load_arm_meshes(ARM)
+    config = mr.MeshRenderConfig(noise_sigma=0.0)
+    spin = mr.render_mesh_measurement(dataset, truth, 0, config, meshes=meshes, frames=slice(0, 240, 40))
+    wrist = mr.render_mesh_measurement(dataset, truth, 1, config, meshes=meshes, frames=[0])
+    assert spin.spin_joint == J5 and wrist.spin_joint == J6
+    # joint 5's spin turns the link between joints 5 and 6 as well as everything the wrist's turns
+    assert set(wrist.moving_links) < set(spin.moving_links)
+    assert any("link_5" in name for name in set(spin.moving_links) - set(wrist.moving_links))
+    ys, xs = np.nonzero(spin.moving_mask(0))
+    pick = np.random.default_rng(0).choice(len(xs), size=30, replace=False)
+    pixels = np.column_stack([xs[pick], ys[pick]]).astype(float)
+    points = spin.surface_points(0, pixels)
+    assert np.all(np.isfinite(points))
+    frames = np.array([0, 40, 120, 200])
+    projected, _ = spin.project_points(points, frames)
+    # independently: camera_T_arm * arm_T_joint5(q with joint 5 turned by the spin) * p
+    mt = truth.measurements[0]
+    camera_T_arm = truth.arm_T_camera.inverse()
+    moved = 0.0
+    for row, f in enumerate(frames):
+        q = np.array(mt.joint_angles, dtype=float)
+        q[4] += mt.spin_angles[f]
+        arm_T_link = ARM.arm_T_joint(q, J5)
+        expected = dataset.camera.project(
+            np.array([camera_T_arm.transformFrom(arm_T_link.transformFrom(p)) for p in points]))
+        np.testing.assert_allclose(projected[row], expected, atol=1e-6)
+        np.testing.assert_allclose(spin.arm_T_link(int(f)).matrix(), arm_T_link.matrix(), atol=1e-12)
+        moved = max(moved, float(np.max(np.linalg.norm(expected - pixels, axis=1))))
+    assert moved > 50.0  # (the hand swings across the image, not about the wrist's axis)
+    # the spinning frame's origin sits on the simulator's axis of joint 5, and the frames show the swing
+    np.testing.assert_allclose(spin.arm_T_link(0).translation(), mt.axis_point, atol=1e-9)
+    assert not np.array_equal(spin.frame(0), spin.frame(3))
+
+
+def test_the_cylinder_renderer_turns_its_dots_about_the_measurements_spin_axis(noise_free):
     from gtsam_rotid.render import render_measurement
 
     dataset, truth = noise_free
-    with pytest.raises(InputError, match=f"measurement 0 spins '{J5}': the renderers spin the wrist joint"):
-        render_measurement(dataset, truth, 0)
-    assert render_measurement(dataset, truth, 1, frames=slice(0, 2)).spin_angles.size > 0  # (the wrist's)
+    mt = truth.measurements[0]
+    spin = render_measurement(dataset, truth, 0, frames=slice(0, 240, 60))
+    assert spin.n_frames == 4 and spin.frame(0).shape == (dataset.camera.height, dataset.camera.width)
+    # each dot's truth: its centre on a circle about joint 5's axis (from the arm, not the renderer), turned by
+    # the frame's spin angle
+    axis = ARM.wrist_axis(mt.joint_angles, J5)
+    dots, camera_T_arm = spin.dots, truth.arm_T_camera.inverse()
+    for row, f in enumerate(spin.frame_indices):
+        phase = dots.phase + mt.spin_angles[f]
+        centres = (axis.point + dots.offset[:, None] * axis.direction
+                   + dots.radius[:, None] * (np.cos(phase)[:, None] * mt.e1 + np.sin(phase)[:, None] * mt.e2))
+        expected = dataset.camera.project(np.array([camera_T_arm.transformFrom(c) for c in centres]))
+        seen = spin.visible[row]
+        assert seen.sum() >= 5
+        np.testing.assert_allclose(spin.truth_pixels[row][seen], expected[seen], atol=1e-6)
 
 
 def test_the_dataset_keeps_the_spinning_joint_and_still_reads_version_1(noise_free, tmp_path):
