@@ -250,8 +250,10 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                                              sync=sync)
         _, s1_values, s1_keys = _joint_graph(builder, camera, measurements, setup, stage1, start, pose, sigmas,
                                              circles, lines, rest=rest, intrinsics=intrinsics, sync=sync)
-        start = [k for k in start if fk_keys[k].coaxial.error(fk_values) < s1_keys[k].coaxial.error(s1_values)]
-        solved = _solved(fk_keys, fk_values, start)  # (the others are built again as they were: the same start)
+        kept = [k for k in start if not fk_keys[k].coaxial.error(fk_values) < s1_keys[k].coaxial.error(s1_values)]
+        start = [k for k in start if k not in kept]
+        # each starts from its solution in the graph it fitted better in (the others as stage 1 left them)
+        solved = {**_solved(s1_keys, s1_values, kept), **_solved(fk_keys, fk_values, start)}
     for _round in range(3):
         graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas, circles,
                                            lines, fk_start=start, rest=rest, intrinsics=intrinsics, sync=sync,
@@ -311,6 +313,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                                    "residuals at the estimate (too little evidence: few tracks or short arcs)")
         circles = {k: dict(zip(keys[k].tracks, _circles(keys[k], result), strict=True)) for k in used}
         lines = {k: None if keys[k].line_key is None else result.atRot3(keys[k].line_key) for k in used}
+        solved = _solved(keys, result)  # a next round's spins start from their solutions here (its noise is new)
         stable = all(abs(new_sigmas[k] / sigmas[k] - 1.0) < 0.05 for k in used)
         sigmas = new_sigmas
         if stable:
