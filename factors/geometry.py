@@ -296,3 +296,27 @@ def axis_point_residuals(K, arm_T_camera, points_arm, line) -> tuple[np.ndarray,
     H_line = np.ones((len(u), 3))
     H_line[:, :2] = u
     return e, H_pose, H_line
+
+
+def axis_points_residuals(K, arm_T_camera, points_arm, lines) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`axis_point_residuals` for many points, each against its own image line: ``points_arm`` (N, 3), ``lines``
+    (N, 3) normalised homogeneous lines (one per point). Returns the (N,) signed distances and their (N, 6) pose
+    Jacobian (the same maths, vectorised over the lines: one call for every axis of a graph)."""
+    L = np.asarray(lines, dtype=float).reshape(-1, 3)
+    K = np.asarray(K, dtype=float)
+    P = np.asarray(points_arm, dtype=float).reshape(-1, 3)
+    R = arm_T_camera.rotation().matrix()
+    X = (P - arm_T_camera.translation()) @ R
+    y = X @ K.T
+    inv_z = 1.0 / y[:, 2]
+    u = y[:, :2] * inv_z[:, None]
+    e = u[:, 0] * L[:, 0] + u[:, 1] * L[:, 1] + L[:, 2]
+    g = np.empty_like(X)
+    g[:, 0], g[:, 1], g[:, 2] = L[:, 0] * inv_z, L[:, 1] * inv_z, (L[:, 2] - e) * inv_z
+    g = g @ K
+    H_pose = np.empty((len(X), 6))
+    H_pose[:, 0] = g[:, 1] * X[:, 2] - g[:, 2] * X[:, 1]
+    H_pose[:, 1] = g[:, 2] * X[:, 0] - g[:, 0] * X[:, 2]
+    H_pose[:, 2] = g[:, 0] * X[:, 1] - g[:, 1] * X[:, 0]
+    H_pose[:, 3:] = -g
+    return e, H_pose

@@ -11,6 +11,7 @@ from ..arm import Arm
 from ..camera import Camera
 from ..dataset import Measurement
 from ..factors import (
+    make_axes_to_lines_factor,
     make_axis_to_line_factor,
 )
 from ..geometry import closest_point
@@ -105,7 +106,10 @@ def guess_free_minima(K: np.ndarray, axes, lines, options) -> tuple[list, gtsam.
     normals = np.array([plane_normal(K, line) for line in lines])
     candidates = pose_candidates(normals, axes, n_best=options.n_candidates)
     graph = _stage2_graph(axes, lines, K, [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(axes))
-    minima = sorted(_stage2_minima(graph, candidates, options), key=lambda m: m[1]) if candidates else []
+    # LM on the same residuals in one factor (one call per evaluation instead of one per axis: the same minima)
+    stacked = gtsam.NonlinearFactorGraph()
+    stacked.add(make_axes_to_lines_factor(POSE_KEY, [axis_test_points(axis) for axis in axes], lines, K))
+    minima = sorted(_stage2_minima(stacked, candidates, options), key=lambda m: m[1]) if candidates else []
     return candidates, graph, minima
 
 
