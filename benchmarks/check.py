@@ -18,7 +18,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from gtsam_rotid.calibration.check import check_calibration
+from gtsam_rotid.calibration.check import axis_scale_of, check_calibration
 from gtsam_rotid.estimate import calibrate
 from gtsam_rotid.simulate import SceneConfig, simulate
 
@@ -41,7 +41,8 @@ def main() -> int:
         config = replace(base, camera_eye=tuple(eye), camera_target=tuple(target))
         for seed in range(10, 10 + args.sessions):
             dataset, _ = simulate(config, seed=seed)
-            c = check_calibration(result.arm_T_camera, dataset, covariance=result.covariance)
+            c = check_calibration(result.arm_T_camera, dataset, covariance=result.covariance,
+                                  axis_scale=axis_scale_of(result))
             verdict = "valid" if c.still_valid else "MOVED"
             print(f"{label:8} seed {seed:3}: move chi2 {c.chi2:8.2f} for {c.dof} dof, p {c.p_value:8.2g}, {verdict:5}, "
                   f"move {c.move_mm:6.2f} mm {c.move_deg:6.3f} deg")

@@ -451,7 +451,7 @@ def cmd_check(args) -> int:
     check = check_calibration(pose.arm_T_camera, dataset, covariance=pose.covariance, tolerance=tolerance,
                               options=options, joint_offsets=pose.joint_offsets,
                               offsets_covariance=pose.offsets_covariance,
-                              pose_offsets_covariance=pose.pose_offsets_covariance)
+                              pose_offsets_covariance=pose.pose_offsets_covariance, axis_scale=pose.axis_scale)
     print("\n".join(check_words(check)))
     return 3 if not check.still_valid else 0 if check.consistent and check.odd_spin is None else 4
 
@@ -647,7 +647,7 @@ def add_track_parser(subparsers) -> argparse.ArgumentParser:
 def _add_scene_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--noise-var", type=float, help="pixel noise variance in px^2 (default 1.5)")
-    parser.add_argument("--duration", type=float, help="seconds of wrist spin per measurement (default 60)")
+    parser.add_argument("--duration", type=float, help="seconds of each spin (default 60; the demo from video: 20)")
     parser.add_argument("--n-measurements", type=int, help="number of arm poses (default 6)")
     parser.add_argument("--outlier-fraction", type=float, help="fraction of tracks replaced by wrong arcs")
     parser.add_argument("--spin-joints", nargs="+", metavar="JOINT",

@@ -38,6 +38,9 @@ class PoseFile(NamedTuple):
     pose_offsets_covariance: np.ndarray | None = None
     #: a result of ours: each track's own offset (px) its covariance assumed
     track_offset_px: float | None = None
+    #: a result of ours whose image axes disagreed beyond their noise: the scale of their noise its covariance
+    #: carries (``axis_consistency.scale``); 1 otherwise
+    axis_scale: float = 1.0
 
 
 def load_pose(path: str | os.PathLike, arm: Arm | None = None) -> PoseFile:
@@ -58,9 +61,12 @@ def load_pose(path: str | os.PathLike, arm: Arm | None = None) -> PoseFile:
             document = None
     if isinstance(document, dict) and document.get("format") == "gtsam_rotid.calibration":
         result = load_result(path)
+        from .calibration.check import axis_scale_of
+
         return PoseFile(result.arm_T_camera, result.covariance, "a gtsam_rotid result", result.joint_sigma_deg,
                         result.axis_floor_px, result.robot or None, result.joint_offsets,
-                        result.joint_offsets_covariance, result.pose_offsets_covariance, result.track_offset_px)
+                        result.joint_offsets_covariance, result.pose_offsets_covariance, result.track_offset_px,
+                        axis_scale_of(result))
     if isinstance(document, dict) and document.get("format") == FORMAT_MARKER:
         return _transform(document, path, arm)
     if isinstance(document, dict) and "transformation" in document:

@@ -454,10 +454,17 @@ def simulate(config: SceneConfig | None = None, seed: int | None = 0, *, arm: Ar
     _check_config(config)
     rng = np.random.default_rng(seed)
     arm = Arm.from_robot(config.robot) if arm is None else arm
-    for joint in config.spin_joints:  # (ArmError, an InputError, names a joint the arm does not have)
-        if arm.spin_index(joint) > arm.wrist_index:
+    indices = [arm.spin_index(joint) for joint in config.spin_joints]  # (an ArmError names an unknown joint)
+    for joint, index in zip(config.spin_joints, indices, strict=True):
+        if index > arm.wrist_index:
             raise InputError(f"spin joint {joint!r} comes after the wrist joint {arm.wrist_joint!r}: the simulated "
                              "features sit on the links after the wrist joint, and its spin would not move them all")
+        if index == 0:
+            raise InputError(f"spin joint {joint!r} is the arm's first joint: its axis is fixed in the arm's base, the "
+                             "same at every pose, so its spins cannot locate the camera")
+    if len(set(indices)) < len(indices):
+        raise InputError(f"spin_joints names a joint twice: {list(config.spin_joints)} (each joint spins once per "
+                         "arm pose)")
     scene = SpinScene(config, arm, rng)
     if config.joint_angles is not None:
         poses = [arm.joint_angle_vector(q) for q in config.joint_angles]

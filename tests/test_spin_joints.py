@@ -47,6 +47,10 @@ def test_the_axis_of_another_joint_is_its_frame_and_its_offset_derivatives_are_f
         ARM.wrist_axis(q, "joint_7")
     with pytest.raises(InputError, match=f"spin joint '{J6}' comes after the wrist joint '{J5}'"):
         simulate.simulate(SceneConfig(duration=1.0, spin_joints=(J6,)), arm=Arm.from_robot("kinova", wrist_joint=J5))
+    with pytest.raises(InputError, match="is the arm's first joint: its axis is fixed"):
+        simulate.simulate(SceneConfig(duration=1.0, spin_joints=(ARM.joint_names[0],)), arm=ARM)
+    with pytest.raises(InputError, match="names a joint twice"):
+        simulate.simulate(SceneConfig(duration=1.0, spin_joints=(J5, J6, J5)), arm=ARM)
 
 
 def test_offsets_reach_the_last_spinning_joint():

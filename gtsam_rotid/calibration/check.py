@@ -27,7 +27,7 @@ from ..uncertainty import chi2_sf
 from .lm import _builder
 from .options import CalibrationError, CalibrationOptions, with_tracker_defaults
 from .setup import _setup
-from .stage1 import _checked, _stage1
+from .stage1 import _checked, _stage1, _stage1_measurement, _start_line
 from .stage2 import _axis_distances
 
 #: The calibration still holds unless the new spins' χ² is beyond this P value (the 99.9 % point).
@@ -40,6 +40,11 @@ DEFAULT_TOLERANCE = (1.0, 0.1)
 #: the camera's x and y axes; the fit of lowest cost is kept, so that where a spin's fit lands does not depend on
 #: the pose being checked (from one start a short spin can settle in a minimum of its own).
 START_TURNS_DEG = (8.0, 20.0)
+#: A spin's stage-1 fit whose residual sigma is more than this times another fit's of the same spin is a poor
+#: minimum, however many tracks it kept (its inflated noise lets every track pass: a cylinder-rendered spin of the
+#: joint before the wrist, fitted from the image axis through its ellipses' centres, kept all 43 tracks at 2.5 px
+#: and read as a changed calibration, chi-square 45; from the checked pose's FK axis, 41 tracks at 0.028 px, 2.4).
+POOR_FIT_SIGMA_RATIO = 3.0
 #: A direction of the move counts as determined by the new spins when their information there is at least this
 #: fraction of the total (prior included): the prior then no longer holds it where it was.
 DETERMINED_FRACTION = 0.5
@@ -114,11 +119,18 @@ class CheckResult:
         return 1000.0 * float(np.max(sd[3:])), float(np.degrees(np.max(sd[:3])))
 
 
+def axis_scale_of(result) -> float:
+    """A calibration result's scale of its image axes' noise for :func:`check_calibration` (``axis_scale``): its
+    ``axis_consistency.scale`` where its axes disagreed beyond their noise, else 1."""
+    c = getattr(result, "axis_consistency", None)
+    return float(c.scale) if c is not None and not c.consistent and np.isfinite(c.scale) and c.scale > 1 else 1.0
+
+
 def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, Camera, list[Measurement]], *,
                       covariance: np.ndarray | None = None, tolerance: tuple[float, float] = DEFAULT_TOLERANCE,
                       options: CalibrationOptions | None = None, joint_offsets: dict[str, float] | None = None,
                       offsets_covariance: np.ndarray | None = None,
-                      pose_offsets_covariance: np.ndarray | None = None) -> CheckResult:
+                      pose_offsets_covariance: np.ndarray | None = None, axis_scale: float = 1.0) -> CheckResult:
     """Test ``arm_T_camera`` (the camera's optical frame in the arm's root frame) against the spins of
     ``dataset`` (one or more): see the module docstring. ``covariance`` is the calibration's (6x6, Pose3 tangent,
     as ``CalibrationResult.covariance``), or None for a pose from another tool, which is then taken as good to
@@ -129,7 +141,12 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
     readings are taken plus them, and their uncertainty (``offsets_covariance``, n x n rad², and its cross-covariance
     with the pose, ``pose_offsets_covariance``, 6 x n) moves every new spin's FK axis: it is in each spin's χ², in
     the move's covariance (the part of the offsets' error the move takes up) and in the spins' agreement at the
-    moved pose (the rest, which they share: tested on all spins together, by generalised least squares)."""
+    moved pose (the rest, which they share: tested on all spins together, by generalised least squares).
+
+    ``axis_scale``: the calibration's scale of its image axes' noise (``CalibrationResult.axis_consistency.scale``
+    where its axes disagreed beyond their noise: its covariance carries it): the new spins' axes, tracked the same
+    way, are taken to scatter as much (a calibration checked against its own spins had one spin flagged at
+    chi-square 14 that its scale of 2.3 counted as noise)."""
     if isinstance(dataset, Dataset):
         arm, camera, measurements, metadata = dataset.arm, dataset.camera, list(dataset), dataset.metadata
     else:
@@ -150,6 +167,8 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
         offsets = (joints, C, X)
     if not isinstance(arm_T_camera, gtsam.Pose3):
         raise InputError(f"arm_T_camera must be a gtsam.Pose3, got {type(arm_T_camera).__name__}")
+    if not (isinstance(axis_scale, int | float) and np.isfinite(axis_scale) and axis_scale >= 1.0):
+        raise InputError(f"axis_scale must be a finite number >= 1, got {axis_scale!r}")
     had_covariance = covariance is not None
     if had_covariance:
         covariance = np.asarray(covariance, dtype=float)
@@ -178,7 +197,7 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
         out = []
         for k, s in enumerate(stage1):  # the projected-axis factor's own distances and Jacobian
             e, J, _ = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), s.image_axis)
-            _, cov = _axis_distances(camera, setup.axes[k], s, pose, variance[k], setup, k, floor=True)
+            _, cov = _axis_distances(camera, setup.axes[k], s, pose, axis_scale * variance[k], setup, k, floor=True)
             if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J)) and np.all(np.isfinite(cov))):
                 raise CalibrationError(f"spin {k}: the calibration puts its wrist axis behind the camera or out of "
                                        "the image; is the pose the camera's optical frame in the arm's root frame "
@@ -294,12 +313,26 @@ def _rank(s) -> tuple[int, float]:
     return -len(s.stats), cost if np.isfinite(cost) else np.inf
 
 
+def _better(s, than) -> bool:
+    """Whether stage-1 fit ``s`` of a spin is better than ``than``: a fit whose residual sigma is beyond
+    POOR_FIT_SIGMA_RATIO times the other's loses (a poor minimum); else the most tracks kept, then the lowest cost."""
+    ratio = POOR_FIT_SIGMA_RATIO**2
+    if np.isfinite(s.sigma2) and not than.sigma2 <= ratio * s.sigma2:
+        return True
+    if np.isfinite(than.sigma2) and not s.sigma2 <= ratio * than.sigma2:
+        return False
+    return _rank(s) < _rank(than)
+
+
 def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
-    """Each spin's stage-1 fit from the FK axis of ``pose`` and, where some spin has only short arcs, of poses turned
-    by START_TURNS_DEG, the fit of lowest residual cost kept (with short arcs jackknifed). Where every spin has a
-    long arc (``_Setup.short_arcs`` false), the fit from the image axis through the ellipse centres lands on the same
-    circles whatever the pose's tilt (``stage1._start_line``): one start (8 starts took 25 s on a 12 s reference
-    session for the same answer)."""
+    """Each spin's stage-1 fit from the FK axis of ``pose`` turned onto the image axis through its ellipses' centres
+    and, where some spin has only short arcs, from poses turned by START_TURNS_DEG: the best fit of each spin kept
+    (:func:`_better`; short arcs jackknifed). Where every spin has a long arc (``_Setup.short_arcs`` false), the fit
+    from the image axis lands on the same circles whatever the pose's tilt (``stage1._start_line``): one start (8
+    starts took 25 s on a 12 s reference session for the same answer). A spin whose fit is poor against the others'
+    (its residual sigma beyond POOR_FIT_SIGMA_RATIO times their median; every spin where there are fewer than three)
+    is fitted again from the FK axis itself, and the better fit kept: its ellipses' centres can start it in a poor
+    minimum."""
     turns = START_TURNS_DEG if setup.short_arcs else ()
     starts = [pose] + [pose.compose(gtsam.Pose3(gtsam.Rot3.AxisAngle(axis, float(sign * np.radians(deg))), np.zeros(3)))
                        for deg in turns for sign in (-1.0, 1.0)
@@ -313,11 +346,24 @@ def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
         if best is None:
             best = list(fits)
             continue
-        for k, s in enumerate(fits):  # the most tracks kept, then the lowest cost
-            if _rank(s) < _rank(best[k]):
+        for k, s in enumerate(fits):
+            if _better(s, best[k]):
                 best[k] = s
     if best is None:
         raise CalibrationError("no spin's circles could be fitted from the pose checked (few or short tracks?)")
+    median = float(np.median([s.sigma2 for s in best]))
+    poor = [k for k, s in enumerate(best) if len(best) < 3 or not s.sigma2 <= POOR_FIT_SIGMA_RATIO**2 * median]
+    if poor:
+        builders = [_builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber),
+                    _builder(arm, camera, options, robust=track_huber)]
+        for k in poor:
+            try:
+                again = _stage1_measurement(builders, measurements[k], k, pose, setup.prepared[k], options,
+                                            _start_line(camera, setup.axes[k], None, pose), settle=True)
+            except (RotIdError, RuntimeError, np.linalg.LinAlgError):
+                continue
+            if _better(again, best[k]):
+                best[k] = again
     builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
     return [_checked(builder, measurements[k], k, pose, setup.prepared[k], s, options, setup)
             for k, s in enumerate(best)]

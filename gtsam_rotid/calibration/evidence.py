@@ -66,7 +66,8 @@ def _named(setup: _Setup, ks) -> list[int]:
 def poor_minimum(chi2: np.ndarray, limit: float, what: str, setup: _Setup | None = None,
                  evidence: Evidence | None = None, bad=()) -> CalibrationError:
     names = _named(setup, range(len(chi2))) if setup is not None else list(range(len(chi2)))
-    listing = ", ".join(f"{name}: {value:.3g}" for name, value in zip(names, chi2, strict=True))
+    listing = ", ".join(f"{name}: {value:.3g}" if np.isfinite(value) else f"{name}: not measured"
+                        for name, value in zip(names, chi2, strict=True))
     return CalibrationError(
         f"the estimate ended in a poor minimum or the data are inconsistent: {what} (chi-square of each "
         f"measurement's image axis against the projected FK axis, 2 dof, limit {limit:g}: {listing}); check "

@@ -82,22 +82,13 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
     if options.refine_intrinsics and method is not Method.JOINT:
         raise InputError(f"intrinsics are refined by the joint method only, not {method.value!r}")
     used = [measurements[k] for k in kept]
-    # with refined intrinsics a first pass refines the camera only (the joint fit from the best start); the full
-    # calibration then runs from it (its stages, starts and outlier tests see it), again while it moves
     try:
-        result, setup = _calibrate(arm, camera, used, method, options, kept,
-                                   camera_pass=bool(options.refine_intrinsics))
-    except CalibrationError as error:  # two measurements in each other's place explain many a refusal: say so first
-        swap = _confirmed_swap(arm, camera, used, method, options, kept)
-        if swap is None:
+        result, setup, started = _passes(arm, camera, used, method, options, kept)
+    except ValueError as error:  # the maths met a degenerate geometry (e.g. an axis through the camera centre)
+        if isinstance(error, RotIdError):  # (an InputError is a ValueError too: ours pass as they are)
             raise
-        raise CalibrationError(f"{swap_sentence(swap)}. The calibration itself said: {error}") from error
-    started = camera
-    for _ in range(INTRINSICS_PASSES - 1):
-        if result.camera is None or (_intrinsics_settled(result, started) and not setup.camera_pass):
-            break
-        started = result.camera
-        result, setup = _calibrate(arm, started, used, method, options, kept, given_camera=camera)
+        raise CalibrationError(f"the calibration failed on a degenerate geometry: {error}; check that the spinning "
+                               "joints' axes differ from pose to pose and pass beside the camera") from error
     if _troubled(result):  # (with refined intrinsics, at the camera the last pass started from, as its setup)
         swap = _confirmed_swap(arm, started, used, method, options, kept, setup)
         if swap is not None:
@@ -293,6 +284,28 @@ def _calibrate(arm, camera, measurements, method, options, index, given_camera: 
                    joint_sigma_deg=0.0 if method is Method.PAPER else options.joint_sigma_deg,
                    axis_floor_px=0.0 if method is Method.PAPER else setup.floor_px,
                    track_offset_px=0.0 if method is Method.PAPER else setup.track_offset_px), setup
+
+
+def _passes(arm, camera, used, method, options, kept):
+    """The calibration of the ``used`` measurements (their indices ``kept``): (result, its setup, the camera the
+    last pass started from). With refined intrinsics a first pass refines the camera only (the joint fit from the
+    best start); the full calibration then runs from it (its stages, starts and outlier tests see it), again while
+    it moves. A refusal that two measurements in each other's place explain says so first."""
+    try:
+        result, setup = _calibrate(arm, camera, used, method, options, kept,
+                                   camera_pass=bool(options.refine_intrinsics))
+    except CalibrationError as error:
+        swap = _confirmed_swap(arm, camera, used, method, options, kept)
+        if swap is None:
+            raise
+        raise CalibrationError(f"{swap_sentence(swap)}. The calibration itself said: {error}") from error
+    started = camera
+    for _ in range(INTRINSICS_PASSES - 1):
+        if result.camera is None or (_intrinsics_settled(result, started) and not setup.camera_pass):
+            break
+        started = result.camera
+        result, setup = _calibrate(arm, started, used, method, options, kept, given_camera=camera)
+    return result, setup, started
 
 
 def _offsets_start(arm, camera, measurements, method, options, index) -> tuple[list, OffsetsPrior]:

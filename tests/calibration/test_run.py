@@ -54,6 +54,22 @@ def test_unknown_method(noise_free_scene):
         calibrate(dataset, method="best")
 
 
+def test_a_degenerate_geometry_deep_in_the_maths_is_a_calibration_error_not_a_traceback(noise_free_scene,
+                                                                                       monkeypatch):
+    """A ValueError from the factors' maths (an FK axis through the camera centre, reached on a scene whose every
+    axis is the first joint's) reaches the user as a CalibrationError that says what to check."""
+    from gtsam_rotid.calibration import run
+
+    def through_the_centre(*args, **kwargs):
+        raise ValueError("the line passes through the camera centre: its image is a point, not a line")
+
+    monkeypatch.setattr(run, "_calibrate", through_the_centre)
+    dataset, _ = noise_free_scene
+    with pytest.raises(CalibrationError, match="degenerate geometry: the line passes through the camera centre.*"
+                                               "axes differ from pose to pose"):
+        calibrate(dataset)
+
+
 @pytest.fixture(scope="module")
 def ur10_distorted_scene():
     camera = Camera.from_fov(1280, 720, 80.0, dist=(-0.25, 0.08, 0.001, -0.0005, -0.01))
