@@ -119,9 +119,10 @@ def run_demo(out_dir: str | os.PathLike | None = None, *, seed: int = 0, duratio
     mesh = isinstance(render_config, MeshRenderConfig)
     simulated, truth = simulate.reference_scene(seed=seed, duration=duration, spin_joints=spin_joints,
                                                 n_measurements=n_measurements + (DEMO_SPARE_POSES if mesh else 0))
-    spins = "wrist spins" if not spin_joints else f"arm poses, each spinning {', '.join(spin_joints)},"
+    spins = (f"wrist spins of {duration:g} s" if not spin_joints
+             else f"arm poses, each spinning {', '.join(spin_joints)} for {duration:g} s")
     print(f"gtsam-rotid demo from pixels: the reference scene (Kinova Jaco2, Xtion-like camera), seed {seed}, "
-          f"{n_measurements} {spins} {duration:g} s per spin, rendered, tracked and calibrated ({drawn})")
+          f"{n_measurements} {spins}, rendered, tracked and calibrated ({drawn})")
     if mesh:
         simulated, truth = _renderable(simulated, truth, render_config, print, max(len(spin_joints), 1),
                                        n_measurements)

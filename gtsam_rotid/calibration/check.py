@@ -41,9 +41,9 @@ DEFAULT_TOLERANCE = (1.0, 0.1)
 #: the pose being checked (from one start a short spin can settle in a minimum of its own).
 START_TURNS_DEG = (8.0, 20.0)
 #: A spin's stage-1 fit whose residual sigma is more than this times another fit's of the same spin is a poor
-#: minimum, however many tracks it kept (its inflated noise lets every track pass: a cylinder-rendered spin of the
-#: joint before the wrist, fitted from the image axis through its ellipses' centres, kept all 43 tracks at 2.5 px
-#: and read as a changed calibration, chi-square 45; from the checked pose's FK axis, 41 tracks at 0.028 px, 2.4).
+#: minimum, however many tracks it kept (its inflated noise lets every track pass: a cylinder-rendered wrist spin of
+#: a two-spin recording, fitted from the image axis through its ellipses' centres, kept all 43 tracks at 2.5 px and
+#: read as a changed calibration, chi-square 45; from the checked pose's FK axis, 41 tracks at 0.028 px, 2.4).
 POOR_FIT_SIGMA_RATIO = 3.0
 #: A direction of the move counts as determined by the new spins when their information there is at least this
 #: fraction of the total (prior included): the prior then no longer holds it where it was.
