@@ -257,6 +257,17 @@ def transform_to_camera(arm_T_camera, points_arm) -> tuple[np.ndarray, np.ndarra
     return X, J
 
 
+def _distance_pose_jacobian(g: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(M, 6) ``de/dxi`` of point-to-line distances from ``g`` (M, 3), the distances' gradients by the camera-frame
+    points ``X`` (M, 3): ``(g x X, -g)``."""
+    H_pose = np.empty((len(X), 6))
+    H_pose[:, 0] = g[:, 1] * X[:, 2] - g[:, 2] * X[:, 1]  # g x X (np.cross is slow on small arrays)
+    H_pose[:, 1] = g[:, 2] * X[:, 0] - g[:, 0] * X[:, 2]
+    H_pose[:, 2] = g[:, 0] * X[:, 1] - g[:, 1] * X[:, 0]
+    H_pose[:, 3:] = -g
+    return H_pose
+
+
 def axis_point_residuals(K, arm_T_camera, points_arm, line) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Signed distances of projected arm-frame test points to an image line, with Jacobians.
 
@@ -288,11 +299,7 @@ def axis_point_residuals(K, arm_T_camera, points_arm, line) -> tuple[np.ndarray,
     g = np.empty_like(X)
     g[:, 0], g[:, 1], g[:, 2] = line[0] * inv_z, line[1] * inv_z, (line[2] - e) * inv_z
     g = g @ K
-    H_pose = np.empty((len(X), 6))
-    H_pose[:, 0] = g[:, 1] * X[:, 2] - g[:, 2] * X[:, 1]  # g x X (np.cross is slow on small arrays)
-    H_pose[:, 1] = g[:, 2] * X[:, 0] - g[:, 0] * X[:, 2]
-    H_pose[:, 2] = g[:, 0] * X[:, 1] - g[:, 1] * X[:, 0]
-    H_pose[:, 3:] = -g
+    H_pose = _distance_pose_jacobian(g, X)
     H_line = np.ones((len(u), 3))
     H_line[:, :2] = u
     return e, H_pose, H_line
@@ -314,9 +321,5 @@ def axis_points_residuals(K, arm_T_camera, points_arm, lines) -> tuple[np.ndarra
     g = np.empty_like(X)
     g[:, 0], g[:, 1], g[:, 2] = L[:, 0] * inv_z, L[:, 1] * inv_z, (L[:, 2] - e) * inv_z
     g = g @ K
-    H_pose = np.empty((len(X), 6))
-    H_pose[:, 0] = g[:, 1] * X[:, 2] - g[:, 2] * X[:, 1]
-    H_pose[:, 1] = g[:, 2] * X[:, 0] - g[:, 0] * X[:, 2]
-    H_pose[:, 2] = g[:, 0] * X[:, 1] - g[:, 1] * X[:, 0]
-    H_pose[:, 3:] = -g
+    H_pose = _distance_pose_jacobian(g, X)
     return e, H_pose
