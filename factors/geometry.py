@@ -257,6 +257,17 @@ def transform_to_camera(arm_T_camera, points_arm) -> tuple[np.ndarray, np.ndarra
     return X, J
 
 
+def _projected_points(K: np.ndarray, arm_T_camera, points_arm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Arm-frame points (M, 3) in the camera frame ``X``, their ``1 / z`` in pixels' homogeneous coordinates and
+    their pixels ``u`` (M, 2): the same maths as transform_to_camera + project, written out for speed (this runs in
+    every stage-2 factor call)."""
+    P = np.asarray(points_arm, dtype=float).reshape(-1, 3)
+    X = (P - arm_T_camera.translation()) @ arm_T_camera.rotation().matrix()
+    y = X @ K.T
+    inv_z = 1.0 / y[:, 2]
+    return X, inv_z, y[:, :2] * inv_z[:, None]
+
+
 def _distance_pose_jacobian(g: np.ndarray, X: np.ndarray) -> np.ndarray:
     """(M, 6) ``de/dxi`` of point-to-line distances from ``g`` (M, 3), the distances' gradients by the camera-frame
     points ``X`` (M, 3): ``(g x X, -g)``."""
@@ -285,15 +296,9 @@ def axis_point_residuals(K, arm_T_camera, points_arm, line) -> tuple[np.ndarray,
         H_pose: (M, 6) ``de/dxi``.
         H_line: (M, 3) ``de/dl``.
     """
-    # Written out for speed (this runs in every stage-2 factor call): the same maths as transform_to_camera + project.
     line = np.asarray(line, dtype=float)
     K = np.asarray(K, dtype=float)
-    P = np.asarray(points_arm, dtype=float).reshape(-1, 3)
-    R = arm_T_camera.rotation().matrix()
-    X = (P - arm_T_camera.translation()) @ R
-    y = X @ K.T
-    inv_z = 1.0 / y[:, 2]
-    u = y[:, :2] * inv_z[:, None]
+    X, inv_z, u = _projected_points(K, arm_T_camera, points_arm)
     e = u @ line[:2] + line[2]
     # g = l[:2]^T du/dX with du/dy = [I_2 | -u] / y2
     g = np.empty_like(X)
@@ -311,12 +316,7 @@ def axis_points_residuals(K, arm_T_camera, points_arm, lines) -> tuple[np.ndarra
     Jacobian (the same maths, vectorised over the lines: one call for every axis of a graph)."""
     L = np.asarray(lines, dtype=float).reshape(-1, 3)
     K = np.asarray(K, dtype=float)
-    P = np.asarray(points_arm, dtype=float).reshape(-1, 3)
-    R = arm_T_camera.rotation().matrix()
-    X = (P - arm_T_camera.translation()) @ R
-    y = X @ K.T
-    inv_z = 1.0 / y[:, 2]
-    u = y[:, :2] * inv_z[:, None]
+    X, inv_z, u = _projected_points(K, arm_T_camera, points_arm)
     e = u[:, 0] * L[:, 0] + u[:, 1] * L[:, 1] + L[:, 2]
     g = np.empty_like(X)
     g[:, 0], g[:, 1], g[:, 2] = L[:, 0] * inv_z, L[:, 1] * inv_z, (L[:, 2] - e) * inv_z
