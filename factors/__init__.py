@@ -21,8 +21,7 @@ Factories (thin ``gtsam.CustomFactor`` wrappers over the pure functions in :mod:
 
 - :func:`make_circle_point_factor` — one track's pixels vs. its projected circle (keys: line, circle); its maths is
   :class:`CircleTrack` (closed-form residuals and Jacobians, warm-started closest phases).
-- :func:`make_axis_to_line_factor` — projected FK axis test points vs. a measured image line (key: pose);
-  :func:`make_axes_to_lines_factor` the same for every axis of a graph in one factor (an unweighted search).
+- :func:`make_axis_to_line_factor` — projected FK axis test points vs. a measured image line (key: pose).
 - :func:`make_axis_to_line_variable_factor` — the same vs. a line variable's image (keys: pose, line).
 - :func:`make_axis_offsets_to_line_factor`, :func:`make_axis_offsets_to_line_variable_factor` — the same two with
   the FK axis a function of joint offsets (one more key: the offsets vector).
@@ -47,7 +46,6 @@ factor modules :mod:`.circle`, :mod:`.axis`, :mod:`.pose_circle`, :mod:`.rigid` 
 
 from .axis import (
     axis_offsets_residuals,
-    make_axes_to_lines_factor,
     make_axis_offsets_to_line_factor,
     make_axis_offsets_to_line_variable_factor,
     make_axis_to_line_factor,
@@ -114,7 +112,6 @@ __all__ = [
     "line_distances",
     "line_from_pose",
     "line_points",
-    "make_axes_to_lines_factor",
     "make_axis_offsets_to_line_factor",
     "make_axis_offsets_to_line_variable_factor",
     "make_axis_to_line_factor",

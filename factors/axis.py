@@ -12,14 +12,13 @@ import numpy as np
 
 from .geometry import (
     axis_point_residuals,
-    axis_points_residuals,
     image_line_from_rot3,
     image_line_intrinsics_jacobian,
     line_distance_covariance,
 )
 
 __all__ = ["axis_offsets_residuals", "line_distance_covariance",
-           "make_axes_to_lines_factor", "make_axis_offsets_to_line_factor", "make_axis_offsets_to_line_variable_factor",
+           "make_axis_offsets_to_line_factor", "make_axis_offsets_to_line_variable_factor",
            "make_axis_to_line_factor", "make_axis_to_line_variable_factor"]
 
 
@@ -68,45 +67,6 @@ def make_axis_to_line_factor(noise, pose_key: int, test_points_arm, line, K) -> 
         return e
 
     return gtsam.CustomFactor(noise, [pose_key], error_func)
-
-
-def make_axes_to_lines_factor(pose_key: int, test_points_arm, lines, K, sigma_px: float = 1.0) -> gtsam.CustomFactor:
-    """:func:`make_axis_to_line_factor` for every axis of a graph in ONE factor, each axis' test points against its
-    own measured line, all at the isotropic ``sigma_px``: the same residuals (axis by axis, point by point) and
-    Jacobians as one such factor per axis under ``noiseModel.Isotropic.Sigma(M, sigma_px)``, in one call (an
-    unweighted search over many starting poses, where a factor per axis costs mostly Python calls).
-
-    Args:
-        pose_key: key of the ``gtsam.Pose3`` ``arm_T_camera``.
-        test_points_arm: (n, M, 3) M >= 2 points on each of the n FK axes, arm frame.
-        lines: (n, 3) measured homogeneous image lines, one per axis; normalised here to ``l1^2 + l2^2 = 1``.
-        K: (3, 3) intrinsic matrix.
-        sigma_px: the residuals' standard deviation (px).
-
-    Returns:
-        ``gtsam.CustomFactor`` of dimension n M with an (n M, 6) Jacobian wrt the Pose3 tangent.
-    """
-    points = np.array(test_points_arm, dtype=float)
-    if points.ndim != 3 or points.shape[2] != 3 or points.shape[1] < 2 or len(points) == 0:
-        raise ValueError(f"test points must be (n, M, 3) with n >= 1 axes and M >= 2 points each, got "
-                         f"{points.shape}")
-    lines = np.array(lines, dtype=float).reshape(-1, 3)
-    if len(lines) != len(points):
-        raise ValueError(f"{len(lines)} lines for {len(points)} axes")
-    lines = lines / np.hypot(lines[:, 0], lines[:, 1])[:, None]
-    per_point = np.repeat(lines, points.shape[1], axis=0)
-    points = points.reshape(-1, 3)
-    K = np.array(K, dtype=float).reshape(3, 3)
-    for array in (per_point, points, K):
-        array.setflags(write=False)
-
-    def error_func(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
-        e, H_pose = axis_points_residuals(K, values.atPose3(this.keys()[0]), points, per_point)
-        if H is not None:
-            H[0] = H_pose
-        return e
-
-    return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(len(points), float(sigma_px)), [pose_key], error_func)
 
 
 def _intrinsics_of(values: gtsam.Values, keys, index: int, K: np.ndarray) -> np.ndarray:

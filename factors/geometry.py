@@ -308,18 +308,3 @@ def axis_point_residuals(K, arm_T_camera, points_arm, line) -> tuple[np.ndarray,
     H_line = np.ones((len(u), 3))
     H_line[:, :2] = u
     return e, H_pose, H_line
-
-
-def axis_points_residuals(K, arm_T_camera, points_arm, lines) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`axis_point_residuals` for many points, each against its own image line: ``points_arm`` (N, 3), ``lines``
-    (N, 3) normalised homogeneous lines (one per point). Returns the (N,) signed distances and their (N, 6) pose
-    Jacobian (the same maths, vectorised over the lines: one call for every axis of a graph)."""
-    L = np.asarray(lines, dtype=float).reshape(-1, 3)
-    K = np.asarray(K, dtype=float)
-    X, inv_z, u = _projected_points(K, arm_T_camera, points_arm)
-    e = u[:, 0] * L[:, 0] + u[:, 1] * L[:, 1] + L[:, 2]
-    g = np.empty_like(X)
-    g[:, 0], g[:, 1], g[:, 2] = L[:, 0] * inv_z, L[:, 1] * inv_z, (L[:, 2] - e) * inv_z
-    g = g @ K
-    H_pose = _distance_pose_jacobian(g, X)
-    return e, H_pose

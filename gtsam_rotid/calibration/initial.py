@@ -11,7 +11,6 @@ from ..arm import Arm
 from ..camera import Camera
 from ..dataset import Measurement
 from ..factors import (
-    make_axes_to_lines_factor,
     make_axis_to_line_factor,
 )
 from ..geometry import closest_point
@@ -99,8 +98,8 @@ def _best_stage2(graph, starts, options, max_iterations: int | None = None,
 
 
 #: Minima of the guess-free fit whose errors differ by less than this (relative) are one minimum reached from several
-#: starts: the first of them in the candidates' order comes first (the order by error alone hung on rounding, and the
-#: start's candidate anchors the gauge of what follows: on the outlier scene of tests/calibration/test_opinion.py
+#: starts: the first of them in the candidates' order comes first (the order by error alone hangs on rounding, and
+#: the start's candidate anchors the gauge of what follows: on the outlier scene of tests/calibration/test_opinion.py
 #: another candidate of the same minimum ended 0.97 mm off instead of 0.2 mm).
 TIE_RELATIVE = 1e-9
 
@@ -113,10 +112,7 @@ def guess_free_minima(K: np.ndarray, axes, lines, options) -> tuple[list, gtsam.
     normals = np.array([plane_normal(K, line) for line in lines])
     candidates = pose_candidates(normals, axes, n_best=options.n_candidates)
     graph = _stage2_graph(axes, lines, K, [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(axes))
-    # LM on the same residuals in one factor (one call per evaluation instead of one per axis: the same minima)
-    stacked = gtsam.NonlinearFactorGraph()
-    stacked.add(make_axes_to_lines_factor(POSE_KEY, [axis_test_points(axis) for axis in axes], lines, K))
-    minima = sorted(_stage2_minima(stacked, candidates, options), key=lambda m: m[1]) if candidates else []
+    minima = sorted(_stage2_minima(graph, candidates, options), key=lambda m: m[1]) if candidates else []
     if minima:  # starts that reach the same minimum tie to rounding: the best-ranked candidate's comes first
         floor = minima[0][1]
         first = min((m for m in minima if m[1] <= floor * (1.0 + TIE_RELATIVE) + 1e-12), key=lambda m: m[3])

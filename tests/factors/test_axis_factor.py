@@ -11,7 +11,6 @@ from gtsam.symbol_shorthand import L, T
 from gtsam_rotid.factors import (
     image_line_from_rot3,
     line_distance_covariance,
-    make_axes_to_lines_factor,
     make_axis_to_line_factor,
     make_axis_to_line_variable_factor,
     project,
@@ -57,38 +56,6 @@ def test_fixed_line_jacobian_matches_numerical(trial, scene):
         scene.K,
     )
     assert_jacobians_match(factor, [(T(0), random_pose_near(scene.arm_T_camera, rng))])
-
-
-@pytest.mark.parametrize("trial", range(3))
-def test_one_factor_for_many_axes_is_one_factor_per_axis_and_its_jacobian_matches_numerical(trial, scene):
-    """make_axes_to_lines_factor: three axes (other directions through other points), each against its own
-    measured line (scaled: the factor normalises it), gives the residuals, Jacobians and error of three
-    make_axis_to_line_factor under the same isotropic sigma, and its Jacobian matches numerical differentiation."""
-    rng = np.random.default_rng(300 + trial)
-    line_cam, _ = scene.unit_circles()
-    points = []
-    lines = []
-    for k in range(3):
-        turn = gtsam.Rot3.Expmap(rng.normal(scale=0.3, size=3)).matrix()
-        shift = rng.normal(scale=0.05, size=3)
-        base = scene.axis_point_arm + shift
-        direction = turn @ scene.axis_direction_arm
-        points.append(base + np.outer((-0.05, 0.2), direction))
-        lines.append((1.0 + k) * image_line_from_rot3(scene.K, line_cam.retract(rng.normal(scale=0.05, size=3)))[0])
-    stacked = make_axes_to_lines_factor(T(0), points, lines, scene.K, sigma_px=2.0)
-    single = [make_axis_to_line_factor(gtsam.noiseModel.Isotropic.Sigma(2, 2.0), T(0), p, line, scene.K)
-              for p, line in zip(points, lines, strict=True)]
-    pose = random_pose_near(scene.arm_T_camera, rng)
-    values = values_with([(T(0), pose)])
-    np.testing.assert_allclose(stacked.unwhitenedError(values),
-                               np.concatenate([f.unwhitenedError(values) for f in single]), rtol=1e-12, atol=1e-12)
-    assert stacked.error(values) == pytest.approx(sum(f.error(values) for f in single), rel=1e-12)
-    A = stacked.linearize(values).jacobian()[0]
-    np.testing.assert_allclose(A, np.vstack([f.linearize(values).jacobian()[0] for f in single]), rtol=1e-10,
-                               atol=1e-12)
-    assert_jacobians_match(stacked, [(T(0), pose)])
-    with pytest.raises(ValueError, match="2 lines for 3 axes"):
-        make_axes_to_lines_factor(T(0), points, lines[:2], scene.K)
 
 
 @pytest.mark.parametrize("trial", range(5))
