@@ -97,13 +97,6 @@ def _best_stage2(graph, starts, options, max_iterations: int | None = None,
     return min(_stage2_minima(graph, starts, options, max_iterations, anchor), key=lambda m: m[1])
 
 
-#: Minima of the guess-free fit whose errors differ by less than this (relative) are one minimum reached from several
-#: starts: the first of them in the candidates' order comes first (the order by error alone hangs on rounding, and
-#: the start's candidate anchors the gauge of what follows: on the outlier scene of tests/calibration/test_opinion.py
-#: another candidate of the same minimum ended 0.97 mm off instead of 0.2 mm).
-TIE_RELATIVE = 1e-9
-
-
 def guess_free_minima(K: np.ndarray, axes, lines, options) -> tuple[list, gtsam.NonlinearFactorGraph, list]:
     """The guess-free fit of the FK ``axes`` to the image ``lines`` (one homogeneous line per axis): the pose
     candidates from the back-projected planes (:func:`pose_candidates`), the unweighted stage-2 graph, and LM's minima
@@ -113,10 +106,6 @@ def guess_free_minima(K: np.ndarray, axes, lines, options) -> tuple[list, gtsam.
     candidates = pose_candidates(normals, axes, n_best=options.n_candidates)
     graph = _stage2_graph(axes, lines, K, [gtsam.noiseModel.Isotropic.Sigma(2, 1.0)] * len(axes))
     minima = sorted(_stage2_minima(graph, candidates, options), key=lambda m: m[1]) if candidates else []
-    if minima:  # starts that reach the same minimum tie to rounding: the best-ranked candidate's comes first
-        floor = minima[0][1]
-        first = min((m for m in minima if m[1] <= floor * (1.0 + TIE_RELATIVE) + 1e-12), key=lambda m: m[3])
-        minima = [first] + [m for m in minima if m is not first]
     return candidates, graph, minima
 
 
