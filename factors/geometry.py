@@ -257,28 +257,6 @@ def transform_to_camera(arm_T_camera, points_arm) -> tuple[np.ndarray, np.ndarra
     return X, J
 
 
-def _projected_points(K: np.ndarray, arm_T_camera, points_arm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Arm-frame points (M, 3) in the camera frame ``X``, their ``1 / z`` in pixels' homogeneous coordinates and
-    their pixels ``u`` (M, 2): the same maths as transform_to_camera + project, written out for speed (this runs in
-    every stage-2 factor call)."""
-    P = np.asarray(points_arm, dtype=float).reshape(-1, 3)
-    X = (P - arm_T_camera.translation()) @ arm_T_camera.rotation().matrix()
-    y = X @ K.T
-    inv_z = 1.0 / y[:, 2]
-    return X, inv_z, y[:, :2] * inv_z[:, None]
-
-
-def _distance_pose_jacobian(g: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """(M, 6) ``de/dxi`` of point-to-line distances from ``g`` (M, 3), the distances' gradients by the camera-frame
-    points ``X`` (M, 3): ``(g x X, -g)``."""
-    H_pose = np.empty((len(X), 6))
-    H_pose[:, 0] = g[:, 1] * X[:, 2] - g[:, 2] * X[:, 1]  # g x X (np.cross is slow on small arrays)
-    H_pose[:, 1] = g[:, 2] * X[:, 0] - g[:, 0] * X[:, 2]
-    H_pose[:, 2] = g[:, 0] * X[:, 1] - g[:, 1] * X[:, 0]
-    H_pose[:, 3:] = -g
-    return H_pose
-
-
 def axis_point_residuals(K, arm_T_camera, points_arm, line) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Signed distances of projected arm-frame test points to an image line, with Jacobians.
 
@@ -296,15 +274,25 @@ def axis_point_residuals(K, arm_T_camera, points_arm, line) -> tuple[np.ndarray,
         H_pose: (M, 6) ``de/dxi``.
         H_line: (M, 3) ``de/dl``.
     """
+    # Written out for speed (this runs in every stage-2 factor call): the same maths as transform_to_camera + project.
     line = np.asarray(line, dtype=float)
     K = np.asarray(K, dtype=float)
-    X, inv_z, u = _projected_points(K, arm_T_camera, points_arm)
+    P = np.asarray(points_arm, dtype=float).reshape(-1, 3)
+    R = arm_T_camera.rotation().matrix()
+    X = (P - arm_T_camera.translation()) @ R
+    y = X @ K.T
+    inv_z = 1.0 / y[:, 2]
+    u = y[:, :2] * inv_z[:, None]
     e = u @ line[:2] + line[2]
     # g = l[:2]^T du/dX with du/dy = [I_2 | -u] / y2
     g = np.empty_like(X)
     g[:, 0], g[:, 1], g[:, 2] = line[0] * inv_z, line[1] * inv_z, (line[2] - e) * inv_z
     g = g @ K
-    H_pose = _distance_pose_jacobian(g, X)
+    H_pose = np.empty((len(X), 6))
+    H_pose[:, 0] = g[:, 1] * X[:, 2] - g[:, 2] * X[:, 1]  # g x X (np.cross is slow on small arrays)
+    H_pose[:, 1] = g[:, 2] * X[:, 0] - g[:, 0] * X[:, 2]
+    H_pose[:, 2] = g[:, 0] * X[:, 1] - g[:, 1] * X[:, 0]
+    H_pose[:, 3:] = -g
     H_line = np.ones((len(u), 3))
     H_line[:, :2] = u
     return e, H_pose, H_line
