@@ -214,7 +214,16 @@ def outlier_words(m: MeasurementReport, camera_suspect: bool = False, kinematics
         if kinematics_suspect:
             return words + ("check the joints' zero offsets first (an offset common to every pose moves every axis), "
                             "then its joint angles")
-        return words + "check its joint angles"
+        if "miss_px" not in v:  # (a result of another version)
+            return words + "check its joint angles"
+        miss = (f"it passes {v['miss_px']:.2g} px from that axis, where a joint error of {v['joint_deg']:.2g}° "
+                "would put it")
+        if v["miss_px"] <= v["tracking_bias_px"]:
+            return words + (f"{miss}, but a shift its tracks share of that size (a blob's centroid pulled by shading "
+                            "or blur, corners drifting together) would put it there too: check its tracking first "
+                            "(the overlay: do its tracks follow the surface?), then its joint angles")
+        return words + (f"{miss}, farther than a tracker's shared bias (up to {v['tracking_bias_px']:g} px) moves "
+                        "an axis: check its joint angles")
     if m.outlier_kind == OutlierKind.RESIDUAL:
         return f"residual RMS {m.residual_rms_px:.2f} px > {v['ratio']:g}x the median {v['median']:.2f} px"
     return str(v.get("text", "")) or "flagged"

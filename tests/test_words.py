@@ -697,6 +697,12 @@ def test_summary_of_a_calibration_prints_its_numbers(reference_weighted):
      "left out: too little evidence for a reliable image axis (1 track, 100 points, longest arc 41°); the 5 stronger",
      False),
     ("disagrees", {"limit": 13.8}, {"axis_chi2": 52.0}, "(chi-square 52 > 13.8, 2 dof); check its joint angles", True),
+    ("disagrees", {"limit": 13.8, "miss_px": 3.2, "joint_deg": 0.21, "tracking_bias_px": 1.0}, {"axis_chi2": 52.0},
+     "it passes 3.2 px from that axis, where a joint error of 0.21° would put it, farther than a tracker's shared bias "
+     "(up to 1 px) moves an axis: check its joint angles", True),
+    ("disagrees", {"limit": 13.8, "miss_px": 0.6, "joint_deg": 0.04, "tracking_bias_px": 1.0}, {"axis_chi2": 52.0},
+     "it passes 0.6 px from that axis, where a joint error of 0.04° would put it, but a shift its tracks share of "
+     "that size", False),
     ("disagrees", {"limit": 13.8}, {"axis_chi2": 52.0, "weak": True}, "its own evidence is thin", False),
     ("disagrees", {"limit": 13.8, "short_arc_deg": 48.0}, {"axis_chi2": 52.0},
      "its tracks or its joint angles are off. The arcs of measurement(s) 3: 48° (longest) are short", True),
@@ -708,7 +714,8 @@ def test_outlier_words_say_each_kind_with_its_numbers(kind, values, extra, expec
     m = measurement(3, 1, n_points=100, outlier=True, weight=0.0, outlier_kind=kind, outlier_values=values, **extra)
     words = outlier_words(m)
     assert expected in words
-    assert ("joint angles" in words and "only if that does not help" not in words) is blames_joints
+    assert ("joint angles" in words and "only if that does not help" not in words
+            and "check its tracking first" not in words) is blames_joints
     assert outlier_words(measurement(3)) == ""
 
 

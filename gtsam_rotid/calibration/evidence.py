@@ -8,11 +8,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..graph import axis_test_points
 from .options import CalibrationError, CalibrationOptions
 from .result import MeasurementReport, OutlierKind
-from .setup import _Setup, circle_arc_span_deg
+from .setup import _Setup, circle_arc_span_deg, test_point_jacobian
 from .stage1 import _Stage1
-from .tuning import WEAK_ARC_DEG, WEAK_MANY_TRACKS, WEAK_TRACKS
+from .tuning import TRACKING_BIAS_PX, WEAK_ARC_DEG, WEAK_MANY_TRACKS, WEAK_TRACKS
 
 
 class Evidence(NamedTuple):
@@ -106,10 +107,39 @@ def short_arc_words(longest_deg: dict[int, float]) -> str:
             "longer, a full turn or more, or track features that can be followed further)")
 
 
+def axis_misses(arm, measurements, setup: _Setup, stage1: list[_Stage1], K: np.ndarray, pose,
+                ks) -> dict[int, tuple[float, float]]:
+    """k -> (miss_px, joint_deg) of measurements ``ks``: how far (px, the larger of its two FK test points' distances)
+    its stage-1 image axis passes from its FK axis projected by ``pose`` through ``K``, and the smallest joint error
+    (deg, root sum of squares over the joints, to first order) that would move the projected axis onto its image
+    axis: what a left-out measurement's words compare with a tracker's bias."""
+    out = {}
+    for k in ks:
+        line = np.asarray(stage1[k].image_axis, dtype=float)
+        line = line / np.hypot(line[0], line[1])
+        points = axis_test_points(setup.axes[k])
+
+        def distances(p, line=line):
+            cam = np.array([pose.transformTo(x) for x in p])
+            pix = (K @ (cam / cam[:, 2:3]).T).T
+            return pix @ line
+        d = distances(points)
+        m = measurements[k]
+        J = test_point_jacobian(arm, m.joint_angles, joint=m.spin_joint)  # (6, n): test points by joint angle
+        step = 1e-6
+        D = np.column_stack([(distances(points + step * c.reshape(2, 3)) - distances(points - step * c.reshape(2, 3)))
+                             / (2.0 * step) for c in J.T])
+        dq = -np.linalg.pinv(D) @ d  # the least joint change (rad) that puts the projected axis on the image axis
+        out[k] = (float(np.max(np.abs(d))), float(np.degrees(np.linalg.norm(dq))))
+    return out
+
+
 def measurement_reports(stage1: list[_Stage1], setup: _Setup, evidence: Evidence, sigmas: dict[int, float],
                         used: list[int], options, chi2: dict[int, float] | None = None,
-                        tied: dict | None = None) -> list[MeasurementReport]:
-    """One report per measurement of a fit that used ``used`` (the others are left out, with why)."""
+                        tied: dict | None = None,
+                        misses: dict[int, tuple[float, float]] | None = None) -> list[MeasurementReport]:
+    """One report per measurement of a fit that used ``used`` (the others are left out, with why; ``misses``:
+    :func:`axis_misses` of the left-out ones)."""
     median = float(np.median([sigmas[k] for k in used]))
     reports = []
     for k, s in enumerate(stage1):
@@ -125,6 +155,9 @@ def measurement_reports(stage1: list[_Stage1], setup: _Setup, evidence: Evidence
             kind, values = OutlierKind.DISAGREES.value, {"limit": float(options.outlier_measurement_chi2)}
             if not weak and k in evidence.short:
                 values["short_arc_deg"] = float(evidence.short[k])
+            if misses is not None and k in misses:
+                values["miss_px"], values["joint_deg"] = misses[k]
+                values["tracking_bias_px"] = TRACKING_BIAS_PX
         axis = setup.axes[k]
         reports.append(MeasurementReport(
             k, len(s.keys.tracks), s.n_points, float(sigma),

@@ -36,7 +36,7 @@ from ..uncertainty import (
     pose_information,
     sandwich_marginal,
 )
-from .evidence import measurement_reports
+from .evidence import axis_misses, measurement_reports
 from .lm import _builder, _graph_dof, _lm, _turned
 from .modelcheck import MIN_CENTRE_PX, MIN_FOCAL_PERCENT
 from .offsets import determined_offsets
@@ -89,6 +89,11 @@ class Fitted(NamedTuple):
     stage1: list[_Stage1]
 
 
+def _disagreeing(stage1, used, evidence) -> list[int]:
+    """The measurements a fit left out because their axes disagree (not thin ones it dropped)."""
+    return [k for k in range(len(stage1)) if k not in used and k not in evidence.dropped]
+
+
 def _opinion(arm, camera, measurements, setup, options):
     return lambda k, pose, stage1: _second_opinion(arm, camera, measurements, setup, stage1, k, pose, options)
 
@@ -101,7 +106,8 @@ def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anch
     values.insert(POSE_KEY, fit.pose)
     sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
     tied = _tied_circles(arm, camera, measurements, setup, stage1, fit.pose, options, range(len(stage1)))
-    reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, fit.chi2, tied)
+    misses = axis_misses(arm, measurements, setup, stage1, camera.K, fit.pose, _disagreeing(stage1, used, fit.evidence))
+    reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, fit.chi2, tied, misses)
     variances = {k: stage1[k].sigma2 for k in used}
     rows = _axis_rows(camera, setup, stage1, used, fit.pose, variances)  # (one pass for the three below)
     axis_offsets = _axis_offsets(camera, setup, stage1, used, fit.pose)
@@ -323,7 +329,8 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         refined = Camera(intrinsics.now.K(), camera.width, camera.height).intrinsics
         camera = intrinsics.given.with_intrinsics({n: refined[n] for n in options.refine_intrinsics})
     tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
-    reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, chi2, tied)
+    misses = axis_misses(arm, measurements, setup, stage1, camera.K, pose, _disagreeing(stage1, used, fit.evidence))
+    reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, chi2, tied, misses)
     variances = {k: sigmas[k] ** 2 for k in used}
     rows = _axis_rows(camera, setup, stage1, used, pose, variances)  # (one pass for the three below)
     axis_offsets = _axis_offsets(camera, setup, stage1, used, pose)

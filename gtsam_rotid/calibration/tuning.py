@@ -104,6 +104,11 @@ TWIN_ITERATIONS = 20
 WEAK_TRACKS = 4
 WEAK_MANY_TRACKS = 20
 WEAK_ARC_DEG = 90.0
+#: A measurement left out because its image axis disagrees with the estimate, yet passes within TRACKING_BIAS_PX of
+#: the projected FK axis, is missed by no more than a bias its tracks share can move an axis (the mesh-rendered dots'
+#: centroids sit 0.6-0.7 px off their surface points, shading and blur pull blobs and corners alike): its words
+#: suspect the tracking before its joint angles
+TRACKING_BIAS_PX = 1.0
 #: When the axes disagree, weak measurements are left out if at least this many strong ones remain (the pose with
 #: redundancy to test it).
 MIN_STRONG = 4

@@ -29,8 +29,33 @@ def test_a_wrong_joint_reading_is_left_out(method):
     assert result.measurements[2].outlier_kind == OutlierKind.DISAGREES
     assert "disagrees with the FK axis" in outlier_words(result.measurements[2])
     assert "OUTLIER (left out" in summary(result)
+    # its axis is far beyond a tracker's shared bias, and the least joint error that explains the miss is at most
+    # (to first order) the shoulder's 3 degrees
+    values = result.measurements[2].outlier_values
+    assert values["miss_px"] > values["tracking_bias_px"] and 0.3 < values["joint_deg"] < 3.1, values
+    assert outlier_words(result.measurements[2]).endswith("check its joint angles")
     error = result.error_to(truth.arm_T_camera)
     assert np.all(np.abs(error) < 4.0 * np.sqrt(np.diag(result.covariance)))
+
+
+def test_a_measurement_whose_tracks_share_a_shift_is_left_out_suspecting_the_tracking():
+    # every track of measurement 2 shifted by 0.5 px (a blob bias the tracks share; their noise is 0.1 px): its axis
+    # is left out, and the words ask for its tracking before its joint angles, which are exact
+    from gtsam_rotid.measurements import Track
+    dataset, truth = simulate.reference_scene(seed=22, noise_var=0.01, duration=12.0)
+    measurements = list(dataset)
+    m = measurements[2]
+    shifted = [Track(t.pixels + 0.5 * np.array([0.6, -0.8]), t.frames) for t in m.tracks]
+    measurements[2] = Measurement(m.joint_angles, shifted, spin_joint=m.spin_joint)
+    result = calibrate(Dataset(dataset.arm, dataset.camera, measurements))
+    assert [m.index for m in result.measurements if m.outlier] == [2]
+    values = result.measurements[2].outlier_values
+    assert result.measurements[2].outlier_kind == OutlierKind.DISAGREES
+    assert 0.3 < values["miss_px"] <= values["tracking_bias_px"], values
+    words = outlier_words(result.measurements[2])
+    assert "check its tracking first" in words and not words.endswith("check its joint angles"), words
+    error = result.error_to(truth.arm_T_camera)
+    assert float(error @ np.linalg.solve(result.covariance, error)) < 22.46
 
 
 @pytest.mark.parametrize("seed", [5, 9])
