@@ -112,7 +112,8 @@ def axis_misses(arm, measurements, setup: _Setup, stage1: list[_Stage1], K: np.n
     """k -> (miss_px, joint_deg) of measurements ``ks``: how far (px, the larger of its two FK test points' distances)
     its stage-1 image axis passes from its FK axis projected by ``pose`` through ``K``, and the smallest joint error
     (deg, root sum of squares over the joints, to first order) that would move the projected axis onto its image
-    axis: what a left-out measurement's words compare with a tracker's bias."""
+    axis: what a left-out measurement's words compare with a tracker's bias. A measurement whose test points lie at or
+    behind the camera at ``pose`` gets none."""
     out = {}
     for k in ks:
         line = np.asarray(stage1[k].image_axis, dtype=float)
@@ -123,6 +124,8 @@ def axis_misses(arm, measurements, setup: _Setup, stage1: list[_Stage1], K: np.n
             cam = np.array([pose.transformTo(x) for x in p])
             pix = (K @ (cam / cam[:, 2:3]).T).T
             return pix @ line
+        if not np.all(np.array([pose.transformTo(x)[2] for x in points]) > 0.0):
+            continue  # its FK axis does not project at this pose (a runaway fit): no distance to give
         d = distances(points)
         m = measurements[k]
         J = test_point_jacobian(arm, m.joint_angles, joint=m.spin_joint)  # (6, n): test points by joint angle
