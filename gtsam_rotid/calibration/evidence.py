@@ -8,10 +8,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..camera import Camera
 from ..graph import axis_test_points
 from .options import CalibrationError, CalibrationOptions
 from .result import MeasurementReport, OutlierKind
-from .setup import _Setup, circle_arc_span_deg, test_point_jacobian
+from .setup import _Setup, circle_arc_span_deg, test_point_distances, test_point_jacobian
 from .stage1 import _Stage1
 from .tuning import TRACKING_BIAS_PX, WEAK_ARC_DEG, WEAK_MANY_TRACKS, WEAK_TRACKS
 
@@ -107,31 +108,21 @@ def short_arc_words(longest_deg: dict[int, float]) -> str:
             "longer, a full turn or more, or track features that can be followed further)")
 
 
-def axis_misses(arm, measurements, setup: _Setup, stage1: list[_Stage1], K: np.ndarray, pose,
+def axis_misses(arm, measurements, setup: _Setup, stage1: list[_Stage1], camera: Camera, pose,
                 ks) -> dict[int, tuple[float, float]]:
     """k -> (miss_px, joint_deg) of measurements ``ks``: how far (px, the larger of its two FK test points' distances)
-    its stage-1 image axis passes from its FK axis projected by ``pose`` through ``K``, and the smallest joint error
-    (deg, root sum of squares over the joints, to first order) that would move the projected axis onto its image
-    axis: what a left-out measurement's words compare with a tracker's bias. A measurement whose test points lie at or
-    behind the camera at ``pose`` gets none."""
+    its stage-1 image axis passes from its FK axis projected by ``pose`` through ``camera`` (undistorted), and the
+    smallest joint error (deg, root sum of squares over the joints, to first order) that would move the projected
+    axis onto its image axis: what a left-out measurement's words compare with a tracker's bias. A measurement whose
+    test points lie at or behind the camera at ``pose`` gets none."""
     out = {}
     for k in ks:
-        line = np.asarray(stage1[k].image_axis, dtype=float)
-        line = line / np.hypot(line[0], line[1])
-        points = axis_test_points(setup.axes[k])
-
-        def distances(p, line=line):
-            cam = np.array([pose.transformTo(x) for x in p])
-            pix = (K @ (cam / cam[:, 2:3]).T).T
-            return pix @ line
-        if not np.all(np.array([pose.transformTo(x)[2] for x in points]) > 0.0):
+        if not all(pose.transformTo(x)[2] > 0.0 for x in axis_test_points(setup.axes[k])):
             continue  # its FK axis does not project at this pose (a runaway fit): no distance to give
-        d = distances(points)
+        line = np.asarray(stage1[k].image_axis, dtype=float)
         m = measurements[k]
         J = test_point_jacobian(arm, m.joint_angles, joint=m.spin_joint)  # (6, n): test points by joint angle
-        step = 1e-6
-        D = np.column_stack([(distances(points + step * c.reshape(2, 3)) - distances(points - step * c.reshape(2, 3)))
-                             / (2.0 * step) for c in J.T])
+        d, D = test_point_distances(camera, setup.axes[k], line / np.hypot(line[0], line[1]), pose, J, 1e-6)
         dq = -np.linalg.pinv(D) @ d  # the least joint change (rad) that puts the projected axis on the image axis
         out[k] = (float(np.max(np.abs(d))), float(np.degrees(np.linalg.norm(dq))))
     return out

@@ -106,7 +106,7 @@ def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anch
     values.insert(POSE_KEY, fit.pose)
     sigmas = {k: float(np.sqrt(s.sigma2)) for k, s in enumerate(stage1)}
     tied = _tied_circles(arm, camera, measurements, setup, stage1, fit.pose, options, range(len(stage1)))
-    misses = axis_misses(arm, measurements, setup, stage1, camera.K, fit.pose, _disagreeing(stage1, used, fit.evidence))
+    misses = axis_misses(arm, measurements, setup, stage1, camera, fit.pose, _disagreeing(stage1, used, fit.evidence))
     reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, fit.chi2, tied, misses)
     variances = {k: stage1[k].sigma2 for k in used}
     rows = _axis_rows(camera, setup, stage1, used, fit.pose, variances)  # (one pass for the three below)
@@ -329,7 +329,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         refined = Camera(intrinsics.now.K(), camera.width, camera.height).intrinsics
         camera = intrinsics.given.with_intrinsics({n: refined[n] for n in options.refine_intrinsics})
     tied = _tied_circles(arm, camera, measurements, setup, stage1, pose, options, range(len(stage1)))
-    misses = axis_misses(arm, measurements, setup, stage1, camera.K, pose, _disagreeing(stage1, used, fit.evidence))
+    misses = axis_misses(arm, measurements, setup, stage1, camera, pose, _disagreeing(stage1, used, fit.evidence))
     reports = measurement_reports(stage1, setup, fit.evidence, sigmas, used, options, chi2, tied, misses)
     variances = {k: sigmas[k] ** 2 for k in used}
     rows = _axis_rows(camera, setup, stage1, used, pose, variances)  # (one pass for the three below)

@@ -136,6 +136,15 @@ def joint_tie_covariance(camera: Camera, axis, line: np.ndarray | None, pose: gt
     None when ``noise`` is None. ``line`` None: the axis' own image under ``pose``."""
     if noise is None:
         return None
+    _, D = test_point_distances(camera, axis, line, pose, noise, step)
+    return D @ D.T
+
+
+def test_point_distances(camera: Camera, axis, line: np.ndarray | None, pose: gtsam.Pose3, columns: np.ndarray,
+                         step: float) -> tuple[np.ndarray, np.ndarray]:
+    """(2,) the distances (px) of ``axis``' test points projected by ``pose`` from the image ``line`` (None: the
+    axis' own image), and (2, c) their central-difference derivatives along each column of ``columns`` (6, c): a
+    displacement of the two stacked test points (arm frame, m), stepped by ``step`` times it."""
     points = axis_test_points(axis)
 
     def projected(p):
@@ -146,10 +155,10 @@ def joint_tie_covariance(camera: Camera, axis, line: np.ndarray | None, pose: gt
     def distances(p):
         return line_distances(line, projected(p))
 
-    # one column per joint: the distances' change along that joint's 1-sigma displacement of the test points
+    # one column per displacement: the distances' change along it
     D = np.column_stack([(distances(points + step * c.reshape(2, 3)) - distances(points - step * c.reshape(2, 3)))
-                         / (2.0 * step) for c in noise.T])
-    return D @ D.T
+                         / (2.0 * step) for c in columns.T])
+    return distances(points), D
 
 
 def _span_deg(phi: np.ndarray, trim: float = ARC_TRIM) -> float:

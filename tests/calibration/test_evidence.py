@@ -76,7 +76,7 @@ def test_an_axis_miss_is_measured_in_pixels_and_in_the_least_joint_error_that_ex
     dataset, truth = simulate.reference_scene(seed=3, duration=12.0, noise_var=0.01)
     arm, camera, measurements = dataset.arm, dataset.camera, list(dataset)
     setup = _setup(arm, camera, measurements, CalibrationOptions())
-    pose, K = truth.arm_T_camera, camera.K
+    pose = truth.arm_T_camera
 
     def image_axis(joint_angles, spin_joint):  # the FK axis at these joint angles as the true pose projects it
         points = axis_test_points(arm.wrist_axis(np.asarray(joint_angles, dtype=float), spin_joint))
@@ -85,15 +85,15 @@ def test_an_axis_miss_is_measured_in_pixels_and_in_the_least_joint_error_that_ex
     m = measurements[1]
     q = np.array(m.joint_angles, dtype=float)
     exact = [SimpleNamespace(image_axis=image_axis(q, m.spin_joint)) for _ in measurements]
-    miss_px, joint_deg = axis_misses(arm, measurements, setup, exact, K, pose, [1])[1]
+    miss_px, joint_deg = axis_misses(arm, measurements, setup, exact, camera, pose, [1])[1]
     assert miss_px < 1e-6 and joint_deg < 1e-6
     # the image axis of the arm with its second joint 0.2 degrees on: the FK axis at the readings misses it, and the
     # least joint error that explains the miss is at most those 0.2 degrees, and of their size
     q[1] += np.radians(0.2)
     moved = [SimpleNamespace(image_axis=image_axis(q, m.spin_joint)) for _ in measurements]
-    miss_px, joint_deg = axis_misses(arm, measurements, setup, moved, K, pose, [1])[1]
+    miss_px, joint_deg = axis_misses(arm, measurements, setup, moved, camera, pose, [1])[1]
     assert miss_px > 0.3 and 0.05 < joint_deg <= 0.2 + 1e-3, (miss_px, joint_deg)
     # the camera turned half a turn about its x axis sees the FK axis behind it: no distance
     behind = pose.compose(gtsam.Pose3(gtsam.Rot3.Rx(np.pi), np.zeros(3)))
     assert all(behind.transformTo(p)[2] < 0.0 for p in axis_test_points(setup.axes[1]))
-    assert axis_misses(arm, measurements, setup, moved, K, behind, [1]) == {}
+    assert axis_misses(arm, measurements, setup, moved, camera, behind, [1]) == {}
