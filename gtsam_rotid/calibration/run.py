@@ -16,7 +16,7 @@ from ..graph import chi2_quantile
 from .choice import choose_start
 from .initial import _initial, axis_miss_rms, poor_start
 from .joint import Fitted, _joint, _judged, _weighted
-from .lm import _builder
+from .lm import _builder, _turned
 from .modelcheck import IMPROVEMENT_Z, intrinsics_check, kinematics_check
 from .offsets import MAX_OFFSET_SIGMAS, OffsetsPrior, offsets_from_axes, shifted
 from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method, with_tracker_defaults
@@ -33,6 +33,8 @@ from .tuning import (
     MAX_RELATIVE_SIGMA,
     MAX_SCALE_AFTER_OUTLIERS,
     MAX_SIGMA_DEG,
+    REFINE_DEG,
+    REFINE_M,
     RESTART_P,
     SHORT_ARC_CONSISTENCY_P,
 )
@@ -263,8 +265,38 @@ def _calibrate(arm, camera, measurements, method, options, index, given_camera: 
     if options.axis_consistency_p is None:
         options = replace(options, axis_consistency_p=SHORT_ARC_CONSISTENCY_P if setup.short_arcs
                           else LONG_ARC_CONSISTENCY_P)
-    runs = [_refined_stage1(arm, camera, measurements, start, setup, options, anchor)
-            for start, anchor in zip(starts, anchors, strict=True)]
+    runs, anchors = _paths(arm, camera, measurements, starts, anchors, setup, options)
+    try:
+        result, failure = _from_runs(arm, camera, measurements, method, setup, runs, anchors, options), None
+    except CalibrationError as error:
+        result, failure = None, error
+    if setup.short_arcs and not setup.camera_pass and (result is None or not _sound(result, setup)):
+        # from the guess-free start, 20-30 degrees off on short arcs, the standard path can end in a wrong minimum
+        # by the chaos of its first fit (``_refined_stage1``'s ``placing``): the paths whose first fit only places
+        # the pose are a second chance, and the joint fit chooses among all ends
+        placed, placed_anchors = _paths(arm, camera, measurements, starts, anchors, setup, options, placing=True,
+                                        after=runs)
+        if placed:
+            try:
+                second = _from_runs(arm, camera, measurements, method, setup, [*runs, *placed],
+                                    [*anchors, *placed_anchors], options)
+                if result is None or _sound(second, setup):
+                    result = second
+            except CalibrationError:
+                pass
+    if result is None:
+        raise failure
+    return result, setup
+
+
+def _sound(result: CalibrationResult, setup: _Setup) -> bool:
+    """``result``'s covariance is usable as ``calibrate`` will judge it (its reasons not to trust are set there)."""
+    return result.covariance_usable and not _untrusted(result, setup)
+
+
+def _from_runs(arm, camera, measurements, method, setup: _Setup, runs, anchors, options) -> CalibrationResult:
+    """The result from the stage-1 runs ``(pose, stage1)`` close enough to their FK axes (:func:`_close_enough`):
+    the joint fit chooses between several (:func:`choose_start`), then the method's estimate and the model checks."""
     runs, anchors = _close_enough(camera, setup, runs, anchors, options)
     alternatives = []
     if len(runs) > 1:  # the image axes cannot choose between the starts: the joint fit of the circles does
@@ -273,7 +305,7 @@ def _calibrate(arm, camera, measurements, method, options, index, given_camera: 
             return replace(_checked_model(arm, camera, measurements, setup, choice.stage1, choice.joint),
                            alternatives=[*choice.alternatives, *choice.joint.alternatives],
                            joint_sigma_deg=options.joint_sigma_deg, axis_floor_px=setup.floor_px,
-                           track_offset_px=setup.track_offset_px), setup
+                           track_offset_px=setup.track_offset_px)
         runs, anchors = [(runs[choice.best][0], choice.stage1)], [anchors[choice.best]]
         alternatives = choice.alternatives
     init_pose, stage1 = runs[0]
@@ -283,7 +315,7 @@ def _calibrate(arm, camera, measurements, method, options, index, given_camera: 
                    alternatives=[*alternatives, *fitted.result.alternatives],
                    joint_sigma_deg=0.0 if method is Method.PAPER else options.joint_sigma_deg,
                    axis_floor_px=0.0 if method is Method.PAPER else setup.floor_px,
-                   track_offset_px=0.0 if method is Method.PAPER else setup.track_offset_px), setup
+                   track_offset_px=0.0 if method is Method.PAPER else setup.track_offset_px)
 
 
 def _passes(arm, camera, used, method, options, kept):
@@ -364,6 +396,22 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
         shapes = _judged(shapes, 1.0 if c.consistent or explained else max(c.scale, 1.0))
     return replace(result, axis_consistency=replace(c, intrinsics=intrinsics, kinematics=kinematics),
                    intrinsics_shapes=shapes)
+
+
+def _paths(arm, camera, measurements, starts, anchors, setup: _Setup, options, placing: bool = False,
+           after=()) -> tuple[list, list]:
+    """Stage 1 refined from each start (:func:`_refined_stage1`), as runs ``(pose, stage1)`` with their anchors.
+    With ``placing``, the paths whose first fit only places the pose, dropping one that ends within REFINE_DEG and
+    REFINE_M of another or of a run in ``after`` (the same minimum again)."""
+    runs, kept = [], []
+    for start, anchor in zip(starts, anchors, strict=True):
+        pose, stage1 = _refined_stage1(arm, camera, measurements, start, setup, options, anchor, placing)
+        if placing and any(_turned(pose, other) < np.radians(REFINE_DEG) and np.linalg.norm(
+                pose.translation() - other.translation()) < REFINE_M for other, _ in [*after, *runs]):
+            continue
+        runs.append((pose, stage1))
+        kept.append(anchor)
+    return runs, kept
 
 
 def _close_enough(camera, setup: _Setup, runs, anchors, options) -> tuple[list, list]:

@@ -380,7 +380,7 @@ def _checked(builder: RotIdGraph, measurement, k: int, pose: gtsam.Pose3, prepar
 
 def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepared, options,
                         start_line: gtsam.Rot3 | None = None, settle: bool = False,
-                        skip: dict[int, str] | None = None) -> _Stage1:
+                        skip: dict[int, str] | None = None, max_rounds: int = STAGE1_ROUNDS) -> _Stage1:
     """Coaxial circles of one measurement, rejecting outlier tracks round by round.
 
     ``builders``: the projected model first (fast); if LM cannot lower its error at all (wrong arcs far from
@@ -406,7 +406,7 @@ def _stage1_measurement(builders: list[RotIdGraph], measurement, k, pose, prepar
         new = _outlier_tracks(stats, options)
         # the last round's fit is the result: a track it flags stays in (rejecting it without a new fit would
         # report it rejected while the line and the counts still include it)
-        if not new or len(stats) - len(new) < 2 or rounds == STAGE1_ROUNDS:
+        if not new or len(stats) - len(new) < 2 or rounds >= max_rounds:
             break
         skip.update(new)
         line_start = result.atRot3(keys.line_key)  # the next round starts where this one ended
@@ -503,14 +503,16 @@ def _readmit_tracks(builders, measurements, pose, setup: _Setup, stage1: list[_S
     return out
 
 
-def _stage1(arm, camera, measurements, pose, setup: _Setup, options, image_axes: bool = True) -> list[_Stage1]:
+def _stage1(arm, camera, measurements, pose, setup: _Setup, options, image_axes: bool = True,
+            max_rounds: int = STAGE1_ROUNDS) -> list[_Stage1]:
     # Huber per whole track (at its chi-square 99.9 % point): a wrong arc that the tests let through has a bounded
     # pull; a good track is untouched
     builders = [_builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber),
                 _builder(arm, camera, options, robust=track_huber)]
     starts = [_start_line(camera, setup.axes[k], setup.centre_axes[k] if image_axes else None, pose)
               for k in range(len(measurements))]
-    stage1 = [_stage1_measurement(builders, m, k, pose, setup.prepared[k], options, starts[k], settle=not image_axes)
+    stage1 = [_stage1_measurement(builders, m, k, pose, setup.prepared[k], options, starts[k], settle=not image_axes,
+                                  max_rounds=max_rounds)
               for k, m in enumerate(measurements)]
     return _readmit_tracks(builders, measurements, pose, setup, stage1, options)
 

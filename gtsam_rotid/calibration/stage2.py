@@ -50,13 +50,14 @@ from .tuning import (
     REFINE_DEG,
     REFINE_M,
     REFINE_PASSES,
+    STAGE1_ROUNDS,
     TIE_PX2,
     WEAK_MANY_TRACKS,
 )
 
 
 def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup, options,
-                    anchor) -> tuple[gtsam.Pose3, list[_Stage1]]:
+                    anchor, placing: bool = False) -> tuple[gtsam.Pose3, list[_Stage1]]:
     """Stage 1 from ``start``; where some measurement has only short arcs (``setup.short_arcs``), again from the
     pose its lines give (weighted stage 2, Huber on whole measurements) while that pose moves more than REFINE_DEG
     or REFINE_M (at most REFINE_PASSES fits), and the last fit jackknifed (:func:`_checked`; so are thin ellipses'
@@ -67,16 +68,27 @@ def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup
     from anywhere near; with short ones (corner tracks of 25 degrees) it stays in a minimum near the start, and
     the initialisation from ellipse centres can be 20 degrees off: on one rendered scene three of six lines fitted
     from there were 100-13 000 chi-square off the truth, and 0-4 when fitted from the truth.
+
+    ``placing``: where refits follow, the first fit only places the pose (one round, no track rejected: its
+    tests are against lines fitted from a start far off). From a start that far off the path is chaotic: which
+    tracks the first fit's rounds reject, and where the refits go, hang on LM's path through the circles' inner
+    minima (which of the guess-free start's five tied candidates came first, one minimum at costs equal to 1e-12,
+    took one rendered Jaco2 scene 0.44 mm or 490 mm off); where arcs are short and the standard path's result is
+    refused or not usable, ``calibrate`` runs this one too and lets the joint fit choose among all ends
+    (``run._calibrate``).
     """
     pose = start
     builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
     everything = list(range(len(measurements)))
-    stage1 = _stage1(arm, camera, measurements, pose, setup, options)
     refits = REFINE_PASSES - 1 if setup.short_arcs else 0  # long arcs: the first fit stands
-    for _ in range(refits):
+    placing = placing and refits > 0
+    stage1 = _stage1(arm, camera, measurements, pose, setup, options, max_rounds=1 if placing else STAGE1_ROUNDS)
+    for i in range(refits):
         moved, _, _ = _weighted_stage2(camera, setup, stage1, everything, pose, options, anchor)
         if _turned(moved, pose) < np.radians(REFINE_DEG) and np.linalg.norm(
                 moved.translation() - pose.translation()) < REFINE_M:
+            if i == 0 and placing:  # the first fit stands: with its tracks tested
+                stage1 = _stage1(arm, camera, measurements, pose, setup, options)
             break
         pose = moved
         stage1 = _stage1(arm, camera, measurements, pose, setup, options, image_axes=False)
