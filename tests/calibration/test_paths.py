@@ -70,9 +70,22 @@ def _standard_off(monkeypatch):
     monkeypatch.setattr(run, "_refined_stage1", refined)
 
 
-def _ambiguous(result):
-    """``result`` with a rival as good as it (so not usable)."""
-    return replace(result, alternatives=[*result.alternatives, Alternative(result.arm_T_camera.compose(OFF), 0.0)])
+def _ambiguous(result, delta_chi2: float = 0.0):
+    """``result`` with a rival about as good as it, ``delta_chi2`` worse (so not usable)."""
+    return replace(result, alternatives=[*result.alternatives,
+                                         Alternative(result.arm_T_camera.compose(OFF), delta_chi2)])
+
+
+def _spied(monkeypatch) -> list:
+    """``run._refined_stage1`` as it is, recording each call's ``placing``."""
+    original, calls = run._refined_stage1, []
+
+    def refined(*args, **kwargs):
+        calls.append(args[7] if len(args) > 7 else kwargs.get("placing", False))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(run, "_refined_stage1", refined)
+    return calls
 
 
 @pytest.mark.parametrize("standard", ["refused", "ambiguous"])
@@ -105,22 +118,17 @@ def test_a_second_chance_that_is_not_usable_either_leaves_the_standard_result(mo
 
     def from_runs(*args):
         counts.append(1)
-        return _ambiguous(original(*args))
+        return _ambiguous(original(*args), 0.5 * (len(counts) - 1))  # the standard result's rival at 0, the next's 0.5
 
     monkeypatch.setattr(run, "_from_runs", from_runs)
     result = calibrate(dataset)
     assert len(counts) == 2 and result.ambiguous
+    assert result.alternatives[-1].delta_chi2 == 0.0  # the standard result
 
 
 def test_a_usable_standard_result_stands_alone(monkeypatch, short_scene):
     dataset, truth = short_scene
-    original, calls = run._refined_stage1, []
-
-    def refined(*args, **kwargs):
-        calls.append(args[7] if len(args) > 7 else kwargs.get("placing", False))
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(run, "_refined_stage1", refined)
+    calls = _spied(monkeypatch)
     result = calibrate(dataset)
     assert calls and not any(calls)
     assert result.covariance_usable and _holds(result, truth)
@@ -130,13 +138,7 @@ def test_thin_evidence_tries_the_second_chance_and_still_holds(monkeypatch):
     """Six 3 s spins of 12 features: not usable (thin evidence) from the standard path, so the placing paths run
     too; the result still holds its covariance against the truth."""
     dataset, truth = simulate.reference_scene(seed=5, duration=3.0, noise_var=0.5)
-    original, calls = run._refined_stage1, []
-
-    def refined(*args, **kwargs):
-        calls.append(args[7] if len(args) > 7 else kwargs.get("placing", False))
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(run, "_refined_stage1", refined)
+    calls = _spied(monkeypatch)
     result = calibrate(dataset)
     assert calls[0] is False and True in calls
     assert not result.covariance_usable and _holds(result, truth)
@@ -144,13 +146,7 @@ def test_thin_evidence_tries_the_second_chance_and_still_holds(monkeypatch):
 
 def test_long_arcs_take_the_standard_path_only(monkeypatch, noise_free_scene):
     dataset, truth = noise_free_scene
-    original, calls = run._refined_stage1, []
-
-    def refined(*args, **kwargs):
-        calls.append(args[7] if len(args) > 7 else kwargs.get("placing", False))
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(run, "_refined_stage1", refined)
+    calls = _spied(monkeypatch)
     result = calibrate(dataset)
     assert calls and not any(calls)
     assert _holds(result, truth)
