@@ -16,13 +16,13 @@ from ..graph import chi2_quantile
 from .choice import choose_start
 from .initial import _initial, axis_miss_rms, poor_start
 from .joint import Fitted, _joint, _judged, _weighted
-from .lm import _builder, _turned
+from .lm import _builder
 from .modelcheck import IMPROVEMENT_Z, intrinsics_check, kinematics_check
 from .offsets import MAX_OFFSET_SIGMAS, OffsetsPrior, offsets_from_axes, shifted
 from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method, with_tracker_defaults
 from .result import CalibrationResult, MeasurementReport, OutlierKind
 from .setup import _Setup, _setup, arc_span_deg
-from .stage2 import _check_scale, _paper, _refined_stage1
+from .stage2 import _check_scale, _paper, _refined_stage1, _settled
 from .swaps import exchange_candidate, exchanged, swap_sentence
 from .tuning import (
     INITIAL_TOLERANCE,
@@ -33,8 +33,6 @@ from .tuning import (
     MAX_RELATIVE_SIGMA,
     MAX_SCALE_AFTER_OUTLIERS,
     MAX_SIGMA_DEG,
-    REFINE_DEG,
-    REFINE_M,
     RESTART_P,
     SHORT_ARC_CONSISTENCY_P,
 )
@@ -401,13 +399,12 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
 def _paths(arm, camera, measurements, starts, anchors, setup: _Setup, options, placing: bool = False,
            after=()) -> tuple[list, list]:
     """Stage 1 refined from each start (:func:`_refined_stage1`), as runs ``(pose, stage1)`` with their anchors.
-    With ``placing``, the paths whose first fit only places the pose, dropping one that ends within REFINE_DEG and
-    REFINE_M of another or of a run in ``after`` (the same minimum again)."""
+    With ``placing``, the paths whose first fit only places the pose, dropping one that ends where another or a run
+    in ``after`` did (:func:`_settled`: the same minimum again)."""
     runs, kept = [], []
     for start, anchor in zip(starts, anchors, strict=True):
         pose, stage1 = _refined_stage1(arm, camera, measurements, start, setup, options, anchor, placing)
-        if placing and any(_turned(pose, other) < np.radians(REFINE_DEG) and np.linalg.norm(
-                pose.translation() - other.translation()) < REFINE_M for other, _ in [*after, *runs]):
+        if placing and any(_settled(pose, other) for other, _ in [*after, *runs]):
             continue
         runs.append((pose, stage1))
         kept.append(anchor)

@@ -85,8 +85,7 @@ def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup
     stage1 = _stage1(arm, camera, measurements, pose, setup, options, max_rounds=1 if placing else STAGE1_ROUNDS)
     for i in range(refits):
         moved, _, _ = _weighted_stage2(camera, setup, stage1, everything, pose, options, anchor)
-        if _turned(moved, pose) < np.radians(REFINE_DEG) and np.linalg.norm(
-                moved.translation() - pose.translation()) < REFINE_M:
+        if _settled(moved, pose):
             if i == 0 and placing:  # the first fit stands: with its tracks tested
                 stage1 = _stage1(arm, camera, measurements, pose, setup, options)
             break
@@ -94,6 +93,12 @@ def _refined_stage1(arm, camera, measurements, start: gtsam.Pose3, setup: _Setup
         stage1 = _stage1(arm, camera, measurements, pose, setup, options, image_axes=False)
     return pose, [_checked(builder, measurements[k], k, pose, setup.prepared[k], s, options, setup)
                   for k, s in enumerate(stage1)]
+
+
+def _settled(a: gtsam.Pose3, b: gtsam.Pose3) -> bool:
+    """``a`` lies within REFINE_DEG and REFINE_M of ``b``: stage 1's refits have settled, or two paths through them
+    ended in the same place."""
+    return _turned(a, b) < np.radians(REFINE_DEG) and np.linalg.norm(a.translation() - b.translation()) < REFINE_M
 
 
 # ---------------------------------------------------------------------------------------------------
