@@ -8,10 +8,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
 from .errors import InputError
-from .geometry import Line3, closest_point
+from .geometry import (  # noqa: F401 (the axes' geometry is re-exported: the calibration needs it too)
+    CROSSING_TOLERANCE_M,
+    PARALLEL_TOLERANCE_DEG,
+    AxisGeometry,
+    Line3,
+    axis_geometry,
+)
 from .uncertainty import chi2_sf
 
 #: The χ² test calls the fit consistent when the upper-tail probability lies in [P_LOW, 1 - P_LOW].
@@ -20,10 +24,6 @@ P_LOW = 0.005
 #: noise estimate did: χ²/dof within this of 1 (the noise is re-estimated until it changes by less than 5 %, and
 #: the Huber kernels shrink χ² a little). A P value over ~1e5 residuals would flag a 1 % difference.
 JOINT_REDUCED_TOLERANCE = 0.1
-#: Wrist axes that all pass within this distance (m) of one point make a single crossing.
-CROSSING_TOLERANCE_M = 0.01
-#: Wrist axes whose directions all lie within this angle (deg) of each other are parallel.
-PARALLEL_TOLERANCE_DEG = 5.0
 
 
 @dataclass
@@ -102,39 +102,6 @@ def chi2_check(result) -> Chi2Check:
     else:
         consistent = bool(P_LOW <= p <= 1.0 - P_LOW)
     return Chi2Check(chi2, int(dof), float(p), consistent, what, note, exact)
-
-
-@dataclass
-class AxisGeometry:
-    """Where the wrist axes of the measurements used lie (arm frame, metres)."""
-
-    point: np.ndarray  # the point closest to all axes
-    miss: np.ndarray  # distance of each axis from it
-    spread_deg: float  # largest angle between two axis directions (lines, so at most 90)
-    mean_direction: np.ndarray
-    indices: list[int]
-
-    @property
-    def is_crossing(self) -> bool:
-        return bool(np.max(self.miss) <= CROSSING_TOLERANCE_M)
-
-    @property
-    def is_parallel(self) -> bool:
-        return self.spread_deg <= PARALLEL_TOLERANCE_DEG
-
-
-def axis_geometry(axes: list[Line3], indices: list[int] | None = None) -> AxisGeometry | None:
-    """Common point (least squares), miss distances and angular spread of wrist axes; None for fewer than 2."""
-    if len(axes) < 2:
-        return None
-    point = closest_point(axes)
-    miss = np.array([float(a.distance_to(point)[0]) for a in axes])
-    directions = np.array([a.direction for a in axes])
-    cosines = np.clip(np.abs(directions @ directions.T), 0.0, 1.0)
-    spread = float(np.degrees(np.arccos(cosines.min())))
-    scatter = directions.T @ directions
-    mean_direction = np.linalg.eigh(scatter)[1][:, -1]
-    return AxisGeometry(point, miss, spread, mean_direction, list(range(len(axes))) if indices is None else indices)
 
 
 def wrist_axes(result, dataset=None) -> dict[int, Line3] | None:

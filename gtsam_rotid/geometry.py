@@ -142,6 +142,45 @@ def closest_point(axes) -> np.ndarray:
     return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
+#: Wrist axes that all pass within this distance (m) of one point make a single crossing.
+CROSSING_TOLERANCE_M = 0.01
+#: Wrist axes whose directions all lie within this angle (deg) of each other are parallel.
+PARALLEL_TOLERANCE_DEG = 5.0
+
+
+@dataclass
+class AxisGeometry:
+    """Where the wrist axes of the measurements used lie (arm frame, metres)."""
+
+    point: np.ndarray  # the point closest to all axes
+    miss: np.ndarray  # distance of each axis from it
+    spread_deg: float  # largest angle between two axis directions (lines, so at most 90)
+    mean_direction: np.ndarray
+    indices: list[int]
+
+    @property
+    def is_crossing(self) -> bool:
+        return bool(np.max(self.miss) <= CROSSING_TOLERANCE_M)
+
+    @property
+    def is_parallel(self) -> bool:
+        return self.spread_deg <= PARALLEL_TOLERANCE_DEG
+
+
+def axis_geometry(axes: list[Line3], indices: list[int] | None = None) -> AxisGeometry | None:
+    """Common point (least squares), miss distances and angular spread of wrist axes; None for fewer than 2."""
+    if len(axes) < 2:
+        return None
+    point = closest_point(axes)
+    miss = np.array([float(a.distance_to(point)[0]) for a in axes])
+    directions = np.array([a.direction for a in axes])
+    cosines = np.clip(np.abs(directions @ directions.T), 0.0, 1.0)
+    spread = float(np.degrees(np.arccos(cosines.min())))
+    scatter = directions.T @ directions
+    mean_direction = np.linalg.eigh(scatter)[1][:, -1]
+    return AxisGeometry(point, miss, spread, mean_direction, list(range(len(axes))) if indices is None else indices)
+
+
 def correlation(covariance: np.ndarray) -> np.ndarray:
     """Correlation matrix ``D^-1/2 Sigma D^-1/2`` of a covariance."""
     s = np.sqrt(np.diag(covariance))

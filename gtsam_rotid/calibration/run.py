@@ -12,6 +12,7 @@ from ..arm import Arm
 from ..camera import Camera
 from ..dataset import Dataset, Measurement
 from ..errors import InputError, RotIdError
+from ..geometry import axis_geometry
 from ..graph import chi2_quantile
 from .choice import choose_start
 from .initial import _initial, axis_miss_rms, poor_start
@@ -89,7 +90,8 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
             raise
         raise CalibrationError(f"the calibration failed on a degenerate geometry: {error}; check that the spinning "
                                "joints' axes differ from pose to pose and pass beside the camera") from error
-    if _troubled(result):  # (with refined intrinsics, at the camera the last pass started from, as its setup)
+    if _troubled(result) and not _undetermined_by_the_axes(result, setup):
+        # (with refined intrinsics, at the camera the last pass started from, as its setup)
         swap = _confirmed_swap(arm, started, used, method, options, kept, setup)
         if swap is not None:
             result = replace(result, swapped=swap)
@@ -124,6 +126,16 @@ def _troubled(result: CalibrationResult) -> bool:
     c = result.axis_consistency
     return (not result.converged or not result.observability.is_observable or result.ambiguous
             or (c is not None and not c.consistent) or any(m.outlier for m in result.measurements))
+
+
+def _undetermined_by_the_axes(result: CalibrationResult, setup: _Setup) -> bool:
+    """The result is undetermined and its FK axes make it so (all through one point or parallel): two measurements
+    exchanged keep those axes, so no exchange can make the calibration sound, and its calibration is not tried (on a
+    single crossing, 10 s spins, it took 150 s of the 155)."""
+    if result.observability.is_observable:
+        return False
+    geometry = axis_geometry(list(setup.axes))
+    return geometry is not None and (geometry.is_crossing or geometry.is_parallel)
 
 
 def _confirmed_swap(arm, camera, measurements, method, options, index, setup: _Setup | None = None) -> dict | None:

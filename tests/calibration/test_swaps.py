@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from gtsam_rotid import Dataset, simulate
+from gtsam_rotid.calibration import run
 from gtsam_rotid.calibration.options import CalibrationOptions
 from gtsam_rotid.calibration.setup import _setup
 from gtsam_rotid.calibration.swaps import exchange_candidate
@@ -74,3 +75,20 @@ def test_a_wrong_camera_is_not_called_a_swap():
     assert result.swapped is None and "swapped" not in result.untrusted
     assert "intrinsics" in result.untrusted
     assert np.isfinite(result.sigma_px)
+
+
+
+def test_no_exchange_is_tried_where_the_axes_leave_the_pose_undetermined(single_crossing, monkeypatch):
+    # every wrist axis through one point: an exchange keeps the axes, so its calibration (150 s of a 155 s single
+    # crossing) can never be sound and is not run, whatever the screen says (here it is made to name one)
+    dataset, _ = single_crossing
+    screened = []
+    monkeypatch.setattr(run, "exchange_candidate", lambda *a: screened.append(1) or {
+        "positions": [1, 3], "miss_px": 1.0, "swapped_miss_px": 0.1, "next_miss_px": 1.0})
+    calls = []
+    original = run._calibrate
+    monkeypatch.setattr(run, "_calibrate", lambda *a, **k: calls.append(1) or original(*a, **k))
+    result = calibrate(dataset)
+    assert len(calls) == 1 and not screened
+    assert len(result.observability.unobservable_directions) == 1 and result.swapped is None
+    assert not result.covariance_usable
