@@ -10,7 +10,7 @@ from typing import NamedTuple
 import gtsam
 import numpy as np
 
-from .joint import _joint, common_chi2
+from .joint import Fitted, _joint, common_chi2
 from .lm import _turned
 from .options import CalibrationError
 from .result import Alternative, CalibrationResult
@@ -29,14 +29,14 @@ class Choice(NamedTuple):
     alternatives: list[Alternative]
 
 
-def choose_start(arm, camera, measurements, setup, runs, anchors, options) -> Choice:
+def choose_start(arm, camera, measurements, setup, runs, anchors, options, memo: dict | None = None) -> Choice:
     """The joint fit from each run ``(start, stage1)`` and the best of them (:func:`_choose`); raises the first
-    run's failure when every one fails (a wrong start's circles may not fit at all)."""
+    run's failure when every one fails (a wrong start's circles may not fit at all). ``memo`` keeps each run's
+    joint fit (:func:`checked_joint`) for a later choice among more runs."""
     joints, fits, failures = [], [], []
-    for (start, stage1), anchor in zip(runs, anchors, strict=True):
+    for run, anchor in zip(runs, anchors, strict=True):
         try:
-            fitted = _joint(arm, camera, measurements, setup, stage1, start, options, anchor)
-            _check_scale(fitted.result, setup, fitted.stage1, options)
+            fitted = checked_joint(arm, camera, measurements, setup, run, options, anchor, memo)
             joints.append(fitted.result)
             fits.append(fitted.stage1)
         except CalibrationError as failure:
@@ -47,6 +47,28 @@ def choose_start(arm, camera, measurements, setup, runs, anchors, options) -> Ch
         raise failures[0]
     best, alternatives = _choose(arm, camera, measurements, setup, joints, options)
     return Choice(best, joints[best], fits[best], alternatives)
+
+
+def checked_joint(arm, camera, measurements, setup, run, options, anchor, memo: dict | None = None) -> Fitted:
+    """The joint fit from the run ``(start, stage1)`` with its scale checked (:func:`_check_scale`), or its
+    CalibrationError; kept in ``memo`` (by the run's stage-1 fits, which the caller keeps) and taken from it again:
+    the same run gives the same fit."""
+    start, stage1 = run
+    key = id(stage1)
+    if memo is None or key not in memo:
+        try:
+            fitted = _joint(arm, camera, measurements, setup, stage1, start, options, anchor)
+            _check_scale(fitted.result, setup, fitted.stage1, options)
+            outcome = fitted
+        except CalibrationError as failure:
+            outcome = failure
+        if memo is None:
+            memo = {}
+        memo[key] = (stage1, outcome)  # (the stage-1 fits held, so that their id is not reused)
+    outcome = memo[key][1]
+    if isinstance(outcome, CalibrationError):
+        raise outcome
+    return outcome
 
 
 def _same_solution(result: CalibrationResult, pose: gtsam.Pose3) -> bool:

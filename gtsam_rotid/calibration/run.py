@@ -14,9 +14,9 @@ from ..dataset import Dataset, Measurement
 from ..errors import InputError, RotIdError
 from ..geometry import axis_geometry
 from ..graph import chi2_quantile
-from .choice import choose_start
+from .choice import checked_joint, choose_start
 from .initial import _initial, axis_miss_rms, poor_start
-from .joint import Fitted, _joint, _judged, _weighted
+from .joint import Fitted, _judged, _weighted
 from .lm import _builder
 from .modelcheck import IMPROVEMENT_Z, intrinsics_check, kinematics_check
 from .offsets import MAX_OFFSET_SIGMAS, OffsetsPrior, offsets_from_axes, shifted
@@ -276,8 +276,9 @@ def _calibrate(arm, camera, measurements, method, options, index, given_camera: 
         options = replace(options, axis_consistency_p=SHORT_ARC_CONSISTENCY_P if setup.short_arcs
                           else LONG_ARC_CONSISTENCY_P)
     runs, anchors = _paths(arm, camera, measurements, starts, anchors, setup, options)
+    memo = {}  # (the joint fits from the runs, which the second path's choice among more runs takes again)
     try:
-        result, failure = _from_runs(arm, camera, measurements, method, setup, runs, anchors, options), None
+        result, failure = _from_runs(arm, camera, measurements, method, setup, runs, anchors, options, memo), None
     except CalibrationError as error:
         result, failure = None, error
     if setup.short_arcs and not setup.camera_pass and (result is None or not _sound(result, setup)):
@@ -289,7 +290,7 @@ def _calibrate(arm, camera, measurements, method, options, index, given_camera: 
         if placed:
             try:
                 second = _from_runs(arm, camera, measurements, method, setup, [*runs, *placed],
-                                    [*anchors, *placed_anchors], options)
+                                    [*anchors, *placed_anchors], options, memo)
                 if result is None or _sound(second, setup):
                     result = second
             except CalibrationError:
@@ -304,13 +305,15 @@ def _sound(result: CalibrationResult, setup: _Setup) -> bool:
     return result.covariance_usable and not _untrusted(result, setup)
 
 
-def _from_runs(arm, camera, measurements, method, setup: _Setup, runs, anchors, options) -> CalibrationResult:
+def _from_runs(arm, camera, measurements, method, setup: _Setup, runs, anchors, options,
+               memo: dict | None = None) -> CalibrationResult:
     """The result from the stage-1 runs ``(pose, stage1)`` close enough to their FK axes (:func:`_close_enough`):
-    the joint fit chooses between several (:func:`choose_start`), then the method's estimate and the model checks."""
+    the joint fit chooses between several (:func:`choose_start`), then the method's estimate and the model checks.
+    ``memo`` keeps the runs' joint fits for a later call with more runs (:func:`checked_joint`)."""
     runs, anchors = _close_enough(camera, setup, runs, anchors, options)
     alternatives = []
     if len(runs) > 1:  # the image axes cannot choose between the starts: the joint fit of the circles does
-        choice = choose_start(arm, camera, measurements, setup, runs, anchors, options)
+        choice = choose_start(arm, camera, measurements, setup, runs, anchors, options, memo)
         if method is Method.JOINT:
             return replace(_checked_model(arm, camera, measurements, setup, choice.stage1, choice.joint),
                            alternatives=[*choice.alternatives, *choice.joint.alternatives],
@@ -319,8 +322,11 @@ def _from_runs(arm, camera, measurements, method, setup: _Setup, runs, anchors, 
         runs, anchors = [(runs[choice.best][0], choice.stage1)], [anchors[choice.best]]
         alternatives = choice.alternatives
     init_pose, stage1 = runs[0]
-    fitted = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
-    _check_scale(fitted.result, setup, fitted.stage1, options)
+    if method is Method.JOINT:
+        fitted = checked_joint(arm, camera, measurements, setup, runs[0], options, anchors[0], memo)
+    else:
+        fitted = _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchors[0])
+        _check_scale(fitted.result, setup, fitted.stage1, options)
     return replace(_checked_model(arm, camera, measurements, setup, fitted.stage1, fitted.result),
                    alternatives=[*alternatives, *fitted.result.alternatives],
                    joint_sigma_deg=0.0 if method is Method.PAPER else options.joint_sigma_deg,
@@ -441,8 +447,7 @@ def _close_enough(camera, setup: _Setup, runs, anchors, options) -> tuple[list, 
 
 
 def _estimate(arm, camera, measurements, method, setup, stage1, init_pose, options, anchor) -> Fitted:
+    """The paper's or the weighted estimate (the joint one is :func:`checked_joint`'s)."""
     if method is Method.PAPER:
         return Fitted(_paper(camera, setup, stage1, init_pose, options, anchor), stage1)
-    if method is Method.WEIGHTED:
-        return _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
-    return _joint(arm, camera, measurements, setup, stage1, init_pose, options, anchor)
+    return _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anchor)

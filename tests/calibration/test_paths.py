@@ -9,6 +9,7 @@ import gtsam
 import numpy as np
 import pytest
 
+import gtsam_rotid.calibration.choice as choice
 import gtsam_rotid.calibration.run as run
 from gtsam_rotid import simulate
 from gtsam_rotid.calibration.result import Alternative
@@ -91,14 +92,17 @@ def _spied(monkeypatch) -> list:
 @pytest.mark.parametrize("standard", ["refused", "ambiguous"])
 def test_a_standard_result_refused_or_not_usable_gets_its_second_chance(monkeypatch, short_scene, standard):
     """The standard paths end 20 degrees off and their result is made refused, or ambiguous; the placing paths
-    then run and the joint fit chooses among all ends: the calibration holds and is usable."""
+    then run and the joint fit chooses among all ends: the calibration holds and is usable. The joint fit from each
+    end is made once (the choice among all ends takes the standard paths' from the first)."""
     dataset, truth = short_scene
     _standard_off(monkeypatch)
+    fitted, joint = [], choice._joint
+    monkeypatch.setattr(choice, "_joint", lambda *a: fitted.append(id(a[4])) or joint(*a))  # (a[4]: stage 1's fits)
     original, counts = run._from_runs, []
 
-    def from_runs(arm, camera, measurements, method, setup, runs, anchors, options):
-        counts.append(len(runs))
-        result = original(arm, camera, measurements, method, setup, runs, anchors, options)
+    def from_runs(*args):
+        counts.append(len(args[5]))  # (the runs)
+        result = original(*args)
         if len(counts) == 1:  # the standard paths'
             if standard == "refused":
                 raise CalibrationError("the standard paths' result, refused here")
@@ -108,6 +112,7 @@ def test_a_standard_result_refused_or_not_usable_gets_its_second_chance(monkeypa
     monkeypatch.setattr(run, "_from_runs", from_runs)
     result = calibrate(dataset)
     assert len(counts) == 2 and counts[1] > counts[0]  # all ends: the standard paths' and the placing ones
+    assert len(fitted) == len(set(fitted)) == counts[1]
     assert result.covariance_usable and not result.ambiguous and _holds(result, truth)
 
 
