@@ -27,7 +27,7 @@ from ..uncertainty import chi2_sf
 from .lm import _builder
 from .options import CalibrationError, CalibrationOptions, with_tracker_defaults
 from .setup import _setup
-from .stage1 import _checked, _stage1, _stage1_measurement, _start_line
+from .stage1 import _checked, _stage1, _stage1_measurement, _start_line, stage1_builders
 from .stage2 import _axis_distances
 
 #: The calibration still holds unless the new spins' χ² is beyond this P value (the 99.9 % point).
@@ -354,8 +354,7 @@ def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
     median = float(np.median([s.sigma2 for s in best]))
     poor = [k for k, s in enumerate(best) if len(best) < 3 or not s.sigma2 <= POOR_FIT_SIGMA_RATIO**2 * median]
     if poor:
-        builders = [_builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber),
-                    _builder(arm, camera, options, robust=track_huber)]
+        builders = stage1_builders(arm, camera, options)
         for k in poor:
             try:
                 again = _stage1_measurement(builders, measurements[k], k, pose, setup.prepared[k], options,

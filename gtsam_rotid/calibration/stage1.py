@@ -503,12 +503,17 @@ def _readmit_tracks(builders, measurements, pose, setup: _Setup, stage1: list[_S
     return out
 
 
+def stage1_builders(arm, camera, options) -> list:
+    """Stage 1's graph builders: the projected circles' model, then the full one. Huber per whole track (at its
+    chi-square 99.9 % point): a wrong arc that the tests let through has a bounded pull; a good track is
+    untouched."""
+    return [_builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber),
+            _builder(arm, camera, options, robust=track_huber)]
+
+
 def _stage1(arm, camera, measurements, pose, setup: _Setup, options, image_axes: bool = True,
             max_rounds: int = STAGE1_ROUNDS) -> list[_Stage1]:
-    # Huber per whole track (at its chi-square 99.9 % point): a wrong arc that the tests let through has a bounded
-    # pull; a good track is untouched
-    builders = [_builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber),
-                _builder(arm, camera, options, robust=track_huber)]
+    builders = stage1_builders(arm, camera, options)
     starts = [_start_line(camera, setup.axes[k], setup.centre_axes[k] if image_axes else None, pose)
               for k in range(len(measurements))]
     stage1 = [_stage1_measurement(builders, m, k, pose, setup.prepared[k], options, starts[k], settle=not image_axes,
