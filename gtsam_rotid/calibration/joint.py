@@ -43,7 +43,15 @@ from .offsets import determined_offsets
 from .opinion import _second_opinion
 from .options import INTRINSICS, CalibrationError, Method
 from .result import CalibrationResult
-from .stage1 import _circles, _noise_variance, _Stage1, _track_correlation, _track_offset_meat, _track_stats
+from .stage1 import (
+    FitRejection,
+    _circles,
+    _noise_variance,
+    _Stage1,
+    _track_correlation,
+    _track_offset_meat,
+    _track_stats,
+)
 from .stage2 import (
     _axis_consistency,
     _axis_floors,
@@ -65,6 +73,7 @@ from .tuning import (
     HELD_INTRINSIC_PX,
     INTRINSICS_KEY,
     MIN_STRONG,
+    NOT_TURNING_RATIO,
     POSE_KEY,
     READINGS_OFFSET_SIGMAS,
     READINGS_OFFSET_STEP_S,
@@ -288,6 +297,13 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                 graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas,
                                                    circles, lines, fk_start=start, rest=rest, intrinsics=intrinsics,
                                                    sync=sync, solved=solved)
+        turning = _not_turning(keys, values)
+        if turning:  # tracks the rigid spin cannot fit: left out (named), the round's graph built again without them
+            stage1 = [s if k not in turning else replace(s, outliers={**s.outliers, **turning[k]})
+                      for k, s in enumerate(stage1)]
+            graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas,
+                                               circles, lines, fk_start=start, rest=rest, intrinsics=intrinsics,
+                                               sync=sync, solved=solved)
         start, solved = (), None
         if _round == 0 and sync is not None:  # grossly wrong readings (see below), where the fit starts
             refused = _disagreeing_readings(keys, values, sync, READINGS_START_Z, profile_offset=True)
@@ -781,6 +797,33 @@ def _tilt_apart_deg(arm, measurement, pose: gtsam.Pose3, line: gtsam.Rot3) -> fl
 def _solved(keys: dict, values: gtsam.Values, ks=None) -> dict:
     """:func:`_joint_graph`'s ``solved`` for measurements ``ks`` (default all) of a graph's ``keys`` at ``values``."""
     return {k: (keys[k], values) for k in (keys if ks is None else ks)}
+
+
+def _not_turning(keys, values) -> dict[int, dict[int, FitRejection]]:
+    """measurement -> {track: why} for the tracks whose residual RMS under the rigid spin, at ``values``, is beyond
+    NOT_TURNING_RATIO times the median of their measurement's tracks (at least two tracks kept).
+
+    Stage 1's free phases fit any short arc to some circle, so a track that does not turn with the spin (a highlight,
+    a point sliding along an outline) can pass it; under the rigid spin its residuals ramp along the track (UR5 photo
+    seed 2: two tracks of 12-13 points from +55 to -87 px, the others' median 0.41 px). Its inner solution then makes
+    the joint fit's cost rough: the first round of LM accepted no step (a step of 1e-15 along the gradient raised the
+    cost the gradient said would fall) and where the next rounds stopped hung on the rounding (0.33 or 0.78 mm by the
+    BLAS threads)."""
+    out = {}
+    for k, kk in keys.items():
+        f = kk.coaxial
+        if not isinstance(f, RigidLineFactor) or len(kk.tracks) < 3:
+            continue
+        e = f.residuals(values)
+        rms = np.sqrt(np.bincount(f.tracks.track, weights=np.sum(e * e, axis=1), minlength=len(kk.tracks))
+                      / np.maximum(np.bincount(f.tracks.track, minlength=len(kk.tracks)), 1))
+        median = float(np.median(rms))
+        far = [j for j in np.argsort(-rms)[:len(kk.tracks) - 2] if rms[j] > NOT_TURNING_RATIO * median]
+        if far and median > 0.0:
+            out[k] = {int(kk.tracks[j]): FitRejection(
+                f"does not turn with the spin ({rms[j]:.3g} px RMS under the rigid spin, {rms[j] / median:.3g}x the "
+                "median of its pose's tracks)") for j in far}
+    return out
 
 
 def _joint_graph(builder, camera, measurements, setup, stage1, ks, pose, sigmas, circles, lines, fk_start=(),

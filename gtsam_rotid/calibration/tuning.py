@@ -63,6 +63,10 @@ WATCH_POSE = 1e-7
 #: (deg): a first step from a tilt several degrees off overshoots (lines moved 2-11 degrees on simulated poses seen
 #: obliquely), while long spins' free-phase tilts lie within 0.5 degree of the FK axis' and need no second start.
 FK_START_TILT_DEG = 1.0
+#: The joint fit leaves out a track whose residual RMS under the rigid spin is beyond this multiple of the median of
+#: its pose's tracks: it does not turn with the spin (:func:`joint._not_turning`). Gaussian pixel noise keeps every
+#: track within about 2x the median; the two such tracks of the ambient benchmark's UR5 photo seed 2 were 92-100x.
+NOT_TURNING_RATIO = 10.0
 #: A twin pose (see :func:`twin_pose`) is kept as a second start when LM leaves it at least this far (deg)
 #: from the best start and its image-axis error is below this multiple of the best (+ 1 px^2).
 TWIN_MIN_ANGLE_DEG = 10.0
