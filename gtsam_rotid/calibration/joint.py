@@ -51,6 +51,7 @@ from .stage1 import (
     _track_correlation,
     _track_offset_meat,
     _track_stats,
+    _without_tracks,
 )
 from .stage2 import (
     _axis_consistency,
@@ -299,8 +300,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                                                    sync=sync, solved=solved)
         turning = _not_turning(keys, values)
         if turning:  # tracks the rigid spin cannot fit: left out (named), the round's graph built again without them
-            stage1 = [s if k not in turning else replace(s, outliers={**s.outliers, **turning[k]})
-                      for k, s in enumerate(stage1)]
+            stage1 = [s if k not in turning else _without_tracks(s, turning[k]) for k, s in enumerate(stage1)]
             graph, values, keys = _joint_graph(builder, camera, measurements, setup, stage1, used, pose, sigmas,
                                                circles, lines, fk_start=start, rest=rest, intrinsics=intrinsics,
                                                sync=sync, solved=solved)
@@ -821,8 +821,8 @@ def _not_turning(keys, values) -> dict[int, dict[int, FitRejection]]:
         far = [j for j in np.argsort(-rms)[:len(kk.tracks) - 2] if rms[j] > NOT_TURNING_RATIO * median]
         if far and median > 0.0:
             out[k] = {int(kk.tracks[j]): FitRejection(
-                f"does not turn with the spin ({rms[j]:.3g} px RMS under the rigid spin, {rms[j] / median:.3g}x the "
-                "median of its pose's tracks)") for j in far}
+                f"does not turn with the spin: residual RMS {rms[j]:.3g} px under the rigid spin, "
+                f"{rms[j] / median:.3g}x the median of its pose's tracks") for j in far}
     return out
 
 

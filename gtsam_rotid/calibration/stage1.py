@@ -78,6 +78,22 @@ class _Stage1:
     offset_axis_cov: np.ndarray | None = None
 
 
+def _without_tracks(s: _Stage1, why: dict[int, str]) -> _Stage1:
+    """``s`` with the tracks ``why`` names (track -> reason) among its outliers and out of its kept tracks, circles,
+    statistics and point count (what a measurement's report counts); its line, noise and graph as they were."""
+    keys = s.keys
+    kept = [j for j in keys.tracks if j not in why]
+    parallel = len(keys.circles) == len(keys.tracks)  # (one circle variable per track; none in the projected model)
+    keys = replace(keys, tracks=kept,
+                   circles=[c for c, j in zip(keys.circles, keys.tracks, strict=True) if j not in why] if parallel
+                   else keys.circles,
+                   circle_factors=[f for f, j in zip(keys.circle_factors, keys.tracks, strict=True) if j not in why]
+                   if len(keys.circle_factors) == len(keys.tracks) else keys.circle_factors)
+    stats = {j: v for j, v in s.stats.items() if j not in why}
+    return replace(s, keys=keys, circles={j: c for j, c in s.circles.items() if j not in why}, stats=stats,
+                   n_points=sum(n for _, n in stats.values()), outliers={**s.outliers, **why})
+
+
 def _circles(keys: MeasurementKeys, values) -> list[np.ndarray]:
     """(d, r) of each of a measurement's tracks (in ``keys.tracks`` order) at the values."""
     if keys.coaxial is not None:
