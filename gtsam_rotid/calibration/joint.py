@@ -814,14 +814,12 @@ def _not_turning(keys, values) -> dict[int, dict[int, FitRejection]]:
         f = kk.coaxial
         if not isinstance(f, RigidLineFactor) or len(kk.tracks) < 3:
             continue
-        e = f.residuals(values)
-        rms = np.sqrt(np.bincount(f.tracks.track, weights=np.sum(e * e, axis=1), minlength=len(kk.tracks))
-                      / np.maximum(np.bincount(f.tracks.track, minlength=len(kk.tracks)), 1))
+        rms = f.track_rms(values)
         median = float(np.median(rms))
         far = [j for j in np.argsort(-rms)[:len(kk.tracks) - 2] if rms[j] > NOT_TURNING_RATIO * median]
         if far and median > 0.0:
             out[k] = {int(kk.tracks[j]): FitRejection(
-                f"does not turn with the spin: residual RMS {rms[j]:.3g} px under the rigid spin, "
+                f"does not turn with the spin: residual RMS {rms[j]:.3g} px per coordinate under the rigid spin, "
                 f"{rms[j] / median:.3g}x the median of its pose's tracks") for j in far}
     return out
 
