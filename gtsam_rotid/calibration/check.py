@@ -27,7 +27,7 @@ from ..uncertainty import chi2_sf
 from .lm import _builder
 from .options import CalibrationError, CalibrationOptions, with_tracker_defaults
 from .setup import _setup
-from .stage1 import _checked, _stage1, _stage1_measurement, _start_line, stage1_builders
+from .stage1 import _checked, _readmit_tracks, _stage1, _stage1_measurement, _start_line, stage1_builders
 from .stage2 import _axis_distances
 
 #: The calibration still holds unless the new spins' χ² is beyond this P value (the 99.9 % point).
@@ -355,14 +355,19 @@ def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
     poor = [k for k, s in enumerate(best) if len(best) < 3 or not s.sigma2 <= POOR_FIT_SIGMA_RATIO**2 * median]
     if poor:
         builders = stage1_builders(arm, camera, options)
+        trial, refitted = list(best), []
         for k in poor:
             try:
-                again = _stage1_measurement(builders, measurements[k], k, pose, setup.prepared[k], options,
-                                            _start_line(camera, setup.axes[k], None, pose), settle=True)
+                trial[k] = _stage1_measurement(builders, measurements[k], k, pose, setup.prepared[k], options,
+                                               _start_line(camera, setup.axes[k], None, pose), settle=True)
             except (RotIdError, RuntimeError, np.linalg.LinAlgError):
                 continue
-            if _better(again, best[k]):
-                best[k] = again
+            refitted.append(k)
+        # the tracks a refit rejected for their fit re-tested at its final line, as _stage1 does for every fit
+        trial = _readmit_tracks(builders, measurements, pose, setup, trial, options, only=refitted)
+        for k in refitted:
+            if _better(trial[k], best[k]):
+                best[k] = trial[k]
     builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
     return [_checked(builder, measurements[k], k, pose, setup.prepared[k], s, options, setup)
             for k, s in enumerate(best)]

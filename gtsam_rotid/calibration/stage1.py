@@ -470,9 +470,11 @@ def _retest(builder: RotIdGraph, measurement, k, pose, prepared, s: _Stage1, opt
     return _track_stats(graph, keys, values), dict(zip(keys.tracks, _circles(keys, values), strict=True)), pull
 
 
-def _readmit_tracks(builders, measurements, pose, setup: _Setup, stage1: list[_Stage1], options) -> list[_Stage1]:
+def _readmit_tracks(builders, measurements, pose, setup: _Setup, stage1: list[_Stage1], options,
+                    only=None) -> list[_Stage1]:
     """Re-test at each measurement's final line the tracks stage 1 rejected for their fit, allowing for the spread
-    of the tracks' noise levels (:func:`_noise_spread`), and fit again with those that pass.
+    of the tracks' noise levels (:func:`_noise_spread`, over every measurement), and fit again with those that pass;
+    ``only``: the measurements to re-test (default all; the others are already re-tested fits).
 
     Stage 1's rounds test every track at the one median noise level, against a line that the outliers may still
     pull: that cleans wrong arcs out, but also rejects good tracks of a tracker's noisier dots (10-20 % of the
@@ -483,7 +485,8 @@ def _readmit_tracks(builders, measurements, pose, setup: _Setup, stage1: list[_S
     instead of 0.4 mm without this test).
     """
     tested = {k: _retest(builders[0], measurements[k], k, pose, setup.prepared[k], s, options)
-              for k, s in enumerate(stage1) if any(isinstance(why, FitRejection) for why in s.outliers.values())}
+              for k, s in enumerate(stage1) if (only is None or k in only)
+              and any(isinstance(why, FitRejection) for why in s.outliers.values())}
     if not tested:
         return stage1
     spread = _noise_spread([tested[k][0] if k in tested else s.stats for k, s in enumerate(stage1)], options)
