@@ -332,20 +332,31 @@ def _jackknife(builder: RotIdGraph, measurement, k: int, pose: gtsam.Pose3, prep
     cost at the fit. Where the line rests on a few tracks whose arcs are short, the cost is far from quadratic
     and one or two tracks can hold a direction alone; the fit then moves far more when they are left out than
     the curvature says (6 poses of 25 degree corner arcs: one line 1-1.5 px off at its test points, 7 sigma of its
-    linearised covariance, 1 sigma of this jackknife's). The tracks are split into ``JACKKNIFE_GROUPS`` groups
-    (round robin), the line refitted without each group from the fit, and ``C_j = (G - 1) / G sum (t_g - t)(t_g -
-    t)^T`` of the tangent offsets ``t_g``. Whitened by the linearised covariance, an eigenvalue of ``C_j`` counts
-    only beyond the 99.9 % point of its scatter under the model (a chi-square of G - 1 dof over G - 1,
-    Bonferroni over 3 directions: ``JACKKNIFE_Z``), so that the jackknife's noise does not inflate a good
-    measurement's covariance.
+    linearised covariance, 1 sigma of this jackknife's). The tracks are split into ``JACKKNIFE_GROUPS`` groups (one
+    track each up to that many; else round robin over the measurement's usable tracks, kept or not, so that a track
+    kept or left out changes one group only), the line refitted without each group from the fit, and ``C_j = (G - 1)
+    / G sum (t_g - t)(t_g - t)^T`` of the tangent offsets ``t_g``. Whitened by the linearised covariance, an
+    eigenvalue ``m`` of ``C_j`` counts only near or beyond the 99.9 % point ``l`` of its scatter under the model (a
+    chi-square of G - 1 dof over G - 1, Bonferroni over 3 directions: ``JACKKNIFE_Z``), so that the jackknife's
+    noise does not inflate a good measurement's covariance: that direction's variance grows by ``m - 1`` from ``l``
+    on, by a share of it rising from none at ``m - 1 = (l - 1) / 2`` (:func:`jackknife_growth`). A threshold alone
+    made the covariance jump by ``l - 1`` times as ``m`` crossed it, and with it verdicts: one track more or fewer
+    in a rendered Jaco2 photo scene (its pixels moved by 1e-6 px) left a measurement out or kept it, and called the
+    result usable or not.
     """
     tracks = list(s.keys.tracks)
-    groups = min(len(tracks), JACKKNIFE_GROUPS)
+    if len(tracks) <= JACKKNIFE_GROUPS:  # one track per group
+        members = [[j] for j in tracks]
+    else:
+        rank = {j: i for i, j in enumerate(sorted(set(prepared.usable) | set(tracks)))}
+        members = [[j for j in tracks if rank[j] % JACKKNIFE_GROUPS == g] for g in range(JACKKNIFE_GROUPS)]
+        members = [group for group in members if group]
+    groups = len(members)
     if groups < JACKKNIFE_MIN_GROUPS or s.keys.coaxial is None or s.rotation_cov is None:
         return s
     offsets = []
-    for g in range(groups):
-        skip = {**s.outliers, **{j: "jackknife" for j in tracks[g::groups]}}
+    for left_out in members:
+        skip = {**s.outliers, **{j: "jackknife" for j in left_out}}
         try:
             graph, keys, result = _stage1_round(builder, measurement, k, pose, prepared, skip, s.rotation,
                                                 dict(s.circles), options)[:3]
@@ -363,14 +374,22 @@ def _jackknife(builder: RotIdGraph, measurement, k: int, pose: gtsam.Pose3, prep
     root = V * np.sqrt(w)  # rotation_cov = root root^T
     inverse_root = (V / np.sqrt(w)).T
     m, U = np.linalg.eigh(inverse_root @ jack @ inverse_root.T)
-    limit = chi2_quantile(groups - 1, JACKKNIFE_Z) / (groups - 1)
-    grow = np.where(m > limit, m - 1.0, 0.0)
+    grow = jackknife_growth(m, chi2_quantile(groups - 1, JACKKNIFE_Z) / (groups - 1))
     if not grow.any():
         return s
     excess = root @ ((U * grow) @ U.T) @ root.T
     cov_R = s.rotation_cov + excess
     _, J = image_line_from_rot3(builder.camera.K, s.rotation)
     return replace(s, image_axis_cov=J @ cov_R @ J.T, rotation_cov=cov_R, excess=excess)
+
+
+def jackknife_growth(m: np.ndarray, limit: float) -> np.ndarray:
+    """How much :func:`_jackknife` grows each whitened direction's variance, from the jackknife's eigenvalue ``m``
+    there and the 99.9 % point ``limit`` of its scatter under the model: ``m - 1`` from ``limit`` on, ``(m - 1)``
+    times a share rising linearly from 0 at ``m - 1 = (limit - 1) / 2`` to 1 at ``limit`` (continuous in ``m``), none
+    below."""
+    excess, half = np.maximum(np.asarray(m, dtype=float) - 1.0, 0.0), 0.5 * (limit - 1.0)
+    return excess * np.clip((excess - half) / half, 0.0, 1.0)
 
 
 def _thin(prepared, s: _Stage1) -> bool:
