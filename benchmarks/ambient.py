@@ -39,7 +39,8 @@ table (tracker columns as saved), in seconds: for re-evaluating an estimator cha
 ``CalibrationOptions``, ``--method
 weighted|paper`` with that estimator (default ``joint``); ``--json FILE``
 also writes every row's numbers. ``--load DIR --synced`` adds each spin's joint readings (:func:`with_readings`)
-and calibrates synced.
+and calibrates synced; ``--load DIR --jitter-px 1e-6`` adds that much noise to every tracked pixel
+(:func:`jittered`): an answer that changes with it hangs on rounding.
 
 ``--poses planned`` takes the arm poses from :func:`gtsam_rotid.planning.plan_poses` at a guess of the camera (the
 true pose moved by a random 30 mm and 3 degrees per axis, as ``benchmarks/planning.py``) instead of the simulator's
@@ -68,7 +69,7 @@ import numpy as np
 from gtsam_rotid import meshrender as mr
 from gtsam_rotid import simulate
 from gtsam_rotid.camera import Camera
-from gtsam_rotid.dataset import Dataset, Measurement, SpinReadings
+from gtsam_rotid.dataset import Dataset, Measurement, SpinReadings, Track
 from gtsam_rotid.errors import InputError, RotIdError
 from gtsam_rotid.estimate import CalibrationOptions, calibrate
 from gtsam_rotid.factors import axis_point_residuals
@@ -253,10 +254,19 @@ def with_readings(tracked: Dataset, seed: int, config: SceneConfig | None = None
     return Dataset(tracked.arm, tracked.camera, measurements, metadata=tracked.metadata)
 
 
+def jittered(tracked: Dataset, sigma_px: float) -> Dataset:
+    """The dataset with Gaussian noise of ``sigma_px`` added to every track's pixels (measurement k's track j from
+    the generator seeded ``1000 k + j``): with a tiny sigma, whether an answer hangs on rounding."""
+    measurements = [m.replace(tracks=[Track(np.asarray(t.pixels) + np.random.default_rng(1000 * k + j).normal(
+        0.0, sigma_px, np.shape(t.pixels)), t.frames) for j, t in enumerate(m.tracks)]) for k, m in enumerate(tracked)]
+    return Dataset(tracked.arm, tracked.camera, measurements, metadata=tracked.metadata)
+
+
 def load_scene(root: str, options: CalibrationOptions | None = None, method: str = "joint",
-               synced: bool = False) -> dict:
+               synced: bool = False, jitter_px: float = 0.0) -> dict:
     """Re-run the calibration of one scene written by ``--save``: the row as :func:`run_scene` gives it (with
-    ``synced``, the spins' joint readings added, :func:`with_readings`)."""
+    ``synced``, the spins' joint readings added, :func:`with_readings`; with ``jitter_px``, its pixels
+    :func:`jittered`)."""
     root = Path(root)
     document = json.loads((root / SCENE_FILE).read_text(encoding="utf-8"))
     row = {k: v for k, v in document["tracking"].items() if k not in ("refused", "err_mm")}
@@ -271,6 +281,8 @@ def load_scene(root: str, options: CalibrationOptions | None = None, method: str
         return row
     if "tracker" not in tracked.metadata:  # saved before datasets named their tracker: the default's
         tracked.metadata["tracker"] = tracker_metadata(TrackerParams())
+    if jitter_px > 0.0:
+        tracked = jittered(tracked, jitter_px)
     if synced:
         tracked = with_readings(tracked, int(row.get("seed", 0)))
     return calibrate_scene(row, tracked, gtsam.Pose3(np.array(document["arm_T_camera"], dtype=float)), options,
@@ -409,14 +421,17 @@ def main(argv=None) -> int:
     parser.add_argument("--json", default=None, metavar="FILE", help="also write the rows (every number) to FILE")
     parser.add_argument("--synced", action="store_true", help="with --load: add each spin's joint readings (the "
                         "simulator's spin read at 100/s, 0.02 deg noise) and calibrate synced")
+    parser.add_argument("--jitter-px", type=float, default=0.0, metavar="SIGMA",
+                        help="with --load: add Gaussian noise of SIGMA px to every tracked pixel (1e-6: does an "
+                        "answer hang on rounding?)")
     parser.add_argument("--poses", default="sampled", choices=("sampled", "planned"),
                         help="the simulator's sampled arm poses, or gtsam_rotid.planning's at a perturbed guess")
     args = parser.parse_args(argv)
     options = CalibrationOptions(axis_floor_px=args.axis_floor_px, track_offset_px=args.track_offset_px,
                                  **({} if args.spin_model is None else {"spin_model": args.spin_model}))
     started = time.perf_counter()
-    if args.synced and args.load is None:
-        parser.error("--synced re-calibrates saved scenes: give --load DIR")
+    if (args.synced or args.jitter_px) and args.load is None:
+        parser.error("--synced and --jitter-px re-calibrate saved scenes: give --load DIR")
     if args.load is not None:
         roots = sorted(p.parent for p in Path(args.load).glob(f"*/{SCENE_FILE}"))
         if not roots:
@@ -424,10 +439,11 @@ def main(argv=None) -> int:
         print(f"{len(roots)} saved scenes from {args.load}: calibration only", flush=True)
         if args.jobs > 1:
             from joblib import Parallel, delayed
-            rows = Parallel(n_jobs=args.jobs)(delayed(load_scene)(str(r), options, args.method, args.synced)
+            rows = Parallel(n_jobs=args.jobs)(delayed(load_scene)(str(r), options, args.method, args.synced,
+                                                                  args.jitter_px)
                                               for r in roots)
         else:
-            rows = [load_scene(str(r), options, args.method, args.synced) for r in roots]
+            rows = [load_scene(str(r), options, args.method, args.synced, args.jitter_px) for r in roots]
         _report(rows, args.json, started)
         return 0
     if args.quick:
