@@ -430,6 +430,8 @@ def main(argv=None) -> int:
     options = CalibrationOptions(axis_floor_px=args.axis_floor_px, track_offset_px=args.track_offset_px,
                                  **({} if args.spin_model is None else {"spin_model": args.spin_model}))
     started = time.perf_counter()
+    if not args.jitter_px >= 0.0:
+        parser.error(f"--jitter-px must be a noise sigma >= 0 px, got {args.jitter_px}")
     if (args.synced or args.jitter_px) and args.load is None:
         parser.error("--synced and --jitter-px re-calibrate saved scenes: give --load DIR")
     if args.load is not None:
