@@ -38,8 +38,8 @@ class PoseFile(NamedTuple):
     pose_offsets_covariance: np.ndarray | None = None
     #: a result of ours: each track's own offset (px) its covariance assumed
     track_offset_px: float | None = None
-    #: a result of ours whose image axes disagreed beyond their noise: the scale of their noise its covariance
-    #: carries (``axis_consistency.scale``); 1 otherwise
+    #: a result of ours: the scale of its image axes' noise that its covariance carries (``axis_consistency.scale``,
+    #: where their scatter widened it); 1 otherwise
     axis_scale: float = 1.0
 
 

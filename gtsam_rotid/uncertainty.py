@@ -283,6 +283,26 @@ def chi2_sf(x: float, dof: int) -> float:
     return 0.5 * math.erfc(z / math.sqrt(2.0))
 
 
+def chi2_isf(p: float, dof: int) -> float:
+    """The x with P(χ²_dof >= x) = ``p`` (the inverse of :func:`chi2_sf`, by bisection on it; infinite at ``p`` 0,
+    0 at ``p`` 1)."""
+    if dof <= 0 or not 0.0 <= p <= 1.0:
+        return math.nan
+    if p <= 0.0:
+        return math.inf
+    if p >= 1.0:
+        return 0.0
+    low, high = 0.0, float(dof) + 10.0 * math.sqrt(2.0 * dof) + 10.0
+    while chi2_sf(high, dof) > p:
+        high *= 2.0
+    for _ in range(100):  # the tail falls in x
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if chi2_sf(middle, dof) > p else (low, middle)
+        if high - low <= 1e-12 * high:
+            break
+    return 0.5 * (low + high)
+
+
 def chi2_mean_interval(dof: int, n: int, z: float = 1.959964) -> tuple[float, float]:
     """Interval of the mean of n chi-square(dof) samples (e.g. a NEES over n trials; 95 % at the default normal
     quantile z, 99.9 % at z = 3.29), by Wilson-Hilferty on chi-square(n dof)."""

@@ -74,7 +74,8 @@ def summary(result: CalibrationResult) -> str:
     else:
         lines.append("  COVARIANCE UNUSABLE: the arm poses do not determine the calibration")
     lines.extend("  " + line for line in observability_words(result.observability))
-    if result.axis_consistency is not None and not result.axis_consistency.consistent:
+    if result.axis_consistency is not None and (not result.axis_consistency.consistent
+                                                 or result.axis_consistency.scale != 1.0):
         lines.append("  " + axis_consistency_sentence(result.axis_consistency))
     lines.append("  " + kinematics_words(result.joint_sigma_deg, result.joint_offsets is not None))
     lines.extend("  " + line for line in joint_offsets_words(
@@ -165,6 +166,10 @@ def axis_consistency_sentence(c: AxisConsistency) -> str:
     floor = ("" if c.floor_px <= 0.0 else
              f", or, in the directions where that is larger, each axis is given a floor of {c.floor_px:.2g} px "
              "(a bias the tracks of one pose share does not shrink with more tracks)")
+    if c.consistent:
+        return (f"{head}: consistent with the pixel noise, but above its mean: the covariance is scaled by "
+                f"{c.scale:.3g} (a share of χ²/(dof − 2), the scale's mean given the scatter, rising to all of it at "
+                "the test's level)" + floor + tail)
     return (f"{head}: the axes disagree beyond their pixel noise (errors shared across tracks: a tracker "
             f"bias, joint angles, kinematics or intrinsics); the covariance is scaled by {c.scale:.3g} "
             + ("(χ²/(dof − 2): the scale's mean given the scatter)" if c.dof > 2 else "(χ²/dof)") + floor + tail)

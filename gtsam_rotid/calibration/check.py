@@ -121,9 +121,9 @@ class CheckResult:
 
 def axis_scale_of(result) -> float:
     """A calibration result's scale of its image axes' noise for :func:`check_calibration` (``axis_scale``): its
-    ``axis_consistency.scale`` where its axes disagreed beyond their noise, else 1."""
+    ``axis_consistency.scale`` (1 where its axes' scatter did not widen its covariance)."""
     c = getattr(result, "axis_consistency", None)
-    return float(c.scale) if c is not None and not c.consistent and np.isfinite(c.scale) and c.scale > 1 else 1.0
+    return float(c.scale) if c is not None and np.isfinite(c.scale) and c.scale > 1 else 1.0
 
 
 def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, Camera, list[Measurement]], *,

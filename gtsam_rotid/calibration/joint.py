@@ -394,7 +394,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         out = replace(out, intrinsics_shapes=shapes)
     if intrinsics is not None:
         c = out.axis_consistency
-        if intrinsics_covariance is not None and c is not None and not c.consistent:
+        if intrinsics_covariance is not None and c is not None:
             intrinsics_covariance = intrinsics_covariance * max(c.scale, 1.0)  # the axes' scatter scales them too
         given = intrinsics.given.intrinsics
         out = replace(out, refined_intrinsics=options.refine_intrinsics, camera=camera,
@@ -413,7 +413,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
                 for n, (c, now, d) in enumerate(zip(sync.clocks, sync.now, clocks, strict=True))})
     if offsets is not None:
         c = out.axis_consistency
-        if offsets_covariance is not None and c is not None and not c.consistent:
+        if offsets_covariance is not None and c is not None:
             offsets_covariance = offsets_covariance * max(c.scale, 1.0)  # the axes' scatter scales them too
             cross = cross * max(c.scale, 1.0)
         values = dict(zip(offsets.names(arm), (offsets.start + rest).tolist(), strict=True))
@@ -516,7 +516,7 @@ def _time_offset_sigma(graph, result: gtsam.Values, sync: _Sync, i: int, correla
     except RuntimeError:
         return {"time_offset_sigma_s": None}
     c = out.axis_consistency
-    scale = max(c.scale, 1.0) if c is not None and not c.consistent else 1.0
+    scale = max(c.scale, 1.0) if c is not None else 1.0
     variance = float(np.asarray(variance).reshape(-1)[0]) * scale
     dated = [keys[k].coaxial.dating(result) for k, n in zip(sync.measurements, sync.clock_of, strict=True)
              if n == i and k in keys and isinstance(keys[k].coaxial, RigidLineFactor)]

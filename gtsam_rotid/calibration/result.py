@@ -125,14 +125,23 @@ class AxisConsistency:
     ``chi2``, ``p_value`` 0: the FK axes do not project at the estimate). Errors the per-track noise model does not
     describe (a sub-pixel bias the tracker shares across a measurement's tracks, joint-angle or kinematic errors, wrong
     intrinsics) move whole axes and show here, while every pixel residual looks white. When the test fails
-    (``p_value`` < ``CalibrationOptions.axis_consistency_p``) the axes' covariance is taken to be understated by a
-    common factor k, which their scatter measures, and the covariance is multiplied by ``scale`` =
+    (``p_value`` < ``CalibrationOptions.axis_consistency_p``, ``consistent`` False) the axes' covariance is taken to
+    be understated by a common factor k, which their scatter measures, and the covariance is multiplied by ``scale`` =
     ``chi2 / (dof - 2)``: the mean of k given the scatter (chi2 ~ k chi2(dof), Jeffreys prior 1/k: an inverse-gamma
     posterior). It is the Birge ratio ``chi2 / dof`` (as the Particle Data Group scales inconsistent measurements)
     times ``dof / (dof - 2)``: with k estimated from ``dof`` degrees of freedom the error is Student-t, not Gaussian,
     and this is the Gaussian with its second moment (with six measurements, 6 dof, the Birge ratio alone leaves the
     error's chi-square 1.5x its dof on average). With 2 dof (four measurements) k's mean is unbounded: the scale is
     then the Birge ratio and the result is not trusted (``CalibrationResult.untrusted``: ``unmeasured_scatter``).
+
+    Below the test's threshold ``c0`` (the chi-square at that P) the same reading is taken in part, so that the
+    covariance does not jump where the verdict turns (a Jaco2 text scene at P 0.26 against a level of 0.2 kept its
+    bare covariance, its error at chi-square 40 under it, where at P 0.19 it would have had all of the scale and the
+    floor below): of the excess ``chi2 - (dof - 2)`` a share rising linearly in the chi-square from 0 at upper-tail
+    probability min(0.5, 4 x the level) (``tuning.AXIS_SCALE_RAMP``) to all of it at ``c0``
+    (:func:`.stage2.axis_excess`). ``scale`` is then ``1 + share x excess / (dof - 2)``, and the floor below takes
+    ``share x excess`` off the chi-square instead of bringing it to ``dof - 2``. ``consistent`` stays the test's
+    verdict, and what it decides (a result whose axes fail is not trusted without its model checks) is unchanged.
 
     A common factor is one reading of the scatter; a common floor is the other: a bias that a measurement's tracks
     share (a tracker's drift as the surface turns) does not shrink with more tracks, so the axis of
@@ -153,6 +162,9 @@ class AxisConsistency:
     floor_px: float = 0.0
     #: the pose covariance (6x6, Pose3 tangent) that floor adds; used when the result is assembled, not saved
     floor_covariance: np.ndarray | None = field(default=None, repr=False, compare=False)
+    #: the test's verdict: ``p_value`` at or above the level it was made at (None: read off ``scale`` == 1, as in
+    #: results saved before the scale was continuous in the chi-square)
+    passed: bool | None = None
     #: the same axes, every measurement's (the left-out ones too), tested with the camera's focal length and principal
     #: point free (:func:`gtsam_rotid.calibration.modelcheck.intrinsics_check`); None where not run
     intrinsics: dict | None = None
@@ -162,11 +174,12 @@ class AxisConsistency:
 
     @property
     def consistent(self) -> bool:
-        return self.scale == 1.0
+        """The axes passed the test (their scatter may still have widened the covariance a little, see above)."""
+        return self.scale == 1.0 if self.passed is None else bool(self.passed)
 
     def to_dict(self) -> dict:
         out = {"chi2": self.chi2, "dof": self.dof, "p_value": self.p_value, "scale": self.scale,
-               "floor_px": self.floor_px}
+               "floor_px": self.floor_px, "consistent": self.consistent}
         if self.intrinsics is not None:
             out["intrinsics"] = dict(self.intrinsics)
         if self.kinematics is not None:
@@ -176,9 +189,11 @@ class AxisConsistency:
     @classmethod
     def from_dict(cls, data: dict) -> AxisConsistency:
         intrinsics, kinematics = data.get("intrinsics"), data.get("kinematics")
+        passed = data.get("consistent")
         return cls(float(data["chi2"]), int(data["dof"]), float(data["p_value"]), float(data["scale"]),
                    float(data.get("floor_px", 0.0)), intrinsics=None if intrinsics is None else dict(intrinsics),
-                   kinematics=None if kinematics is None else dict(kinematics))
+                   kinematics=None if kinematics is None else dict(kinematics),
+                   passed=None if passed is None else bool(passed))
 
 
 #: An alternative whose chi-square exceeds the estimate's by less than this (likelihood ratio 1000:1) makes the

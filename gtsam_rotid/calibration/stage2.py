@@ -25,6 +25,7 @@ from ..graph import (
 )
 from ..uncertainty import (
     analyse_observability,
+    chi2_isf,
     chi2_sf,
     loewner_max,
     pose_information,
@@ -44,6 +45,7 @@ from .stage1 import (
     _test_pixels,
 )
 from .tuning import (
+    AXIS_SCALE_RAMP,
     DISTINCT_Z,
     MIN_STRONG,
     POSE_KEY,
@@ -205,12 +207,29 @@ def _axis_consistency(rows, floors: list | None, options, fitted: int = 0) -> Ax
     if not np.isfinite(chi2):  # the FK axes do not even project: no agreement to measure
         return AxisConsistency(np.inf, dof, 0.0, np.inf)
     p = chi2_sf(chi2, dof)
-    if p >= options.axis_consistency_p:
-        return AxisConsistency(chi2, dof, p, 1.0)
+    passed = bool(p >= options.axis_consistency_p)
     if dof <= 2:  # k's mean is unbounded with 2 dof: the Birge ratio (and the result is not trusted)
-        return AxisConsistency(chi2, dof, p, chi2 / dof)
-    floor, increment = _axis_floor(rows, dof - 2)
-    return AxisConsistency(chi2, dof, p, chi2 / (dof - 2), floor, increment)
+        return AxisConsistency(chi2, dof, p, 1.0 if passed else chi2 / dof, passed=passed)
+    excess = axis_excess(chi2, dof, options.axis_consistency_p)
+    if excess <= 0.0:
+        return AxisConsistency(chi2, dof, p, 1.0, passed=passed)
+    floor, increment = _axis_floor(rows, chi2 - excess)
+    return AxisConsistency(chi2, dof, p, 1.0 + excess / (dof - 2), floor, increment, passed=passed)
+
+
+def axis_excess(chi2: float, dof: int, level: float) -> float:
+    """The part of the axes' chi-square that :class:`AxisConsistency` reads as their noise understated: of the excess
+    ``chi2 - (dof - 2)`` over k's mean of 1, a share rising linearly from 0 at the chi-square of upper-tail probability
+    min(0.5, AXIS_SCALE_RAMP x ``level``) to all of it at the test's threshold (the chi-square at ``level``; none at
+    ``level`` 0, the test switched off), so that the scale and the floor grow continuously with the scatter
+    (dof > 2)."""
+    if level <= 0.0 or not np.isfinite(chi2):
+        return 0.0
+    start, threshold = chi2_isf(min(0.5, AXIS_SCALE_RAMP * level), dof), chi2_isf(level, dof)
+    if chi2 <= start:
+        return 0.0
+    share = min((chi2 - start) / (threshold - start), 1.0) if threshold > start else 1.0
+    return float(share * max(chi2 - (dof - 2), 0.0))
 
 
 def _axis_rows(camera, setup: _Setup, stage1, used: list[int], pose: gtsam.Pose3,

@@ -126,13 +126,15 @@ def test_track_correlation_with_the_intrinsics_free_stays_a_bounded_correction(m
     pass their test by chance (12 poses of 12 s spins: one of them, a 64 % excess along one direction). Confined
     to the line's block, that meat made the pose's 1 sigma ten times the plain covariance's (30 mm, the error 3.9
     mm) and fx's larger than its prior's, because the factor ties the line to the intrinsics; over both, the
-    correction stays a modest widening, as it is with the camera fixed."""
+    correction stays a modest widening, as it is with the camera fixed. (The axes' scatter is left out of both: at
+    P 0.014 it scales them by 1.87 and gives them a floor, which the larger, direction by direction, of the two mixes
+    differently into each.)"""
     from test_stage1 import no_track_correlation
 
     from gtsam_rotid.calibration import joint as joint_stage
 
     dataset, truth = simulate.reference_scene(seed=0, n_measurements=12, duration=12.0)
-    options = CalibrationOptions(refine_intrinsics=True)
+    options = CalibrationOptions(refine_intrinsics=True, axis_consistency_p=0.0)
     robust = calibrate(dataset, options=options)
     monkeypatch.setattr(joint_stage, "_track_correlation", no_track_correlation)
     plain = calibrate(dataset, options=options)

@@ -186,6 +186,58 @@ def test_axes_that_disagree_beyond_their_noise_scale_the_covariance(noisy_scene,
     assert CalibrationResult.load(tmp_path / "r.json").axis_consistency == test
 
 
+def test_the_axes_scale_and_floor_grow_continuously_with_their_scatter(noisy_scene):
+    """Where the axes' test turns, the covariance does not jump: a level just above the axes' P (they fail) and just
+    below it (they pass) give the same covariance to 1e-3, and the scale and floor rise continuously from nothing at
+    min(0.5, 4 x the level)'s chi-square (AxisConsistency). It had switched from the bare covariance to all of the
+    scale (here 2.5) and the floor at the level's P: a Jaco2 text scene at P 0.26 against 0.2 kept its bare
+    covariance with its error at chi-square 40 under it."""
+    from gtsam_rotid.estimate import CalibrationOptions
+    from gtsam_rotid.uncertainty import chi2_isf
+
+    dataset, _ = noisy_scene
+    p = calibrate(dataset, method="weighted").axis_consistency.p_value  # measured: chi2 10.2, 6 dof, P 0.12
+    results = {level: calibrate(dataset, method="weighted", options=CalibrationOptions(axis_consistency_p=level))
+               for level in (p * (1.0 + 1e-6), p * (1.0 - 1e-6), 0.5 * p, 0.25 * p)}
+    failed, passed, half, quarter = (results[k].axis_consistency for k in sorted(results, reverse=True))
+    assert not failed.consistent and passed.consistent and half.consistent and quarter.consistent
+    assert failed.scale == pytest.approx(failed.chi2 / (failed.dof - 2)) and failed.floor_px > 0.0
+    assert passed.scale == pytest.approx(failed.scale, rel=1e-3) and passed.floor_px == pytest.approx(
+        failed.floor_px, rel=1e-3)
+    np.testing.assert_allclose(results[p * (1.0 - 1e-6)].covariance, results[p * (1.0 + 1e-6)].covariance, rtol=1e-3)
+    assert 1.0 < half.scale < passed.scale and 0.0 < half.floor_px < passed.floor_px  # part of it, halfway up
+    assert quarter.scale == 1.0 and quarter.floor_px == 0.0  # the ramp starts at P = 4 x 0.25 p: nothing yet
+    # and the share is the stated one: linear in the chi-square between the two points
+    start, threshold = chi2_isf(2.0 * p, half.dof), chi2_isf(0.5 * p, half.dof)
+    share = (half.chi2 - start) / (threshold - start)
+    assert half.scale == pytest.approx(1.0 + share * (half.chi2 - (half.dof - 2)) / (half.dof - 2), rel=1e-9)
+    for level, result in results.items():  # the words say which it is
+        words = summary(result)
+        if result.axis_consistency.scale == 1.0:
+            assert "covariance is scaled" not in words, level
+        else:
+            assert f"scaled by {result.axis_consistency.scale:.3g}" in words, level
+            assert ("consistent with the pixel noise, but above its mean" in words) is (
+                result.axis_consistency.consistent), level
+
+
+def test_the_axes_excess_is_continuous_and_off_at_level_zero():
+    from gtsam_rotid.uncertainty import chi2_isf
+
+    for dof in (3, 6, 40):
+        for level in (0.01, 0.2):
+            start, threshold = chi2_isf(min(0.5, 4.0 * level), dof), chi2_isf(level, dof)
+            assert stage2.axis_excess(start, dof, level) == pytest.approx(0.0, abs=1e-9)
+            below, above = (stage2.axis_excess(threshold + d, dof, level) for d in (-1e-9, 1e-9))
+            assert below == pytest.approx(above, abs=1e-6) and above == pytest.approx(threshold - (dof - 2))
+            x = np.linspace(0.0, 2.0 * threshold, 200)
+            excess = np.array([stage2.axis_excess(v, dof, level) for v in x])
+            assert np.all(np.diff(excess) >= -1e-12) and np.all(excess <= np.maximum(x - (dof - 2), 0.0) + 1e-12)
+            assert np.max(np.abs(np.diff(excess))) < 2.0 * (threshold - (dof - 2)) * (x[1] - x[0]) / (
+                threshold - start) + 1e-9  # no jump: the steepest step is the ramp's slope
+            assert stage2.axis_excess(2.0 * threshold, dof, 0.0) == 0.0  # the test switched off
+
+
 def test_axes_that_disagree_with_too_few_measurements_to_scale_are_not_trusted(noisy_scene):
     """With four measurements the axes' scatter has 2 dof: it shows that they disagree but cannot say by how much
     (the scale's mean is unbounded), so the result is not trusted, and the words say why and what to do."""
