@@ -167,7 +167,7 @@ def axis_consistency_sentence(c: AxisConsistency) -> str:
              f", or, in the directions where that is larger, each axis is given a floor of {c.floor_px:.2g} px "
              "(a bias the tracks of one pose share does not shrink with more tracks)")
     if c.consistent:
-        return (f"{head}: consistent with the pixel noise, but above its mean: the covariance is scaled by "
+        return (f"{head}: consistent with the pixel noise, but above its median: the covariance is scaled by "
                 f"{c.scale:.3g} (a share of χ²/(dof − 2), the scale's mean given the scatter, rising to all of it at "
                 "the test's level)" + floor + tail)
     return (f"{head}: the axes disagree beyond their pixel noise (errors shared across tracks: a tracker "

@@ -47,7 +47,7 @@ def test_a_textured_scene_whose_axes_share_a_bias_holds_its_covariance(monkeypat
     and the true pose are in ``tests/data``). The tracks' smooth drift moves its poses' image axes 0.2-0.3 px
     (3-4x their 1 sigma: no statistic inside a measurement sees it); scaled by a common factor the covariance
     left the error at chi-square 29 and called it usable. With the axes' common floor it holds the error. The
-    axes pass their test (P = 0.26 > 0.2) but lie above its mean, and the scale and floor take a share of their
+    axes pass their test (P = 0.26 > 0.2) but lie above its median, and the scale and floor take a share of their
     reading (AxisConsistency): when they switched on only below the level, no floor was applied here, the error was
     at chi-square 40 under the covariance, and only the tracks' shapes (another camera asked for) kept the result
     from being called usable."""

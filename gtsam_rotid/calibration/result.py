@@ -141,7 +141,8 @@ class AxisConsistency:
     probability min(0.5, 4 x the level) (``tuning.AXIS_SCALE_RAMP``) to all of it at ``c0``
     (:func:`.stage2.axis_excess`). ``scale`` is then ``1 + share x excess / (dof - 2)``, and the floor below takes
     ``share x excess`` off the chi-square instead of bringing it to ``dof - 2``. ``consistent`` stays the test's
-    verdict, and what it decides (a result whose axes fail is not trusted without its model checks) is unchanged.
+    verdict, and so do the verdicts that read it (a troubled result's restarts, the model checks' reading of the
+    scatter, ``unmeasured_scatter``).
 
     A common factor is one reading of the scatter; a common floor is the other: a bias that a measurement's tracks
     share (a tracker's drift as the surface turns) does not shrink with more tracks, so the axis of

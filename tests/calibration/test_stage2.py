@@ -217,7 +217,7 @@ def test_the_axes_scale_and_floor_grow_continuously_with_their_scatter(noisy_sce
             assert "covariance is scaled" not in words, level
         else:
             assert f"scaled by {result.axis_consistency.scale:.3g}" in words, level
-            assert ("consistent with the pixel noise, but above its mean" in words) is (
+            assert ("consistent with the pixel noise, but above its median" in words) is (
                 result.axis_consistency.consistent), level
 
 
