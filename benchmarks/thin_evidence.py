@@ -28,7 +28,9 @@ from gtsam_rotid.estimate import calibrate  # noqa: E402
 
 def line(label: str, result, truth) -> str:
     e = result.error_to(truth.arm_T_camera)
-    chi2 = float(e @ np.linalg.solve(result.covariance, e)) if result.covariance is not None else float("nan")
+    # (an undetermined result's covariance is the observability's, 1e12 along the free directions: no chi-square)
+    chi2 = float(e @ np.linalg.solve(result.covariance, e)) if result.covariance is not None \
+        and result.observability.is_observable else float("nan")
     verdict = "usable" if result.covariance_usable else "NOT usable " + str(sorted(result.untrusted))
     left = [k for k, m in enumerate(result.measurements) if not m.used]
     return (f"{label}: {verdict}; error {1000 * np.max(np.abs(e[3:])):.2f} mm, chi2 {chi2:.1f}; determined "
