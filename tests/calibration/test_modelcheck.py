@@ -314,8 +314,9 @@ def test_a_weak_measurements_wrong_axis_is_not_read_as_joint_offsets():
 def test_a_wrong_camera_whose_axes_pass_is_judged_by_the_shapes_at_their_own_noise():
     """Reference scene seed 8, 20 s spins, the camera file's focal length 5 % long: the axes pass their test
     (P ~ 0.02 > 0.01) but lie high in it, so the scale takes a share of their reading (2.2). The tracks' shapes ask
-    for a shorter focal length; judged at that partial scale they were excused and the result, 26 mm off at an error
-    chi-square of 2.6e4, was called usable. Where the axes pass, the shapes are judged at scale 1: flagged."""
+    for a shorter focal length; judged at that partial scale they were excused and the result, 34 mm and 0.7 deg
+    off at an error chi-square of 2.6e4, was called usable. Where the axes pass, the shapes are judged at scale 1:
+    flagged."""
     dataset, truth = simulate.reference_scene(seed=8, duration=20.0)
     result = calibrate(with_intrinsics(dataset, focal=1.05))
     c = result.axis_consistency
