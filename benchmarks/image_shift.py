@@ -38,8 +38,7 @@ def trial(level: float, index: int, duration: float, poses: int) -> dict:
     dataset, truth = simulate.reference_scene(seed=200 + index, duration=duration, n_measurements=poses)
     rng = np.random.default_rng([2000, index])
     shifted = Dataset(dataset.arm, dataset.camera, [
-        Measurement(m.joint_angles, [Track(Track.from_any(t).pixels + shift, Track.from_any(t).frames)
-                                     for t in m.tracks], name=m.name)
+        Measurement(m.joint_angles, [Track(t.pixels + shift, t.frames) for t in m.tracks], name=m.name)
         for m in dataset for shift in [level * rng.standard_normal(2)]])
     out = {}
     for setting, floor in zip(SETTINGS, (0.0, level), strict=True):

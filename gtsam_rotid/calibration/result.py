@@ -142,7 +142,7 @@ class AxisConsistency:
     (:func:`.stage2.axis_excess`). ``scale`` is then ``1 + share x excess / (dof - 2)``, and the floor below takes
     ``share x excess`` off the chi-square instead of bringing it to ``dof - 2``. ``consistent`` stays the test's
     verdict, and so do the verdicts that read it (a troubled result's restarts, the model checks' reading of the
-    scatter, ``unmeasured_scatter``).
+    scatter, ``unmeasured_scatter``, the scale at which the tracks' shapes are judged).
 
     A common factor is one reading of the scatter; a common floor is the other: a bias that a measurement's tracks
     share (a tracker's drift as the surface turns) does not shrink with more tracks, so the axis of

@@ -377,6 +377,12 @@ def _offsets_start(arm, camera, measurements, method, options, index) -> tuple[l
     return shifted(arm, measurements, joints, delta), OffsetsPrior(tuple(joints), delta, sigma)
 
 
+def _shapes_scale(c, explained: bool = False) -> float:
+    """The scale the tracks' shapes' reading of the camera is judged at (:func:`_checked_model`): the axes' where
+    their test fails and no camera change explains their scatter (``explained``), else 1."""
+    return 1.0 if c is None or c.consistent or explained else max(c.scale, 1.0)
+
+
 def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: CalibrationResult) -> CalibrationResult:
     """The result with its axes' test extended by :func:`modelcheck.intrinsics_check` and
     :func:`modelcheck.kinematics_check` (every measurement's axis, each at the pixel noise its report gives);
@@ -392,7 +398,7 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
     shapes = result.intrinsics_shapes
     if c is None or not result.observability.is_observable:
         return result if shapes is None else replace(result, intrinsics_shapes=_judged(
-            shapes, 1.0 if c is None or c.consistent else max(c.scale, 1.0)))
+            shapes, _shapes_scale(c)))
     camera = camera if result.camera is None else result.camera  # (refined intrinsics: the camera the fit found)
     sigma2 = {r.index: float(r.residual_rms_px) ** 2 for r in result.measurements
               if np.isfinite(r.residual_rms_px) and r.residual_rms_px > 0.0}
@@ -413,7 +419,7 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
         # disagree too (focal -2 %: scale 10), and that scale would hide it
         explained = intrinsics is not None and intrinsics.get("p_value") is not None and intrinsics["dof"] > 0 \
             and intrinsics["p_value"] >= LONG_ARC_CONSISTENCY_P
-        shapes = _judged(shapes, 1.0 if c.consistent or explained else max(c.scale, 1.0))
+        shapes = _judged(shapes, _shapes_scale(c, explained))
     return replace(result, axis_consistency=replace(c, intrinsics=intrinsics, kinematics=kinematics),
                    intrinsics_shapes=shapes)
 
