@@ -12,7 +12,14 @@ from .calibration.check import CheckResult
 from .calibration.evidence import short_arc_words
 from .calibration.offsets import HELD_BY_PRIOR
 from .calibration.options import MIN_MEASUREMENTS
-from .calibration.result import AMBIGUITY_CHI2, AxisConsistency, CalibrationResult, MeasurementReport, OutlierKind
+from .calibration.result import (
+    AMBIGUITY_CHI2,
+    IMAGE_SHIFT_PX,
+    AxisConsistency,
+    CalibrationResult,
+    MeasurementReport,
+    OutlierKind,
+)
 from .calibration.swaps import swap_sentence
 from .calibration.tuning import (
     LONG_ARC_CONSISTENCY_P,
@@ -93,6 +100,9 @@ def summary(result: CalibrationResult) -> str:
                                                       result.time_offsets))
     lines.extend("  " + line for line in readings_ignored_words(result.readings_ignored, result.method))
     lines.append("  " + tracking_words(result.axis_floor_px, result.track_offset_px))
+    shift = image_shift_words(result)
+    if shift is not None:
+        lines.append("  " + shift)
     for m in result.measurements:
         why = outlier_words(m, intrinsics_suspected(result.untrusted), kinematics_suspected(result.untrusted))
         flag = f"  OUTLIER ({why})" if m.outlier else ""
@@ -620,6 +630,21 @@ def tracking_words(axis_floor_px: float, track_offset_px: float = 0.0) -> str:
     return ("tracking: the tracks' errors taken as independent, no floor on the image axes (tracks of unknown "
             "origin or simulated; declare a tracker's shared error with CalibrationOptions.axis_floor_px / "
             "--axis-floor-px, one that follows each track with --track-offset-px)")
+
+
+def image_shift_words(result: CalibrationResult, px: float = IMAGE_SHIFT_PX) -> str | None:
+    """Where an image shift of ``px`` per pose (a camera that turns or moves a little between poses), which the data
+    all but cannot show, would move a usable pose by more than its 1σ along some direction
+    (``CalibrationResult.image_shift_excess`` at least 1): how much, and what to do; None otherwise."""
+    excess = result.image_shift_excess(px)
+    if not result.covariance_usable or excess is None or excess < 1.0:
+        return None
+    mm, deg = result.image_shift_sigma(px)
+    return (f"camera still? an image shift of {px:g} px per pose (the camera turning about 0.01° between poses, or "
+            "a tracker's error shared by a pose's tracks), which the axes' test all but cannot see, would add up to "
+            f"{np.max(mm):.2g} mm and {np.max(deg):.2g}° (1σ) to this pose's error, {np.sqrt(excess):.1f}x its 1σ "
+            "along some direction: keep the camera fixed relative to the arm's base while recording, or declare "
+            "such a move as the image axes' floor (CalibrationOptions.axis_floor_px / --axis-floor-px)")
 
 
 def _listed(items, conjunction: str) -> str:

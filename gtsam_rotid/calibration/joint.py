@@ -61,6 +61,7 @@ from .stage2 import (
     _finish,
     _prior_floor_covariance,
     _robust_weighted,
+    _shift_covariance,
     _Solved,
     _Stage2,
     _tied_circles,
@@ -127,7 +128,8 @@ def _weighted(arm, camera, measurements, setup, stage1, init_pose, options, anch
     solved = _Solved(fit.pose, None, pose_information(fit.graph, values, POSE_KEY), Method.WEIGHTED, True,
                      fit.iterations, fit.graph.error(values))
     result = _finish(solved, reports, np.median([sigmas[k] for k in used]), dof=_graph_dof(fit.graph, values),
-                     consistency=consistency, prior=_prior_floor_covariance(rows, floors))
+                     consistency=consistency, prior=_prior_floor_covariance(rows, floors),
+                     shift=_shift_covariance(rows))
     return Fitted(replace(result, alternatives=_outside(fit.alternatives, result)), stage1)
 
 
@@ -389,7 +391,8 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
     out = _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
                   consistency=_axis_consistency(rows, _axis_floors(setup, axis_offsets, len(used)), options,
                                                 fitted=determined),
-                  prior=_prior_floor_covariance(rows, _axis_floors(setup, None, len(used))))
+                  prior=_prior_floor_covariance(rows, _axis_floors(setup, None, len(used))),
+                  shift=_shift_covariance(rows))
     if shapes is not None:  # (judged, at the axes' scale that a camera change leaves, by run._checked_model)
         out = replace(out, intrinsics_shapes=shapes)
     if intrinsics is not None:

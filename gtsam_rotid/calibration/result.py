@@ -197,6 +197,10 @@ class AxisConsistency:
                    passed=None if passed is None else bool(passed))
 
 
+#: The image shift per pose (px) a result's words weigh (``CalibrationResult.image_shift_excess``): about what a
+#: camera turning 0.01 degrees between poses gives at a focal length of 570 px.
+IMAGE_SHIFT_PX = 0.1
+
 #: An alternative whose chi-square exceeds the estimate's by less than this (likelihood ratio 1000:1) makes the
 #: calibration ambiguous: the data cannot tell the two apart.
 AMBIGUITY_CHI2 = 2.0 * np.log(1000.0)
@@ -296,6 +300,11 @@ class CalibrationResult:
     #: (the next best exchange), ``sigma_mm`` (the exchanged calibration's largest 1 sigma); None: not found, or not
     #: looked for (a sound result)
     swapped: dict | None = None
+    #: the pose covariance (6x6, Pose3 tangent) per px² of an image shift common to each pose's tracks and
+    #: independent across poses (a camera that turns or moves a little between poses): what such a shift would add
+    #: to ``covariance``, which the axes' test all but cannot see (README, "An image shift per pose"); None where
+    #: not computed (``paper``, an undetermined pose, files written before it was)
+    image_shift_covariance: np.ndarray | None = None
 
     @property
     def intrinsics(self) -> dict[str, float]:
@@ -344,6 +353,30 @@ class CalibrationResult:
         """1σ of the camera position in the arm-base frame, mm."""
         R = self.arm_T_camera.rotation().matrix()
         return 1000.0 * np.sqrt(np.diag(R @ self.covariance[3:, 3:] @ R.T))
+
+    def image_shift_sigma(self, px: float = IMAGE_SHIFT_PX) -> tuple[np.ndarray, np.ndarray] | None:
+        """The 1σ (camera position in the arm-base frame, mm; rotation about the camera axes, deg) that an image
+        shift of ``px`` per pose (``image_shift_covariance``) would add; None where it was not computed."""
+        if self.image_shift_covariance is None:
+            return None
+        S = px**2 * np.asarray(self.image_shift_covariance)
+        R = self.arm_T_camera.rotation().matrix()
+        return (1000.0 * np.sqrt(np.maximum(np.diag(R @ S[3:, 3:] @ R.T), 0.0)),
+                np.degrees(np.sqrt(np.maximum(np.diag(S)[:3], 0.0))))
+
+    def image_shift_excess(self, px: float = IMAGE_SHIFT_PX) -> float | None:
+        """How far an image shift of ``px`` per pose would exceed the covariance: the largest, over the pose's
+        directions, of the variance it adds over ``covariance``'s (1: as large as the 1σ along some direction; the
+        largest generalised eigenvalue). None where it was not computed or the covariance is not positive
+        definite."""
+        if self.image_shift_covariance is None:
+            return None
+        try:
+            L = np.linalg.cholesky(0.5 * (self.covariance + self.covariance.T))
+        except np.linalg.LinAlgError:
+            return None
+        A = np.linalg.solve(L, np.linalg.solve(L, px**2 * np.asarray(self.image_shift_covariance)).T)
+        return float(np.max(np.linalg.eigvalsh(0.5 * (A + A.T))))
 
     def error_to(self, arm_T_camera_true: gtsam.Pose3) -> np.ndarray:
         """Tangent-space error (rotation rad, translation m) of this estimate against a reference pose."""
@@ -404,6 +437,8 @@ class CalibrationResult:
             "readings_refused": {str(k): v for k, v in self.readings_refused.items()},
             "readings_ignored": self.readings_ignored,
             "swapped": self.swapped,
+            "image_shift_covariance": None if self.image_shift_covariance is None
+            else np.asarray(self.image_shift_covariance).tolist(),
         }
 
     @classmethod
@@ -468,6 +503,8 @@ class CalibrationResult:
                 "measurements": [int(k) for k in data["swapped"]["measurements"]],
                 **{k: None if data["swapped"].get(k) is None else float(data["swapped"][k])
                    for k in ("miss_px", "swapped_miss_px", "next_miss_px", "sigma_mm")}},
+            image_shift_covariance=None if data.get("image_shift_covariance") is None
+            else np.array(data["image_shift_covariance"], dtype=float),
         )
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:

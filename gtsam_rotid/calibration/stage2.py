@@ -323,6 +323,16 @@ def _prior_floor_covariance(rows, floors: list | None) -> np.ndarray | None:
     return out if np.all(np.isfinite(out)) else None
 
 
+def _shift_covariance(rows) -> np.ndarray | None:
+    """The pose covariance (6x6, Pose3 tangent) per px² of an image shift common to each pose's tracks (independent
+    across poses, px² per image coordinate), to first order through the image axes (``rows``: the used
+    measurements' :func:`_axis_rows` at the estimate): a shift moves a measurement's image axis across itself, both
+    test points' distances alike, so it is :func:`_prior_floor_covariance` with the floor ``[[1, 1], [1, 1]]`` on
+    every axis. The fit's weights cancel in it: a common scale of the axes' noise leaves it as it is. None where the
+    axes alone do not determine the pose."""
+    return _prior_floor_covariance(rows, [np.ones((len(e), len(e))) for e, _, _ in rows])
+
+
 def _weighted_stage2(camera, setup: _Setup, stage1, used: list[int], start: gtsam.Pose3, options, anchor):
     """Stage 2 weighted by the stage-1 line covariances, Huber on whole measurements; returns (pose, its, graph)."""
     pose, iterations, graph = start, 0, None
@@ -497,11 +507,13 @@ class _Solved:
 
 
 def _finish(solved: _Solved, reports, sigma_px, *, info_scale: float = 1.0, dof: int | None = None,
-            consistency: AxisConsistency | None = None, prior: np.ndarray | None = None) -> CalibrationResult:
+            consistency: AxisConsistency | None = None, prior: np.ndarray | None = None,
+            shift: np.ndarray | None = None) -> CalibrationResult:
     """Result with the observability of ``info * info_scale`` (the scale makes it a real information); the
     covariance (of the pose, or the observability's when it is undetermined) gains ``prior`` (the prior floor's,
     :func:`_prior_floor_covariance`) and is then multiplied by ``consistency.scale`` or floored, whichever is larger
-    (the test that sets them weighted each axis with the prior floor too)."""
+    (the test that sets them weighted each axis with the prior floor too). ``shift``: the pose covariance per px² of
+    an image shift per pose (:func:`_shift_covariance`), kept as ``CalibrationResult.image_shift_covariance``."""
     pose, covariance, info, method = solved.pose, solved.covariance, solved.info, solved.method
     converged, iterations, error = solved.converged, solved.iterations, solved.error
     if not np.all(np.isfinite(info)):
@@ -519,7 +531,8 @@ def _finish(solved: _Solved, reports, sigma_px, *, info_scale: float = 1.0, dof:
         covariance = scaled if consistency.floor_covariance is None else loewner_max(
             scaled, covariance + consistency.floor_covariance)
     return CalibrationResult(pose, covariance, method.value, bool(converged), int(iterations), float(error),
-                             reports, observability, float(sigma_px), dof, axis_consistency=consistency)
+                             reports, observability, float(sigma_px), dof, axis_consistency=consistency,
+                             image_shift_covariance=shift if observability.is_observable else None)
 
 
 def _paper(camera, setup, stage1, init_pose, options, anchor) -> CalibrationResult:

@@ -1,0 +1,76 @@
+"""An image shift common to a pose's tracks (a camera that turns a little between poses): the result says what such
+a shift, which the axes' test all but cannot see, would add to its error (``CalibrationResult.image_shift_covariance``),
+and its words say so where that exceeds the 1σ."""
+
+import numpy as np
+import pytest
+
+from gtsam_rotid import Dataset, Measurement, Track, simulate
+from gtsam_rotid.estimate import CalibrationOptions, CalibrationResult, calibrate
+from gtsam_rotid.report import make_report
+from gtsam_rotid.words import image_shift_words, summary
+
+
+@pytest.fixture(scope="module")
+def scene():
+    dataset, truth = simulate.reference_scene(seed=200, duration=12.0, n_measurements=6)
+    return dataset, calibrate(dataset, method="joint")
+
+
+def _shifted(dataset: Dataset, k: int, shift) -> Dataset:
+    return Dataset(dataset.arm, dataset.camera, [
+        Measurement(m.joint_angles, [Track(t.pixels + (shift if i == k else 0.0), t.frames) for t in m.tracks],
+                    name=m.name) for i, m in enumerate(dataset)])
+
+
+def test_the_image_shift_covariance_is_how_the_joint_estimate_moves_when_a_poses_image_shifts(scene):
+    """The covariance per px² is computed to first order through the image axes; the ground truth here is the joint
+    estimate itself, fitted again with each pose's pixels moved by 0.05 px along x and along y in turn: the sum
+    of the outer products of those moves (per px) is the covariance of the estimate under a shift per pose of
+    N(0, 1 px²) per image coordinate."""
+    dataset, base = scene
+    h = 0.05
+    moved = np.zeros((6, 6))
+    for k in range(len(dataset)):
+        for shift in (np.array([h, 0.0]), np.array([0.0, h])):
+            result = calibrate(_shifted(dataset, k, shift), method="joint")
+            d = base.arm_T_camera.localCoordinates(result.arm_T_camera) / h
+            moved += np.outer(d, d)
+    predicted = base.image_shift_covariance
+    assert predicted.shape == (6, 6)
+    np.testing.assert_allclose(np.sqrt(np.diag(predicted)), np.sqrt(np.diag(moved)), rtol=0.05)
+    # the whole matrix, not only its diagonal: the correlations agree too
+    scale = np.sqrt(np.outer(np.diag(moved), np.diag(moved)))
+    assert np.max(np.abs(predicted - moved) / scale) < 0.1
+
+
+def test_a_usable_result_says_what_a_shift_per_pose_would_add_unless_its_covariance_already_holds_it(scene):
+    dataset, base = scene
+    assert base.covariance_usable
+    # on this dot scene 0.1 px per pose is twice the 1σ along some direction (the README's image_shift benchmark:
+    # NEES 17 with nothing declared)
+    excess = base.image_shift_excess(0.1)
+    assert excess > 1.0
+    line = image_shift_words(base)
+    assert line is not None and "0.1 px per pose" in line and "--axis-floor-px" in line
+    mm, deg = base.image_shift_sigma(0.1)
+    assert f"{np.max(mm):.2g} mm" in line and f"{np.sqrt(excess):.1f}x its 1σ" in line
+    assert line in summary(base)
+    assert line in make_report(base, dataset).to_text()
+    # declared as the axes' floor, the shift is in the covariance: nothing to say
+    floored = calibrate(dataset, method="joint", options=CalibrationOptions(axis_floor_px=0.1))
+    assert floored.image_shift_excess(0.1) < 1.0
+    assert image_shift_words(floored) is None and "camera still?" not in summary(floored)
+    # (the shift moves the estimate as much: the floor widens the covariance, not the response)
+    np.testing.assert_allclose(floored.image_shift_covariance, base.image_shift_covariance, rtol=0.05, atol=1e-12)
+
+
+def test_the_image_shift_covariance_is_saved_with_the_result(scene, tmp_path):
+    _, base = scene
+    base.save(tmp_path / "result.json")
+    loaded = CalibrationResult.load(tmp_path / "result.json")
+    np.testing.assert_allclose(loaded.image_shift_covariance, base.image_shift_covariance)
+    assert image_shift_words(loaded) == image_shift_words(base)
+    # a file written before it was computed has none, and says nothing of it
+    old = CalibrationResult.from_dict({**base.to_dict(), "image_shift_covariance": None})
+    assert old.image_shift_covariance is None and image_shift_words(old) is None
