@@ -7,11 +7,14 @@ N(0, level²) per image coordinate, independent across poses (what a camera that
 poses gives, 0.01° for 0.1 px at f = 570 px, or a tracker's bias shared by a pose's features), and ``joint``
 calibrates it twice: with nothing declared (the default for tracks without tracker metadata) and with
 ``CalibrationOptions(axis_floor_px=level)`` (the shift declared as a floor on every image axis). Printed per level
-and setting: the median camera position error (mm), the median reported 1σ of the position (mm, mean over the
-arm-frame axes), the NEES (mean Mahalanobis chi-square of the true error over every result; 6 when the covariance is
-honest) with its 99.9 % interval, how many scenes fall outside their 99.9 % region and how many of those were
-called usable (refused calibrations counted apart), and the median P of the axes' test (uniform on (0, 1) where it
-cannot see the shift).
+and setting: the median camera position error (mm), the median reported 1σ of the position (mm, mean over the arm-frame
+axes), the NEES (mean Mahalanobis chi-square of the true error over every result; 6 when the covariance is honest) with
+its 99.9 % interval, how many scenes fall outside their 99.9 % region and how many of those were called usable and named
+by their words (refused calibrations counted apart), the median P of the axes' test (uniform on (0, 1) where it cannot
+see the shift) and how many usable results' words name the shift (``words.image_shift_words``: a shift of 0.1 px per
+pose would exceed their 1σ). A third row takes the first setting's covariance plus what each result says a shift of the
+level would add (``level² x CalibrationResult.image_shift_covariance``): NEES about 6 where that says how far the shift
+moves the estimate.
 
 Run: ``python benchmarks/image_shift.py [--scenes 20] [--duration 12] [--poses 6] [--levels 0.1 0.25] [--jobs 2]``;
 ``--quick`` (3 scenes of 6 s spins, level 0.25) checks that it runs.
@@ -29,9 +32,13 @@ from gtsam_rotid import Dataset, Measurement, Track, simulate
 from gtsam_rotid.errors import RotIdError
 from gtsam_rotid.estimate import CalibrationOptions, calibrate
 from gtsam_rotid.uncertainty import chi2_mean_interval
+from gtsam_rotid.words import image_shift_words
 
 CHI2_999_6DOF = 22.458
 SETTINGS = ("nothing declared", "declared as the axes' floor")
+#: the first setting's covariance plus what the result says a shift of the level would add
+#: (``level² x CalibrationResult.image_shift_covariance``): does it say how much the shift moves the estimate?
+ADDED = "nothing declared, + the result's image shift covariance"
 
 
 def trial(level: float, index: int, duration: float, poses: int) -> dict:
@@ -48,10 +55,17 @@ def trial(level: float, index: int, duration: float, poses: int) -> dict:
             out[setting] = None  # (refused: counted apart)
             continue
         error = result.error_to(truth.arm_T_camera)
+        p = float("nan") if result.axis_consistency is None else float(result.axis_consistency.p_value)
+        words = image_shift_words(result) is not None
         out[setting] = (float(error @ np.linalg.solve(result.covariance, error)),
                         float(1000 * np.linalg.norm(error[3:])), float(np.mean(result.sigma_mm_arm)),
-                        bool(result.covariance_usable),
-                        float("nan") if result.axis_consistency is None else float(result.axis_consistency.p_value))
+                        bool(result.covariance_usable), p, words)
+        if setting == SETTINGS[0] and result.image_shift_covariance is not None:
+            added = result.covariance + level**2 * result.image_shift_covariance
+            R = result.arm_T_camera.rotation().matrix()
+            out[ADDED] = (float(error @ np.linalg.solve(added, error)), out[setting][1],
+                          float(np.mean(1000 * np.sqrt(np.diag(R @ added[3:, 3:] @ R.T)))),
+                          bool(result.covariance_usable), p, words)
     return out
 
 
@@ -85,21 +99,23 @@ def main(argv=None) -> int:
           f"exact kinematics), joint; {time.perf_counter() - start:.0f} s. NEES 99.9 % interval "
           f"[{low:.2f}, {high:.2f}]\n")
     print("| image shift per pose (px) | covariance | median error (mm) | median 1σ (mm) | NEES | outside 99.9 % "
-          "(of them called usable) | axes' test: median P |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
+          "(of them called usable, of those named by their words) | axes' test: median P | usable results whose "
+          "words name a shift |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     for level in args.levels:
         rows = [r for (lv, _), r in zip(jobs, results, strict=True) if lv == level]
-        for setting in SETTINGS:
-            done = [r[setting] for r in rows if r[setting] is not None]
+        for setting in (SETTINGS[0], ADDED, SETTINGS[1]):
+            done = [r[setting] for r in rows if r.get(setting) is not None]
             refused = f" ({len(rows) - len(done)} refused)" if len(done) < len(rows) else ""
             if not done:
                 print(f"| {level:g} | {setting} | | | | all {len(rows)} refused | |")
                 continue
-            chi2, mm, sigma, usable, p = (np.array(v) for v in zip(*done, strict=True))
+            chi2, mm, sigma, usable, p, words = (np.array(v) for v in zip(*done, strict=True))
             outside = chi2 > CHI2_999_6DOF
             print(f"| {level:g} | {setting} | {np.median(mm):.2f} | {np.median(sigma):.2f} | {chi2.mean():.2f} | "
-                  f"{int(outside.sum())} of {len(done)} ({int(np.sum(outside & usable))}){refused} | "
-                  f"{np.nanmedian(p):.2f} |")
+                  f"{int(outside.sum())} of {len(done)} ({int(np.sum(outside & usable))}, "
+                  f"{int(np.sum(outside & usable & words))}){refused} | "
+                  f"{np.nanmedian(p):.2f} | {int(np.sum(words & usable))} of {int(usable.sum())} |")
     return 0
 
 
