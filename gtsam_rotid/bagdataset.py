@@ -122,7 +122,7 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
                       "stamps are taken as they are (give it with --time-offset if known)", file=sys.stderr)
         joint_file = JointFile(Path(f"{bag.path}:{topics.joints}"), positions, stamps)
         tracker, described, corner_tracks = default_tracker(tracker, tracker_params)
-        measurements, spans = [], []
+        measurements, spans, first_images = [], [], []
         with tqdm(total=len(runs), desc="spins", unit="spin", disable=not progress, file=sys.stderr) as bar:
             for k, (a, b, joint) in enumerate(runs):
                 spin_joint = None if arm.spins_wrist(joint) else joint
@@ -139,6 +139,7 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
                                    "differ by more than the search (--max-time-offset), give the offset "
                                    "(--time-offset)")
                 first, last = int(inside[0]), int(inside[-1])  # every image between, in the bag's order
+                first_images.append(next(iter(bag.images(topics.image, first, first)))[2])
                 frames = (image for _, _, image in bag.images(topics.image, first, last))
                 tracks = tracked_frames(frames, last - first + 1, first, Path(where), camera, tracker,
                                         tracker_params, k, label, progress)
@@ -165,6 +166,12 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
     if corner_tracks is not None:
         from .trackparams import tracker_metadata
         extra["tracker"] = tracker_metadata(tracker_params, sum(corner_tracks))
+    if len(first_images) > 1:  # did the camera stay still between the spins? (their first images' background)
+        from .stillness import motion_metadata
+
+        motion = motion_metadata(first_images, [m.name for m in measurements], f"the spins of {path}")
+        if motion is not None:
+            extra["camera_motion"] = motion
     return Dataset(arm, camera, measurements, metadata={**extra, **dict(metadata or {})})
 
 

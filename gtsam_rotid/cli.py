@@ -456,6 +456,32 @@ def cmd_check(args) -> int:
     return 3 if not check.still_valid else 0 if check.consistent and check.odd_spin is None else 4
 
 
+def add_still_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``still`` command: did the camera stay still between the videos?"""
+    p = subparsers.add_parser(
+        "still", help="did the camera stay still between the videos? (each video's shift on the still background)",
+        description="Read each video's image shift against the first one's off the scene around the arm (the "
+                    "background, the table, the arm's base), which does not move unless the camera does: a turn "
+                    "of 0.01 deg is 0.1 px at f = 570 px, and the calibration's own test all but cannot see it. "
+                    "Exit code 0: still; 3: moved (declare the shift printed as --axis-floor-px when "
+                    "calibrating); 1: an error.")
+    p.add_argument("videos", nargs="+", metavar="VIDEO", help="one video file or image folder per arm pose")
+    p.add_argument("--frame", type=int, default=0, help="the frame of each video compared (default 0)")
+    p.set_defaults(func=cmd_still)
+    return p
+
+
+def cmd_still(args) -> int:
+    from .stillness import camera_motion
+    from .words import camera_motion_words
+
+    if args.frame < 0:
+        raise InputError(f"--frame must be >= 0, got {args.frame}")
+    motion = camera_motion(args.videos, frame=args.frame, names=args.videos)
+    print("\n".join(camera_motion_words(motion)))
+    return 3 if motion.floor_px > 0.0 else 0
+
+
 # ---------------------------------------------------------------------------------------------------
 # ``gtsam-rotid track``
 
@@ -746,6 +772,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_report_parser(sub)
     add_export_parser(sub)
     add_check_parser(sub)
+    add_still_parser(sub)
     add_plan_parsers(sub)
     return parser
 

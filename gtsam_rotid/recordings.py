@@ -705,7 +705,24 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
     extra = {"recording": recording}
     if corner_tracks is not None:
         extra["tracker"] = tracker_metadata(tracker_params, sum(corner_tracks))
+    motion = _camera_motion(videos, checked_ranges) if n > 1 else None
+    if motion is not None:
+        extra["camera_motion"] = motion
     return Dataset(arm, camera, measurements, metadata={**extra, **dict(metadata or {})})
+
+
+def _camera_motion(videos: list[Path], ranges) -> dict | None:
+    """Each video's shift on the still background against the first's, from the first frame of each video's range
+    (:func:`gtsam_rotid.stillness.motion_metadata`)."""
+    from .stillness import motion_metadata
+
+    try:
+        frames = [next(iter(read_frames(v, (start, start + 1)))) for v, (start, _) in zip(videos, ranges, strict=True)]
+    except (InputError, StopIteration) as exc:
+        print(f"warning: whether the camera stayed still between the videos could not be told: {exc}",
+              file=sys.stderr)
+        return None
+    return motion_metadata(frames, [v.name for v in videos])
 
 
 # ---------------------------------------------------------------------------------------------- command line

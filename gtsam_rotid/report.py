@@ -46,6 +46,7 @@ from .uncertainty import UNOBSERVABLE_SIGMA_M, UNOBSERVABLE_SIGMA_RAD, chi2_sf  
 from .words import (
     ambiguity_words,
     axis_consistency_sentence,
+    camera_motion_line,
     image_shift_words,
     intrinsics_assumed_words,
     intrinsics_suspected,
@@ -169,8 +170,9 @@ class CalibrationReport:
     untrusted: list = field(default_factory=list)
     #: one line: usable and how well, or why not and what to do (:func:`gtsam_rotid.words.verdict`)
     verdict: str = ""
-    #: where an image shift per pose that the data cannot show would exceed the 1σ: how much and what to do
-    #: (:func:`gtsam_rotid.words.image_shift_words`); "" otherwise
+    #: what the videos' background said of the camera's move between them (:func:`gtsam_rotid.words.camera_motion_line`)
+    #: and, where an image shift per pose that the data cannot show would exceed the 1σ, how much and what to do
+    #: (:func:`gtsam_rotid.words.image_shift_words`); "" where neither has anything to say
     camera_still: str = ""
     #: for a calibration the poses do not determine: the arm pose (joint name -> rad) that most reduces its worst 1σ
     next_pose: dict | None = None
@@ -634,7 +636,8 @@ def make_report(result, dataset=None, *, strong_correlation: float = STRONG_CORR
         joint_sigma_deg=float(getattr(result, "joint_sigma_deg", 0.0)), untrusted=untrusted,
         axis_floor_px=float(getattr(result, "axis_floor_px", 0.0)),
         track_offset_px=float(getattr(result, "track_offset_px", 0.0)), verdict=verdict(result), next_pose=planned,
-        camera_still=(image_shift_words(result) or "") if hasattr(result, "image_shift_excess") else "",
+        camera_still="; ".join(filter(None, [camera_motion_line(result), image_shift_words(result)]))
+        if hasattr(result, "image_shift_excess") else "",
         joint_offsets_deg=None if getattr(result, "joint_offsets", None) is None
         else {k: float(np.degrees(v)) for k, v in result.joint_offsets.items()},
         joint_offsets_sigma_deg=dict(getattr(result, "joint_offsets_sigma_deg", {})),

@@ -30,6 +30,7 @@ from .calibration.tuning import (
     RESTART_P,
 )
 from .planning import Plan, Prediction
+from .stillness import SIGNIFICANT_Z, CameraMotion
 from .trackparams import TRACK_OFFSET_PX
 from .uncertainty import Observability
 
@@ -100,9 +101,7 @@ def summary(result: CalibrationResult) -> str:
                                                       result.time_offsets))
     lines.extend("  " + line for line in readings_ignored_words(result.readings_ignored, result.method))
     lines.append("  " + tracking_words(result.axis_floor_px, result.track_offset_px))
-    shift = image_shift_words(result)
-    if shift is not None:
-        lines.append("  " + shift)
+    lines.extend("  " + line for line in filter(None, [camera_motion_line(result), image_shift_words(result)]))
     for m in result.measurements:
         why = outlier_words(m, intrinsics_suspected(result.untrusted), kinematics_suspected(result.untrusted))
         flag = f"  OUTLIER ({why})" if m.outlier else ""
@@ -632,19 +631,65 @@ def tracking_words(axis_floor_px: float, track_offset_px: float = 0.0) -> str:
             "--axis-floor-px, one that follows each track with --track-offset-px)")
 
 
-def image_shift_words(result: CalibrationResult, px: float = IMAGE_SHIFT_PX) -> str | None:
-    """Where an image shift of ``px`` per pose (a camera that turns or moves a little between poses), which the data
-    all but cannot show, would move a usable pose by more than its 1σ along some direction
-    (``CalibrationResult.image_shift_excess`` at least 1): how much, and what to do; None otherwise."""
+def image_shift_words(result: CalibrationResult, px: float | None = None) -> str | None:
+    """Where an image shift per pose (a camera that turns or moves a little between poses), which the data all but
+    cannot show, would move a usable pose by more than its 1σ along some direction
+    (``CalibrationResult.image_shift_excess`` at least 1): how much, and what to do; None otherwise. The shift is
+    ``px``, by default what the videos' still background leaves room for where it was measured
+    (``result.camera_motion["bound_px"]``), else :data:`IMAGE_SHIFT_PX`."""
+    measured = isinstance(result.camera_motion, dict) and result.camera_motion.get("bound_px") is not None
+    if px is None:
+        px = float(result.camera_motion["bound_px"]) if measured else IMAGE_SHIFT_PX
     excess = result.image_shift_excess(px)
     if not result.covariance_usable or excess is None or excess < 1.0:
         return None
     mm, deg = result.image_shift_sigma(px)
-    return (f"camera still? an image shift of {px:g} px per pose (the camera turning about 0.01° between poses, or "
-            "a tracker's error shared by a pose's tracks), which the axes' test all but cannot see, would add up to "
+    what = (f"the videos' still background leaves room for an image shift of {px:.2g} px per pose (the camera "
+            "turning or moving between poses)" if measured else
+            f"an image shift of {px:g} px per pose (the camera turning about 0.01° between poses, or a tracker's "
+            "error shared by a pose's tracks)")
+    return (f"camera still? {what}, which the axes' test all but cannot see, would add up to "
             f"{np.max(mm):.2g} mm and {np.max(deg):.2g}° (1σ) to this pose's error, {np.sqrt(excess):.1f}x its 1σ "
-            "along some direction: keep the camera fixed relative to the arm's base while recording, or declare "
-            "such a move as the image axes' floor (CalibrationOptions.axis_floor_px / --axis-floor-px)")
+            "along some direction: keep the camera fixed relative to the arm's base while recording (`gtsam-rotid "
+            "still VIDEO...` measures it on the videos), or declare such a move as the image axes' floor "
+            f"(CalibrationOptions.axis_floor_px / --axis-floor-px {px:.2g})")
+
+
+def camera_motion_line(result: CalibrationResult) -> str | None:
+    """What the videos' still background said of the camera's move between them (``result.camera_motion``), and
+    whether the covariance holds it; None where it was not measured."""
+    motion = result.camera_motion
+    if not isinstance(motion, dict) or motion.get("floor_px") is None:
+        return None
+    floor, bound = float(motion["floor_px"]), float(motion.get("bound_px") or 0.0)
+    if floor <= 0.0:
+        return (f"camera motion: the videos' still background shows the camera still between them (any shift below "
+                f"{bound:.2g} px)")
+    held = result.axis_floor_px >= floor
+    return (f"camera motion: the videos' still background shows the camera moved between them, by up to {floor:.3g} "
+            "px; " + ("taken as the image axes' floor, in the covariance" if held else
+                      f"the image axes' floor declared ({result.axis_floor_px:g} px) is smaller: the covariance does "
+                      f"not hold it (--axis-floor-px {floor:.3g})"))
+
+
+def camera_motion_words(motion: CameraMotion) -> list[str]:
+    """Each video's shift on the still background (:func:`gtsam_rotid.stillness.camera_motion`) and what to do."""
+    lines = [f"image shift of each video against {motion.names[0]}, on the still background (px, x y; 1 sigma):"]
+    for k in range(1, len(motion.names)):
+        x, y = motion.shifts_px[k]
+        sx, sy = motion.sigma_px[k]
+        lines.append(f"  {motion.names[k]}: {x:+.3f} {y:+.3f} (± {sx:.3f} {sy:.3f}; {int(motion.n_points[k])} "
+                     f"points){'  MOVED' if motion.moved[k] else ''}")
+    if motion.floor_px > 0.0:
+        lines.append(f"the camera moved between the videos (by more than {SIGNIFICANT_Z:g} sigma), up to "
+                     f"{motion.floor_px:.3f} px: a shift common to a pose's tracks, which the calibration's test "
+                     f"all but cannot see; calibrate with --axis-floor-px {motion.floor_px:.3f} "
+                     f"(CalibrationOptions.axis_floor_px) so that its covariance holds it, or record again with the "
+                     "camera fixed")
+    else:
+        lines.append("the camera stayed still between the videos (no shift beyond its "
+                     f"{SIGNIFICANT_Z:g} sigma)")
+    return lines
 
 
 def _listed(items, conjunction: str) -> str:

@@ -15,7 +15,7 @@ LAYERS = {
     "camera": 2, "arm": 2, "collisions": 2, "dataset": 2, "measurements": 2, "frames": 2,
     "tracking": 3, "trackparams": 3, "centroids": 3, "trackfilter": 3, "corners": 3, "spinmodel": 3, "spinfilter": 3,
     "meshconfig": 3, "armmeshes": 3, "meshtextures": 3, "meshcast": 3, "patterns": 3, "render": 3, "renderconfig": 3,
-    "videos": 2, "meshrender": 3,
+    "videos": 2, "meshrender": 3, "stillness": 3,
     "simulate": 3, "recordings": 3, "camerafiles": 2, "bags": 2, "trackrun": 3, "bagdataset": 3,
     "graph": 4, "initialise": 4, "uncertainty": 4,
     "calibration": 5, "estimate": 5, "fits": 5, "planning": 5,

@@ -253,11 +253,25 @@ def tracker_offset_px(metadata: dict) -> float:
     return _tracker_px(metadata, "track_offset_px")
 
 
+def camera_motion_floor_px(metadata: dict) -> float:
+    """The image axes' floor (px) that the camera's measured move between the videos asks for
+    (``metadata["camera_motion"]["floor_px"]``, :func:`gtsam_rotid.stillness.camera_motion`, written by
+    ``make_dataset``); 0 where it was not measured or the camera stayed still."""
+    motion = metadata.get("camera_motion")
+    value = motion.get("floor_px") if isinstance(motion, dict) else None
+    if value is None:
+        return 0.0
+    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
+        raise InputError(f"the dataset's metadata[\"camera_motion\"][\"floor_px\"] must be a finite number >= 0 "
+                         f"(px), got {value!r}")
+    return float(value)
+
+
 def with_tracker_defaults(options: CalibrationOptions, metadata: dict) -> CalibrationOptions:
     """``options`` with the tracker's values (:func:`tracker_floor_px`, :func:`tracker_offset_px`) where they are
-    None."""
+    None; the floor at least the camera's measured move between the videos (:func:`camera_motion_floor_px`)."""
     if options.axis_floor_px is None:
-        options = replace(options, axis_floor_px=tracker_floor_px(metadata))
+        options = replace(options, axis_floor_px=max(tracker_floor_px(metadata), camera_motion_floor_px(metadata)))
     if options.track_offset_px is None:
         options = replace(options, track_offset_px=tracker_offset_px(metadata))
     return options

@@ -305,6 +305,10 @@ class CalibrationResult:
     #: to ``covariance``, which the axes' test all but cannot see (README, "An image shift per pose"); None where
     #: not computed (``paper``, an undetermined pose, files written before it was)
     image_shift_covariance: np.ndarray | None = None
+    #: the camera's move between the videos as their still background showed it (the dataset's
+    #: ``metadata["camera_motion"]``, :func:`gtsam_rotid.stillness.camera_motion`: ``shifts_px``, ``sigma_px``,
+    #: ``floor_px``, ``bound_px``, ...); None where it was not measured
+    camera_motion: dict | None = None
 
     @property
     def intrinsics(self) -> dict[str, float]:
@@ -439,6 +443,7 @@ class CalibrationResult:
             "swapped": self.swapped,
             "image_shift_covariance": None if self.image_shift_covariance is None
             else np.asarray(self.image_shift_covariance).tolist(),
+            "camera_motion": self.camera_motion,
         }
 
     @classmethod
@@ -505,6 +510,7 @@ class CalibrationResult:
                    for k in ("miss_px", "swapped_miss_px", "next_miss_px", "sigma_mm")}},
             image_shift_covariance=None if data.get("image_shift_covariance") is None
             else np.array(data["image_shift_covariance"], dtype=float),
+            camera_motion=None if data.get("camera_motion") is None else dict(data["camera_motion"]),
         )
 
     def save(self, path: str | os.PathLike, overwrite: bool = False) -> None:

@@ -116,7 +116,9 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
                      time_offsets=None if result.time_offsets is None else {
                          c: {**v, "measurements": [kept[k] for k in v["measurements"]]}
                          for c, v in result.time_offsets.items()},
-                     readings_ignored=bool(ignored))
+                     readings_ignored=bool(ignored),
+                     camera_motion=dict(metadata["camera_motion"]) if isinstance(metadata.get("camera_motion"), dict)
+                     else None)
     return replace(result, untrusted=_untrusted(result, setup))
 
 

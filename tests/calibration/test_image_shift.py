@@ -74,3 +74,30 @@ def test_the_image_shift_covariance_is_saved_with_the_result(scene, tmp_path):
     # a file written before it was computed has none, and says nothing of it
     old = CalibrationResult.from_dict({**base.to_dict(), "image_shift_covariance": None})
     assert old.image_shift_covariance is None and image_shift_words(old) is None
+
+
+def test_a_measured_camera_move_is_the_floor_and_a_measured_still_camera_silences_the_warning(scene):
+    """``metadata["camera_motion"]`` (what ``make_dataset`` writes from the videos' still background): a move is
+    taken as the image axes' floor and said; a still camera bounds the unseen shift by what the background
+    resolves, far below the 0.1 px assumed otherwise."""
+    dataset, base = scene
+    moved = Dataset(dataset.arm, dataset.camera, list(dataset),
+                    metadata={"camera_motion": {"floor_px": 0.1, "bound_px": 0.11}})
+    result = calibrate(moved, method="joint")
+    assert result.axis_floor_px == 0.1 and result.camera_motion["floor_px"] == 0.1
+    text = summary(result)
+    assert "camera moved between them, by up to 0.1 px; taken as the image axes' floor" in text
+    assert result.image_shift_excess(0.11) < 1.0 and "camera still?" not in text
+    # the floor declared smaller than the move: said
+    low = calibrate(moved, method="joint", options=CalibrationOptions(axis_floor_px=0.02))
+    assert "the covariance does not hold it (--axis-floor-px 0.1)" in summary(low)
+    still = Dataset(dataset.arm, dataset.camera, list(dataset),
+                    metadata={"camera_motion": {"floor_px": 0.0, "bound_px": 0.02}})
+    result = calibrate(still, method="joint")
+    assert result.axis_floor_px == 0.0
+    np.testing.assert_allclose(result.covariance, base.covariance)
+    text = summary(result)
+    assert "shows the camera still between them (any shift below 0.02 px)" in text and "camera still?" not in text
+    assert image_shift_words(result, 0.1) is not None  # (an unmeasured 0.1 px would still be worth saying)
+    loaded = CalibrationResult.from_dict(result.to_dict())
+    assert loaded.camera_motion == result.camera_motion

@@ -1,0 +1,249 @@
+"""Did the camera stay still between the videos? Measured on the still background, which every video of a
+calibration shares.
+
+A camera that turns or moves a little between arm poses shifts each pose's image: 0.01° is 0.1 px at a focal length
+of 570 px. The shift moves the pose's image axis across itself, and the calibration's own test of the axes all but
+cannot see it (README, "An image shift per pose"): only the scene around the arm can. :func:`camera_motion` finds
+corners in one frame of the first video, follows each into the same frame of every other video (pyramidal
+Lucas-Kanade, forward and backward), and takes the shift that most of them agree on: the background, the table and
+the arm's base do not move unless the camera does, while the links that moved between the poses either fail the
+forward-backward check or move far from that consensus. Each video's shift is the median of the consensus, with
+its standard error.
+
+The result is a measurement, not a correction: a turn of the camera shifts near and far points alike, but a move
+of its centre shifts them in inverse proportion to their depth, so the hand (nearer than the background) moves
+more. Declare the largest shift as the image axes' floor (``CalibrationOptions.axis_floor_px``,
+``--axis-floor-px``; :attr:`CameraMotion.floor_px`).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .errors import InputError
+from .frames import read_frames
+
+#: Corners sought in the reference frame (Shi-Tomasi), their quality level and spacing (px).
+MAX_CORNERS = 3000
+QUALITY = 0.01
+MIN_DISTANCE = 7
+#: Lucas-Kanade window (px) and pyramid levels (level 3 follows shifts of tens of pixels).
+WINDOW = 21
+LEVELS = 3
+#: A point counts when its backward track returns within this of where it started (px).
+FORWARD_BACKWARD_PX = 0.05
+#: Points within this of the median displacement (px) form the consensus.
+CONSENSUS_PX = 0.5
+#: Fewer agreeing points than this: the background cannot be read.
+MIN_POINTS = 20
+#: Half-size (px) of the window about each still point that is aligned again in floating point.
+ALIGN_HALF = 7
+#: Gauss-Newton steps of that alignment.
+ALIGN_STEPS = 4
+#: A shift counts as a move when it exceeds this many standard errors and :data:`MIN_MOVE_PX` (and is kept as the
+#: floor): below a fiftieth of a pixel the reading's own biases (the background's texture, compression) compete.
+SIGNIFICANT_Z = 3.0
+MIN_MOVE_PX = 0.02
+
+
+@dataclass
+class CameraMotion:
+    """Each video's image shift against the first video's, read off the still background (px, image x and y)."""
+
+    shifts_px: np.ndarray   # (n, 2); the first row is zero
+    sigma_px: np.ndarray    # (n, 2) standard errors (the first row zero)
+    n_points: np.ndarray    # (n,) background points in each video's consensus (0 for the first)
+    names: list[str]
+
+    @property
+    def size_px(self) -> np.ndarray:
+        """(n,) each video's shift's length (px)."""
+        return np.linalg.norm(self.shifts_px, axis=1)
+
+    @property
+    def moved(self) -> np.ndarray:
+        """(n,) whether each video's shift exceeds :data:`SIGNIFICANT_Z` standard errors."""
+        sigma = np.linalg.norm(self.sigma_px, axis=1)
+        return (self.size_px > SIGNIFICANT_Z * np.maximum(sigma, 1e-12)) & (self.size_px > MIN_MOVE_PX)
+
+    @property
+    def floor_px(self) -> float:
+        """The image axes' floor that covers the moves (px): the largest significant shift, 0 where none is."""
+        moved = self.moved
+        return float(np.max(self.size_px[moved])) if np.any(moved) else 0.0
+
+    @property
+    def bound_px(self) -> float:
+        """How far any video may have moved, as far as the background tells (px): the largest shift plus
+        :data:`SIGNIFICANT_Z` standard errors, at least :data:`MIN_MOVE_PX`."""
+        sigma = np.linalg.norm(self.sigma_px, axis=1)
+        return float(max(np.max(self.size_px + SIGNIFICANT_Z * sigma), MIN_MOVE_PX))
+
+    def to_dict(self) -> dict:
+        """As a dataset's ``metadata["camera_motion"]`` holds it (``floor_px`` and ``bound_px`` for ``calibrate``)."""
+        return {"shifts_px": self.shifts_px.tolist(), "sigma_px": self.sigma_px.tolist(),
+                "n_points": [int(n) for n in self.n_points], "names": list(self.names),
+                "floor_px": self.floor_px, "bound_px": self.bound_px}
+
+
+def _grey(frame: np.ndarray, where: str) -> np.ndarray:
+    frame = np.asarray(frame)
+    if frame.dtype != np.uint8 or frame.ndim not in (2, 3) or (frame.ndim == 3 and frame.shape[2] not in (3, 4)):
+        raise InputError(f"{where}: expected a uint8 grey or BGR image, got {frame.dtype} {frame.shape}")
+    if frame.ndim == 2:
+        return frame
+    return cv2.cvtColor(frame, cv2.COLOR_BGRA2GRAY if frame.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+
+
+def _first_frame(video, index: int, where: str) -> np.ndarray:
+    if isinstance(video, str | os.PathLike):
+        frames = read_frames(video, (index, index + 1))
+        try:
+            return next(iter(frames))
+        except StopIteration:
+            raise InputError(f"{where}: it has no frame {index}") from None
+    return np.asarray(video)
+
+
+def background_shift(reference: np.ndarray, frame: np.ndarray, where: str = "frame"
+                     ) -> tuple[np.ndarray, np.ndarray, int]:
+    """The image shift of ``frame`` against ``reference`` (two uint8 images of the same size) that most of the
+    reference's corners agree on: (shift (2,) px, its standard error (2,), points in the consensus). Raises
+    :class:`InputError` naming ``where`` when the sizes differ or fewer than :data:`MIN_POINTS` points agree."""
+    a, b = _grey(reference, "the reference frame"), _grey(frame, where)
+    if a.shape != b.shape:
+        raise InputError(f"{where}: {b.shape[1]}x{b.shape[0]} px, but the first video's frame is "
+                         f"{a.shape[1]}x{a.shape[0]}: the videos must come from one camera")
+    corners = cv2.goodFeaturesToTrack(a, MAX_CORNERS, QUALITY, MIN_DISTANCE)
+    if corners is None or len(corners) < MIN_POINTS:
+        raise InputError(f"the first video's frame has {0 if corners is None else len(corners)} corners, fewer "
+                         f"than {MIN_POINTS}: too little texture around the arm to tell whether the camera moved")
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
+    window = (WINDOW, WINDOW)
+    ahead, found, _ = cv2.calcOpticalFlowPyrLK(a, b, corners, None, winSize=window, maxLevel=LEVELS,
+                                               criteria=criteria)
+    back, returned, _ = cv2.calcOpticalFlowPyrLK(b, a, ahead, None, winSize=window, maxLevel=LEVELS,
+                                                 criteria=criteria)
+    good = (found[:, 0] == 1) & (returned[:, 0] == 1) & (
+        np.linalg.norm((back - corners)[:, 0], axis=1) < FORWARD_BACKWARD_PX)
+    moves = (ahead - corners)[good, 0].astype(float)
+    if len(moves) < MIN_POINTS:
+        raise InputError(f"{where}: only {len(moves)} of the first video's {len(corners)} corners were found again "
+                         f"(at least {MIN_POINTS} needed): the scene around the arm changed too much between the "
+                         "videos to tell whether the camera moved")
+    centre = np.median(moves, axis=0)
+    for _ in range(3):  # the consensus about the median, and its median again
+        near = np.linalg.norm(moves - centre, axis=1) < CONSENSUS_PX
+        if near.sum() < MIN_POINTS:
+            raise InputError(f"{where}: only {int(near.sum())} corners agree on one shift (at least {MIN_POINTS} "
+                             "needed): too little of the scene around the arm stayed still to tell whether the "
+                             "camera moved")
+        centre = np.median(moves[near], axis=0)
+    # Lucas-Kanade's fixed-point interpolation locks its points towards whole pixels, and every still point shares
+    # the same fraction of a pixel, so their median keeps that bias (0.05 px of a 0.1 px shift): each window about
+    # a consensus point is aligned again in floating point
+    per_point = _window_shifts(a.astype(np.float32), b.astype(np.float32),
+                               corners[good, 0][near], np.rint(centre).astype(int))
+    if len(per_point) < MIN_POINTS:
+        raise InputError(f"{where}: only {len(per_point)} still points lie far enough inside both frames (at least "
+                         f"{MIN_POINTS} needed) to tell whether the camera moved")
+    shift = np.median(per_point, axis=0)
+    spread = 1.4826 * np.median(np.abs(per_point - shift), axis=0)
+    sigma = 1.2533 * spread / np.sqrt(len(per_point))  # the median's standard error
+    return shift, sigma, len(per_point)
+
+
+def _window_shifts(a: np.ndarray, b: np.ndarray, points: np.ndarray, whole: np.ndarray) -> np.ndarray:
+    """(m, 2) the shift of ``b`` against ``a`` (float images) in the window of half-size :data:`ALIGN_HALF` about
+    each of ``points`` (reference px), starting from the whole-pixel shift ``whole`` (2,) ints: Gauss-Newton on
+    ``sum (b(p + s) - a(p))^2`` over the window's whole pixels ``p``, with ``b`` and its central-difference
+    gradient sampled bilinearly in floating point (a symmetric kernel: no bias towards whole pixels, unlike
+    OpenCV's fixed-point interpolation) and the mean of both images' gradients (:data:`ALIGN_STEPS` steps).
+    Windows that reach out of either frame, or whose gradients do not determine both directions, are dropped."""
+    h, w = a.shape
+    r = ALIGN_HALF
+    centres = np.rint(points).astype(int)
+    margin = r + 3  # (the shift may still change by a pixel or so)
+    low = np.maximum(margin, margin - whole)
+    high = np.minimum([w - margin - 1, h - margin - 1], np.array([w - margin - 1, h - margin - 1]) - whole)
+    centres = centres[np.all((centres >= low) & (centres <= high), axis=1)]
+    if not len(centres):
+        return np.zeros((0, 2))
+    offsets = np.arange(-r, r + 1)
+    xs, ys = np.broadcast_arrays(centres[:, 0, None, None] + offsets[None, None, :],
+                                 centres[:, 1, None, None] + offsets[None, :, None])   # (m, k, k)
+    ref = a[ys, xs]
+    ax = 0.5 * (a[ys, xs + 1] - a[ys, xs - 1])
+    ay = 0.5 * (a[ys + 1, xs] - a[ys - 1, xs])
+    bx, by = np.zeros_like(b), np.zeros_like(b)
+    bx[:, 1:-1], by[1:-1, :] = 0.5 * (b[:, 2:] - b[:, :-2]), 0.5 * (b[2:, :] - b[:-2, :])
+    shift = np.tile(whole.astype(float), (len(centres), 1))
+    ok = np.ones(len(centres), bool)
+    for _ in range(ALIGN_STEPS):
+        u, v = xs + shift[:, 0, None, None], ys + shift[:, 1, None, None]
+        u = np.clip(u, 1, w - 3)
+        v = np.clip(v, 1, h - 3)
+        x0, y0 = np.floor(u).astype(int), np.floor(v).astype(int)
+        fx, fy = u - x0, v - y0
+
+        def sample(image, x0=x0, y0=y0, fx=fx, fy=fy):
+            return ((1 - fy) * ((1 - fx) * image[y0, x0] + fx * image[y0, x0 + 1])
+                    + fy * ((1 - fx) * image[y0 + 1, x0] + fx * image[y0 + 1, x0 + 1]))
+
+        difference = sample(b) - ref
+        gx, gy = 0.5 * (ax + sample(bx)), 0.5 * (ay + sample(by))
+        G = np.stack([np.stack([(gx * gx).sum((1, 2)), (gx * gy).sum((1, 2))], -1),
+                      np.stack([(gx * gy).sum((1, 2)), (gy * gy).sum((1, 2))], -1)], -2)   # (m, 2, 2)
+        rhs = -np.stack([(gx * difference).sum((1, 2)), (gy * difference).sum((1, 2))], -1)
+        eig = np.linalg.eigvalsh(G)
+        ok &= eig[:, 0] > 1e-3 * np.maximum(eig[:, 1], 1e-12)
+        step = np.zeros_like(shift)
+        step[ok] = np.linalg.solve(G[ok], rhs[ok][..., None])[..., 0]
+        shift += np.clip(step, -1.0, 1.0)
+    return shift[ok]
+
+
+def camera_motion(videos: Sequence, *, frame: int = 0, names: Sequence[str] | None = None) -> CameraMotion:
+    """Each video's image shift against the first one's, on the still background (see the module docstring).
+
+    ``videos``: one per arm pose, each a video file or image folder (its frame ``frame`` is read), or that frame
+    itself (a uint8 grey or BGR image). ``names`` name them in errors and words (default: ``video k``)."""
+    videos = list(videos)
+    if len(videos) < 2:
+        raise InputError(f"camera_motion needs at least two videos to compare, got {len(videos)}")
+    names = [f"video {k}" for k in range(len(videos))] if names is None else [str(n) for n in names]
+    if len(names) != len(videos):
+        raise InputError(f"{len(names)} names for {len(videos)} videos")
+    reference = _first_frame(videos[0], frame, names[0])
+    shifts, sigmas, counts = [np.zeros(2)], [np.zeros(2)], [0]
+    for video, name in zip(videos[1:], names[1:], strict=True):
+        shift, sigma, n = background_shift(reference, _first_frame(video, frame, name), name)
+        shifts.append(shift)
+        sigmas.append(sigma)
+        counts.append(n)
+    return CameraMotion(np.array(shifts), np.array(sigmas), np.array(counts), names)
+
+
+def motion_metadata(frames: Sequence[np.ndarray], names: Sequence[str], source: str = "the videos"
+                    ) -> dict | None:
+    """:func:`camera_motion` of one frame per measurement (``frames``, named ``names``) as a dataset's
+    ``metadata["camera_motion"]`` (``calibrate`` takes its ``floor_px`` as the image axes' floor), a move said on
+    stderr; None, with a warning, where the background cannot tell (``source`` names the recording in it)."""
+    try:
+        motion = camera_motion(frames, names=names)
+    except InputError as exc:
+        print(f"warning: whether the camera stayed still between {source} could not be told from their "
+              f"background: {exc}", file=sys.stderr)
+        return None
+    if motion.floor_px > 0.0:
+        moved = [name for name, m in zip(motion.names, motion.moved, strict=True) if m]
+        print(f"warning: the camera moved between {source} (the still background shifts by up to "
+              f"{motion.floor_px:.3f} px: {', '.join(moved)}); calibrate takes it as the image axes' floor "
+              "(`gtsam-rotid still` lists each video's shift)", file=sys.stderr)
+    return motion.to_dict()

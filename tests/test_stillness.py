@@ -1,0 +1,165 @@
+"""Did the camera stay still between the videos? camera_motion reads each video's shift off the still background,
+against shifts it is not told: images of one textured scene moved by known sub-pixel amounts, with an arm that
+stands elsewhere in every video and sensor noise."""
+
+import cv2
+import numpy as np
+import pytest
+
+from gtsam_rotid.errors import InputError
+from gtsam_rotid.stillness import SIGNIFICANT_Z, background_shift, camera_motion
+from gtsam_rotid.videos import write_video
+
+W, H = 480, 360
+
+
+M = 32  # margin (px) cut from each side after the shift (the Fourier shift wraps around)
+
+
+def _scene(rng) -> np.ndarray:
+    """A still scene: smooth shading and sharp-edged (slightly blurred) panels, float grey levels, with margins."""
+    h, w = H + 2 * M, W + 2 * M
+    noise = cv2.GaussianBlur(rng.normal(size=(h, w)).astype(np.float32), (0, 0), 8.0)
+    image = 70 + 110 * (noise - noise.min()) / (noise.max() - noise.min())
+    for _ in range(80):
+        x, y = int(rng.integers(0, w)), int(rng.integers(0, h))
+        image[y:y + int(rng.integers(5, 25)), x:x + int(rng.integers(5, 25))] = float(rng.uniform(30, 230))
+    return cv2.GaussianBlur(image, (0, 0), 1.0).astype(float)
+
+
+def _view(scene: np.ndarray, shift, arm_at: int, rng) -> np.ndarray:
+    """The scene moved by ``shift`` (px, x and y: exactly, by the Fourier shift theorem; OpenCV's warps round
+    positions to 1/32 px), an arm (a textured band) standing at column ``arm_at``, 2 grey levels of noise."""
+    h, w = scene.shape
+    fy, fx = np.fft.fftfreq(h)[:, None], np.fft.fftfreq(w)[None, :]
+    moved = np.fft.ifft2(np.fft.fft2(scene) * np.exp(-2j * np.pi * (fx * shift[0] + fy * shift[1]))).real
+    image = moved[M:M + H, M:M + W].copy()
+    arm = cv2.GaussianBlur(rng.uniform(40, 220, size=(H, 90)).astype(np.float32), (0, 0), 1.5)
+    image[:, arm_at:arm_at + 90] = arm[:, :min(90, W - arm_at)]
+    image = image + rng.normal(0.0, 2.0, size=image.shape)
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def views():
+    rng = np.random.default_rng(3)
+    scene = _scene(rng)
+    shifts = np.array([[0.0, 0.0], [0.0, 0.0], [0.1, 0.0], [0.0, -0.05], [1.3, 0.7], [-0.03, 0.08]])
+    frames = [_view(scene, s, 40 + 70 * k, rng) for k, s in enumerate(shifts)]
+    return frames, shifts
+
+
+def test_each_videos_shift_is_read_off_the_still_background(views):
+    frames, shifts = views
+    motion = camera_motion(frames)
+    # the first video is the reference: every shift is against it
+    error = np.abs(motion.shifts_px - (shifts - shifts[0]))[1:]
+    # within a fiftieth of a pixel, and within 4 of their own standard errors (the median's, from the points' spread)
+    assert np.all(error < 0.02) and np.all(error < 4 * motion.sigma_px[1:])
+    assert np.all(motion.sigma_px[1:] < 0.01) and np.all(motion.n_points[1:] > 50)
+    # a still camera is not called moved; 0.05 px and more is
+    assert list(motion.moved) == [False, False, True, True, True, True]
+    assert motion.floor_px == pytest.approx(np.hypot(1.3, 0.7), abs=0.01)
+    assert SIGNIFICANT_Z * np.linalg.norm(motion.sigma_px[1]) > motion.size_px[1]
+
+
+def test_videos_are_read_from_files_and_a_still_camera_needs_no_floor(views, tmp_path):
+    frames, _ = views
+    paths = []
+    for k in (0, 1):  # the two taken from the same place
+        path = tmp_path / f"pose{k}.mkv"
+        write_video([frames[k]] * 3, path, fps=30)  # (FFV1: lossless)
+        paths.append(path)
+    motion = camera_motion(paths, names=["pose0.mkv", "pose1.mkv"])
+    assert motion.names == ["pose0.mkv", "pose1.mkv"]
+    assert motion.size_px[1] < 0.01 and not motion.moved[1] and motion.floor_px == 0.0
+
+
+def test_what_cannot_be_measured_is_named(views):
+    frames, _ = views
+    with pytest.raises(InputError, match="at least two videos"):
+        camera_motion(frames[:1])
+    with pytest.raises(InputError, match=r"video 1: 240x180 px, but the first video's frame is 480x360"):
+        camera_motion([frames[0], cv2.resize(frames[1], (240, 180))])
+    plain = np.full((H, W), 128, np.uint8)
+    with pytest.raises(InputError, match="too little texture"):
+        camera_motion([plain, plain])
+    # another scene altogether (the camera pointed elsewhere): nothing found again or nothing agrees
+    other = _view(_scene(np.random.default_rng(9)), (0.0, 0.0), 200, np.random.default_rng(1))
+    with pytest.raises(InputError, match="pose 2"):
+        background_shift(frames[0], other, "pose 2")
+    with pytest.raises(InputError, match="uint8"):
+        camera_motion([frames[0], frames[1].astype(np.float32)])
+
+
+def test_the_still_command_names_each_videos_shift_and_the_floor_to_declare(views, tmp_path, capsys):
+    from gtsam_rotid.cli import main
+
+    frames, shifts = views
+    paths = []
+    for k in (0, 1, 2):  # still, still, 0.1 px
+        path = tmp_path / f"pose{k}.mkv"
+        write_video([frames[k]] * 2, path, fps=30)
+        paths.append(str(path))
+    assert main(["still", *paths[:2]]) == 0
+    out = capsys.readouterr().out
+    assert "stayed still" in out and "MOVED" not in out
+    assert main(["still", *paths]) == 3
+    out = capsys.readouterr().out
+    line = next(line for line in out.splitlines() if "pose2.mkv:" in line)
+    assert "MOVED" in line and float(line.split(":")[-1].split()[0]) == pytest.approx(0.1, abs=0.02)
+    assert "--axis-floor-px 0.1" in out
+    assert main(["still", paths[0]]) == 1
+    assert "at least two videos" in capsys.readouterr().err
+    assert main(["still", paths[0], str(tmp_path / "missing.mp4")]) == 1
+    assert "missing.mp4" in capsys.readouterr().err
+
+
+def test_make_dataset_measures_the_cameras_move_and_calibrate_takes_it_as_the_floor(views, tmp_path, capsys):
+    from gtsam_rotid import simulate
+    from gtsam_rotid.calibration.options import CalibrationOptions, with_tracker_defaults
+    from gtsam_rotid.camera import Camera
+    from gtsam_rotid.dataset import Track
+    from gtsam_rotid.recordings import make_dataset
+
+    frames, shifts = views
+    scene, _ = simulate.reference_scene(seed=0, duration=1.0)
+    camera = Camera(np.array([[570.0, 0, W / 2], [0, 570.0, H / 2], [0, 0, 1]]), W, H)
+
+    def tracker(images, params=None):
+        n = len(list(images))
+        angles = np.linspace(0.0, 1.0, n)
+        return [Track(np.column_stack([200 + (20 + j) * np.cos(angles), 150 + (20 + j) * np.sin(angles)]),
+                      np.arange(n)) for j in range(3)]
+
+    videos = []
+    for k in (0, 1, 2):  # still, still, moved by 0.1 px
+        path = tmp_path / f"pose{k}.mkv"
+        write_video([frames[k]] * 3, path, fps=30)
+        videos.append(path)
+    poses = [scene.joint_angles(k) for k in range(3)]
+    dataset = make_dataset(videos, poses, camera, scene.arm, tracker=tracker, progress=False)
+    motion = dataset.metadata["camera_motion"]
+    assert motion["names"] == ["pose0.mkv", "pose1.mkv", "pose2.mkv"]
+    assert motion["floor_px"] == pytest.approx(0.1, abs=0.02)
+    assert "the camera moved between the videos" in capsys.readouterr().err
+    # calibrate's default floor is at least the move; a floor given explicitly is the user's
+    assert with_tracker_defaults(CalibrationOptions(), dataset.metadata).axis_floor_px == motion["floor_px"]
+    assert with_tracker_defaults(CalibrationOptions(axis_floor_px=0.01), dataset.metadata).axis_floor_px == 0.01
+    # saved and loaded with the dataset
+    dataset.save(tmp_path / "dataset")
+    from gtsam_rotid.dataset import Dataset
+
+    assert Dataset.load(tmp_path / "dataset").metadata["camera_motion"]["floor_px"] == motion["floor_px"]
+    # still videos: measured, no floor; plain frames: nothing to read, said on stderr, nothing claimed
+    still = make_dataset(videos[:2], poses[:2], camera, scene.arm, tracker=tracker, progress=False)
+    assert still.metadata["camera_motion"]["floor_px"] == 0.0
+    plain = []
+    for k in (0, 1):
+        path = tmp_path / f"plain{k}.mkv"
+        write_video([np.full((H, W), 90, np.uint8)] * 3, path, fps=30)
+        plain.append(path)
+    capsys.readouterr()
+    blank = make_dataset(plain, poses[:2], camera, scene.arm, tracker=tracker, progress=False)
+    assert "camera_motion" not in blank.metadata
+    assert "could not be told from their background" in capsys.readouterr().err
