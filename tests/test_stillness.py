@@ -1,6 +1,10 @@
 """Did the camera stay still between the videos? camera_motion reads each video's shift off the still background,
-against shifts it is not told: images of one textured scene moved by known sub-pixel amounts, with an arm that
-stands elsewhere in every video and sensor noise."""
+against shifts it is not told: images of one textured scene moved by known sub-pixel amounts (exactly, by the
+Fourier shift theorem: ``benchmarks/stillness.py``'s scenes), with an arm that stands elsewhere in every video and
+sensor noise."""
+
+import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -10,34 +14,16 @@ from gtsam_rotid.errors import InputError
 from gtsam_rotid.stillness import SIGNIFICANT_Z, background_shift, camera_motion
 from gtsam_rotid.videos import write_video
 
-W, H = 480, 360
-
-
-M = 32  # margin (px) cut from each side after the shift (the Fourier shift wraps around)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from stillness import H, W, moved_view, still_scene  # noqa: E402 (the benchmark's scenes)
 
 
 def _scene(rng) -> np.ndarray:
-    """A still scene: smooth shading and sharp-edged (slightly blurred) panels, float grey levels, with margins."""
-    h, w = H + 2 * M, W + 2 * M
-    noise = cv2.GaussianBlur(rng.normal(size=(h, w)).astype(np.float32), (0, 0), 8.0)
-    image = 70 + 110 * (noise - noise.min()) / (noise.max() - noise.min())
-    for _ in range(80):
-        x, y = int(rng.integers(0, w)), int(rng.integers(0, h))
-        image[y:y + int(rng.integers(5, 25)), x:x + int(rng.integers(5, 25))] = float(rng.uniform(30, 230))
-    return cv2.GaussianBlur(image, (0, 0), 1.0).astype(float)
+    return still_scene(rng)
 
 
 def _view(scene: np.ndarray, shift, arm_at: int, rng) -> np.ndarray:
-    """The scene moved by ``shift`` (px, x and y: exactly, by the Fourier shift theorem; OpenCV's warps round
-    positions to 1/32 px), an arm (a textured band) standing at column ``arm_at``, 2 grey levels of noise."""
-    h, w = scene.shape
-    fy, fx = np.fft.fftfreq(h)[:, None], np.fft.fftfreq(w)[None, :]
-    moved = np.fft.ifft2(np.fft.fft2(scene) * np.exp(-2j * np.pi * (fx * shift[0] + fy * shift[1]))).real
-    image = moved[M:M + H, M:M + W].copy()
-    arm = cv2.GaussianBlur(rng.uniform(40, 220, size=(H, 90)).astype(np.float32), (0, 0), 1.5)
-    image[:, arm_at:arm_at + 90] = arm[:, :min(90, W - arm_at)]
-    image = image + rng.normal(0.0, 2.0, size=image.shape)
-    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    return moved_view(scene, shift, arm_at, rng)
 
 
 @pytest.fixture(scope="module")
