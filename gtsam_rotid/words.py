@@ -30,7 +30,7 @@ from .calibration.tuning import (
     RESTART_P,
 )
 from .planning import Plan, Prediction
-from .stillness import SIGNIFICANT_Z, CameraMotion
+from .stillness import MIN_MOVE_PX, SIGNIFICANT_Z, CameraMotion
 from .trackparams import TRACK_OFFSET_PX
 from .uncertainty import Observability
 
@@ -681,14 +681,14 @@ def camera_motion_words(motion: CameraMotion) -> list[str]:
         lines.append(f"  {motion.names[k]}: {x:+.3f} {y:+.3f} (± {sx:.3f} {sy:.3f}; {int(motion.n_points[k])} "
                      f"points){'  MOVED' if motion.moved[k] else ''}")
     if motion.floor_px > 0.0:
-        lines.append(f"the camera moved between the videos (by more than {SIGNIFICANT_Z:g} sigma), up to "
-                     f"{motion.floor_px:.3f} px: a shift common to a pose's tracks, which the calibration's test "
-                     f"all but cannot see; calibrate with --axis-floor-px {motion.floor_px:.3f} "
-                     f"(CalibrationOptions.axis_floor_px) so that its covariance holds it, or record again with the "
-                     "camera fixed")
+        lines.append(f"the camera moved between the videos (beyond {SIGNIFICANT_Z:g} sigma and {MIN_MOVE_PX:g} px), "
+                     f"up to {motion.floor_px:.3f} px: a shift common to a pose's tracks, which the calibration's "
+                     "test all but cannot see; a dataset made from these videos (`gtsam-rotid track`, make_dataset) "
+                     "carries it and calibrate takes it as the image axes' floor, so that its covariance holds it "
+                     f"(elsewhere: --axis-floor-px {motion.floor_px:.3f}); or record again with the camera fixed")
     else:
-        lines.append("the camera stayed still between the videos (no shift beyond its "
-                     f"{SIGNIFICANT_Z:g} sigma)")
+        lines.append(f"the camera stayed still between the videos (no shift beyond {SIGNIFICANT_Z:g} sigma and "
+                     f"{MIN_MOVE_PX:g} px)")
     return lines
 
 
