@@ -132,6 +132,8 @@ def test_make_dataset_measures_the_cameras_move_and_calibrate_takes_it_as_the_fl
     # calibrate's default floor is at least the move; a floor given explicitly is the user's
     assert with_tracker_defaults(CalibrationOptions(), dataset.metadata).axis_floor_px == motion["floor_px"]
     assert with_tracker_defaults(CalibrationOptions(axis_floor_px=0.01), dataset.metadata).axis_floor_px == 0.01
+    with pytest.raises(InputError, match=r'metadata\["camera_motion"\]\["floor_px"\] must be a finite number'):
+        with_tracker_defaults(CalibrationOptions(), {"camera_motion": {"floor_px": float("nan")}})
     # saved and loaded with the dataset
     dataset.save(tmp_path / "dataset")
     from gtsam_rotid.dataset import Dataset

@@ -244,27 +244,20 @@ def checked_intrinsics_sigma(sigma, name: str = "intrinsics_sigma") -> tuple[flo
 def tracker_floor_px(metadata: dict) -> float:
     """The image axes' prior floor (px) the dataset's tracker wrote (``metadata["tracker"]["axis_floor_px"]``);
     0 when it names none."""
-    return _tracker_px(metadata, "axis_floor_px")
+    return _metadata_px(metadata, "tracker", "axis_floor_px")
 
 
 def tracker_offset_px(metadata: dict) -> float:
     """Each track's own offset (px) the dataset's tracker wrote (``metadata["tracker"]["track_offset_px"]``); 0
     when it names none."""
-    return _tracker_px(metadata, "track_offset_px")
+    return _metadata_px(metadata, "tracker", "track_offset_px")
 
 
 def camera_motion_floor_px(metadata: dict) -> float:
     """The image axes' floor (px) that the camera's measured move between the videos asks for
     (``metadata["camera_motion"]["floor_px"]``, :func:`gtsam_rotid.stillness.camera_motion`, written by
     ``make_dataset``); 0 where it was not measured or the camera stayed still."""
-    motion = metadata.get("camera_motion")
-    value = motion.get("floor_px") if isinstance(motion, dict) else None
-    if value is None:
-        return 0.0
-    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
-        raise InputError(f"the dataset's metadata[\"camera_motion\"][\"floor_px\"] must be a finite number >= 0 "
-                         f"(px), got {value!r}")
-    return float(value)
+    return _metadata_px(metadata, "camera_motion", "floor_px")
 
 
 def with_tracker_defaults(options: CalibrationOptions, metadata: dict) -> CalibrationOptions:
@@ -277,12 +270,12 @@ def with_tracker_defaults(options: CalibrationOptions, metadata: dict) -> Calibr
     return options
 
 
-def _tracker_px(metadata: dict, name: str) -> float:
-    tracker = metadata.get("tracker")
-    value = tracker.get(name) if isinstance(tracker, dict) else None
+def _metadata_px(metadata: dict, section: str, name: str) -> float:
+    entry = metadata.get(section)
+    value = entry.get(name) if isinstance(entry, dict) else None
     if value is None:
         return 0.0
     if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
-        raise InputError(f"the dataset's metadata[\"tracker\"][\"{name}\"] must be a finite number >= 0 "
+        raise InputError(f"the dataset's metadata[\"{section}\"][\"{name}\"] must be a finite number >= 0 "
                          f"(px), got {value!r}")
     return float(value)
