@@ -89,7 +89,7 @@ class _Geometry:
     joint (``spin_joint``, default the wrist: the meshes of that joint and of every joint after it turn with it)."""
 
     def __init__(self, arm: Arm, meshes: ArmMeshes, camera: Camera, arm_T_camera, joint_angles,
-                 config: MeshRenderConfig, spin_joint: str | None = None):
+                 config: MeshRenderConfig, spin_joint: str | None = None, wall_arm_T_camera=None):
         self.camera = camera
         self.config = config
         q = arm.joint_angle_vector(joint_angles)
@@ -108,6 +108,13 @@ class _Geometry:
         camera_T_arm = arm_T_camera.inverse()
         self.cam_R_arm = camera_T_arm.rotation().matrix()
         self.cam_t_arm = camera_T_arm.translation()
+        # the back wall faces the camera whose pose is wall_arm_T_camera (default this one): (rotation of that
+        # camera's frame into this one, this camera's centre in that frame), or None when it is this camera
+        self.wall = None
+        if wall_arm_T_camera is not None:
+            here_T_wall = camera_T_arm * wall_arm_T_camera
+            R = here_T_wall.rotation().matrix()
+            self.wall = (R, -R.T @ here_T_wall.translation())
         arm_T_link = arm.arm_T_joint(q, self.spin_joint)
         self.arm_R_link = arm_T_link.rotation().matrix()
         self.arm_t_link = arm_T_link.translation()
@@ -179,7 +186,13 @@ class _Geometry:
             t, face = np.full(n, np.inf), np.full(n, -1, np.int64)
         kind = np.zeros(n, np.int8)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t_wall = np.where(dirs_cam[:, 2] > 1e-9, self.config.background_distance / dirs_cam[:, 2], np.inf)
+            if self.wall is None:
+                t_wall = np.where(dirs_cam[:, 2] > 1e-9, self.config.background_distance / dirs_cam[:, 2], np.inf)
+            else:  # (the wall of another camera pose: the plane z = distance of that camera's frame)
+                R, centre = self.wall
+                dz = dirs_cam @ R[:, 2]
+                t_wall = np.where(dz > 1e-9, (self.config.background_distance - centre[2]) / dz, np.inf)
+                t_wall = np.where(t_wall > 0, t_wall, np.inf)
             t_floor = np.full(n, np.inf)
             if self.config.floor:
                 dirs_arm_z = dirs_cam @ self.cam_R_arm[:, 2]  # z component in the arm frame
@@ -223,6 +236,9 @@ class _Geometry:
             texture, per_texel = _wall_texture(cfg.background, cfg.seed)
             height, width = texture.shape[:2]
             points = dirs_cam[wall] * t[wall, None]
+            if self.wall is not None:  # (in the frame of the camera the wall faces)
+                R, centre = self.wall
+                points = centre + points @ R
             albedo = _sample(texture, points[:, 0] / per_texel + (width - 1) / 2.0,
                              points[:, 1] / per_texel + (height - 1) / 2.0, border=cv2.BORDER_REFLECT_101)
             out[wall] = albedo * np.float32(cfg.ambient + 0.7 * cfg.diffuse)

@@ -5,7 +5,8 @@ The model
 - **Scene.** The arm's visual meshes (the Pinocchio visual model: example-robot-data's .dae / .stl files, or
   a URDF's meshes found through ``package_dirs``), loaded with trimesh (pycollada for .dae), placed at the
   measurement's joint angles; a back wall perpendicular to the camera's optical axis at
-  ``background_distance`` (a photograph, smooth noise or plain) and optionally a floor (the plane
+  ``background_distance`` (a photograph, smooth noise or plain; with ``camera_moved`` the wall of the truth's
+  camera, seen by the moved one) and optionally a floor (the plane
   ``z = floor_height`` of the arm-base frame, a wood-like noise). The geometry whose parent joint is the spinning
   joint (the measurement's ``spin_joint``, default the wrist) or one of its descendants (for the wrist: the hand,
   its fingers, the wrist ring) spins; everything else is still.
@@ -107,7 +108,7 @@ class MeshSpin:
 
     def __init__(self, k: int, arm: Arm, camera: Camera, arm_T_camera, joint_angles, all_spin_angles,
                  frame_indices, config: MeshRenderConfig, fps: float | None, meshes: ArmMeshes,
-                 spin_joint: str | None = None):
+                 spin_joint: str | None = None, wall_arm_T_camera=None):
         self.measurement = k
         self.arm = arm
         self.camera = camera
@@ -118,7 +119,8 @@ class MeshSpin:
         self.frame_indices = np.asarray(frame_indices, dtype=np.int64)
         self.spin_angles = self._all_spin[self.frame_indices]
         self._step = np.gradient(self._all_spin) if len(self._all_spin) > 1 else np.zeros(1)
-        self._geometry = _Geometry(arm, meshes, camera, arm_T_camera, joint_angles, config, spin_joint)
+        self._geometry = _Geometry(arm, meshes, camera, arm_T_camera, joint_angles, config, spin_joint,
+                                   wall_arm_T_camera)
         #: the joint that spins (its name in the model; the wrist's when the measurement names none)
         self.spin_joint = self._geometry.spin_joint
         problem = _renderability(self._geometry)
@@ -441,20 +443,26 @@ def _rigid_residuals(spin: MeshSpin, start: np.ndarray, frames: np.ndarray, pixe
 
 # --------------------------------------------------------------------------------------------- entry points
 def render_mesh_measurement(dataset, truth, k: int, config: MeshRenderConfig | None = None, *, frames=None,
-                            meshes: ArmMeshes | None = None, package_dirs=None) -> MeshSpin:
+                            meshes: ArmMeshes | None = None, package_dirs=None, camera_moved=None) -> MeshSpin:
     """The mesh-rendered video of measurement ``k`` of a simulated scene (``dataset, truth = simulate...``).
 
     ``frames``: None (all of the spin's frames), a slice, or an array of frame numbers. ``meshes``: the arm's
-    visual meshes (default :func:`load_arm_meshes`, with ``package_dirs`` for a URDF arm). Raises
-    :class:`InputError` naming the measurement when the pose cannot be rendered (see :func:`pose_problem`).
+    visual meshes (default :func:`load_arm_meshes`, with ``package_dirs`` for a URDF arm). ``camera_moved``: a
+    ``gtsam.Pose3``, the camera's move for this video in its own frame (it sees from ``truth.arm_T_camera *
+    camera_moved``), with the back wall, the floor and the still links where they were (the wall faces the
+    camera of ``truth``): a camera that did not stay still between poses. Raises :class:`InputError` naming the
+    measurement when the pose cannot be rendered (see :func:`pose_problem`).
     """
     config = MeshRenderConfig() if config is None else config
     if not isinstance(config, MeshRenderConfig):
         raise InputError(f"config must be a MeshRenderConfig, got {type(config).__name__}")
     k, mt, spin, selection, fps = scene_spin(dataset, truth, k, frames)
     meshes = load_arm_meshes(dataset.arm, package_dirs) if meshes is None else meshes
-    return MeshSpin(k, dataset.arm, dataset.camera, truth.arm_T_camera, mt.joint_angles, spin, selection, config,
-                    fps, meshes, dataset[k].spin_joint)
+    if camera_moved is None:
+        return MeshSpin(k, dataset.arm, dataset.camera, truth.arm_T_camera, mt.joint_angles, spin, selection,
+                        config, fps, meshes, dataset[k].spin_joint)
+    return MeshSpin(k, dataset.arm, dataset.camera, truth.arm_T_camera.compose(camera_moved), mt.joint_angles, spin,
+                    selection, config, fps, meshes, dataset[k].spin_joint, wall_arm_T_camera=truth.arm_T_camera)
 
 
 def render_mesh_scene(dataset, truth, config: MeshRenderConfig | None = None, *, frames=None,

@@ -151,3 +151,31 @@ def test_make_dataset_measures_the_cameras_move_and_calibrate_takes_it_as_the_fl
     blank = make_dataset(plain, poses[:2], camera, scene.arm, tracker=tracker, progress=False)
     assert "camera_motion" not in blank.metadata
     assert "could not be told from their background" in capsys.readouterr().err
+
+
+def test_on_the_rendered_arm_a_still_camera_reads_still_and_a_turn_of_a_hundredth_of_a_degree_is_seen():
+    """The robot's own meshes, a photograph on the hand, a textured wall and floor (``render_mesh_measurement``
+    with ``camera_moved``: the wall, the floor and the still links stay where they were). A turn's image shift
+    varies over the view (0.099-0.117 px for 0.01 deg about x here, 0.20-0.26 px for 0.02 deg about y); the
+    renderer rounds its texture look-ups to 1/32 texel (OpenCV's remap), so the reading is held to 0.04 px of that
+    range."""
+    import gtsam
+
+    from gtsam_rotid import meshrender
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from ambient import scene_spins
+
+    dataset, truth = scene_spins("kinova", 0, 1.0)
+    config = meshrender.MeshRenderConfig(covering="photo")
+    meshes = meshrender.load_arm_meshes(dataset.arm)
+    moves = [None, gtsam.Pose3(), gtsam.Pose3(gtsam.Rot3.Rx(np.radians(0.01)), np.zeros(3)),
+             gtsam.Pose3(gtsam.Rot3.Ry(np.radians(0.02)), np.zeros(3))]
+    frames = [meshrender.render_mesh_measurement(dataset, truth, k, config, frames=np.array([0]), meshes=meshes,
+                                                 camera_moved=move).frame(0) for k, move in enumerate(moves)]
+    motion = camera_motion(frames)
+    assert not motion.moved[1] and motion.size_px[1] < 0.01
+    assert motion.moved[2] and 0.099 - 0.04 < motion.shifts_px[2, 1] < 0.117 + 0.04
+    assert abs(motion.shifts_px[2, 0]) < 0.04
+    assert motion.moved[3] and -0.26 - 0.04 < motion.shifts_px[3, 0] < -0.20 + 0.04
+    assert abs(motion.shifts_px[3, 1]) < 0.04
