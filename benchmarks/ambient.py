@@ -78,6 +78,7 @@ from gtsam_rotid.estimate import CalibrationOptions, calibrate
 from gtsam_rotid.factors import axis_point_residuals
 from gtsam_rotid.graph import axis_test_points
 from gtsam_rotid.simulate import SceneConfig
+from gtsam_rotid.stillness import motion_metadata
 from gtsam_rotid.tracking import Tracker, TrackerParams, tracker_metadata
 from gtsam_rotid.uncertainty import chi2_mean_interval
 from gtsam_rotid.words import image_shift_words, untrusted_words
@@ -152,11 +153,25 @@ def scene_spins(robot: str, seed: int, duration: float, poses: str = "sampled"):
     return simulate.simulate(recorded, seed, arm=arm)
 
 
+def camera_turn(seed: int, k: int, turn_deg: float):
+    """Pose ``k``'s camera turn (``gtsam.Pose3`` in the camera frame) for ``--camera-turn-deg``: about the camera's
+    x and y axes, each N(0, turn_deg²), independent across poses; None for no turn."""
+    if turn_deg <= 0.0:
+        return None
+    import gtsam
+
+    a, b = np.radians(turn_deg) * np.random.default_rng([31, seed, k]).standard_normal(2)
+    return gtsam.Pose3(gtsam.Rot3.Rx(a) * gtsam.Rot3.Ry(b), np.zeros(3))
+
+
 def run_scene(robot: str, covering: str, seed: int, variant: str, duration: float, params: TrackerParams,
               save: str | None = None, options: CalibrationOptions | None = None, poses: str = "sampled",
-              method: str = "joint") -> dict:
+              method: str = "joint", turn_deg: float = 0.0) -> dict:
     """Render, track and calibrate one scene; a dict of the measured numbers (or why it could not run). With
-    ``save``, the tracked dataset and the scene's numbers are written under that directory first."""
+    ``save``, the tracked dataset and the scene's numbers are written under that directory first. With
+    ``turn_deg``, each pose's camera is turned (:func:`camera_turn`; the room stays), the turns are measured on the
+    videos' first frames (``stillness.motion_metadata``, as ``make_dataset`` does) and the scene is calibrated with
+    that reading and without it (``*_unmeasured``)."""
     cv2.setNumThreads(1)
     length, changes = VARIANTS[variant]
     duration = duration if length is None else length
@@ -170,17 +185,19 @@ def run_scene(robot: str, covering: str, seed: int, variant: str, duration: floa
         meshes = mr.load_arm_meshes(dataset.arm)
         config = mr.MeshRenderConfig(covering=covering, seed=seed, **changes)
         measurements, kept, errors, track_time, frames, off, skipped = [], [], [], 0.0, 0, 0, []
-        hand_px, arcs, corner_tracks = [], [], 0
+        hand_px, arcs, corner_tracks, first_frames = [], [], 0, []
         for k in range(len(dataset)):
             if len(kept) == POSES:
                 break
             try:  # a pose whose hand is hidden behind the arm (or outside the image) is not rendered
-                spin = mr.render_mesh_measurement(dataset, truth, k, config, meshes=meshes)
+                spin = mr.render_mesh_measurement(dataset, truth, k, config, meshes=meshes,
+                                                  camera_moved=camera_turn(seed, k, turn_deg))
             except InputError as why:
                 skipped.append(f"{k}: {why}")
                 continue
             hand_px.append(int(spin.moving_mask(int(spin.frame_indices[0])).sum()))
             images = list(spin.frames())
+            first_frames.append(images[0])
             start = time.perf_counter()
             result = Tracker(params).run(images)
             corner_tracks += result.n_corner_tracks
@@ -214,18 +231,30 @@ def run_scene(robot: str, covering: str, seed: int, variant: str, duration: floa
     out["track_median_px"] = float(np.nanmedian([e[2] for e in errors])) if errors else float("nan")
     out["track_rigid_rms_px"] = float(np.sqrt(sum(e[3] for e in errors) / n_compared)) if n_compared else float("nan")
     usable_measurements = [m for m in measurements if m is not None]
+    motion = None
+    if turn_deg > 0.0:  # the turns as the videos' background shows them (the poses with tracks)
+        motion = motion_metadata([f for f, m in zip(first_frames, measurements, strict=True) if m is not None],
+                                 [f"pose {k}" for k, m in enumerate(measurements) if m is not None])
     tracked = None
     try:
         tracked = Dataset(dataset.arm, dataset.camera, usable_measurements,
                           metadata={**dataset.metadata, "scene": scene_name(robot, covering, variant, seed, poses),
-                                    "tracker": tracker_metadata(params, corner_tracks)})
+                                    "tracker": tracker_metadata(params, corner_tracks),
+                                    **({} if motion is None else {"camera_motion": motion})})
     except RotIdError as error:
         out["refused"] = f"{type(error).__name__}: {error}"
     if save is not None:
         _save_scene(save, out, tracked, truth)
     if tracked is None:
         return out
-    return calibrate_scene(out, tracked, truth.arm_T_camera, options, method)
+    out = calibrate_scene(out, tracked, truth.arm_T_camera, options, method)
+    if motion is not None:
+        out["camera_motion"] = motion
+        unmeasured = Dataset(tracked.arm, tracked.camera, list(tracked),
+                             metadata={k: v for k, v in tracked.metadata.items() if k != "camera_motion"})
+        bare = calibrate_scene({}, unmeasured, truth.arm_T_camera, options, method)
+        out.update({f"{k}_unmeasured": bare.get(k) for k in ("chi2", "usable", "err_mm", "sigma_mm", "refused")})
+    return out
 
 
 def _save_scene(directory: str, row: dict, tracked: Dataset | None, truth) -> None:
@@ -392,6 +421,14 @@ def print_table(rows: list[dict]) -> None:
         nees = float(np.mean(usable_chi2))
         print(f"\nNEES over the {len(usable_chi2)} scenes called usable: {nees:.2f} (95 % interval [{low:.2f}, "
               f"{high:.2f}]: {'inside' if low <= nees <= high else 'OUTSIDE'}); {outside} outside their 99.9 % region")
+        turned = [row for row in rows if "camera_motion" in row and row.get("usable") and row.get("usable_unmeasured")]
+        if turned:
+            floors = [row["camera_motion"]["floor_px"] for row in turned]
+            print(f"cameras turned between poses: the background read floors of {min(floors):.3f}-{max(floors):.3f} "
+                  f"px; NEES over the {len(turned)} scenes usable both ways: "
+                  f"{np.mean([r['chi2'] for r in turned]):.2f} with the reading, "
+                  f"{np.mean([r['chi2_unmeasured'] for r in turned]):.2f} without it (each scene's χ² without: "
+                  + ", ".join(f"{r['chi2_unmeasured']:.3g}" for r in turned) + ")")
         shifted = [row for row in rows if row.get("usable") and "shift_mm" in row]
         if shifted:
             named = sum(bool(row["shift_named"]) for row in shifted)
@@ -439,6 +476,9 @@ def main(argv=None) -> int:
     parser.add_argument("--jitter-px", type=float, default=0.0, metavar="SIGMA",
                         help="with --load: add Gaussian noise of SIGMA px to every tracked pixel (1e-6: does an "
                         "answer hang on rounding?)")
+    parser.add_argument("--camera-turn-deg", type=float, default=0.0, metavar="DEG",
+                        help="turn each pose's camera by N(0, DEG²) about its x and y axes (the room stays), read the "
+                        "turns off the videos' background and calibrate with and without that reading")
     parser.add_argument("--poses", default="sampled", choices=("sampled", "planned"),
                         help="the simulator's sampled arm poses, or gtsam_rotid.planning's at a perturbed guess")
     args = parser.parse_args(argv)
@@ -480,10 +520,11 @@ def main(argv=None) -> int:
     if args.jobs > 1:
         from joblib import Parallel, delayed
         rows = Parallel(n_jobs=args.jobs)(delayed(run_scene)(r, c, s, v, args.duration, params, args.save, options,
-                                                             args.poses, args.method) for r, c, v, s in scenes)
+                                                             args.poses, args.method, args.camera_turn_deg)
+                                          for r, c, v, s in scenes)
     else:
-        rows = [run_scene(r, c, s, v, args.duration, params, args.save, options, args.poses, args.method)
-                for r, c, v, s in scenes]
+        rows = [run_scene(r, c, s, v, args.duration, params, args.save, options, args.poses, args.method,
+                          args.camera_turn_deg) for r, c, v, s in scenes]
     _report(rows, args.json, started)
     return 0
 
