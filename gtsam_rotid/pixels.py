@@ -28,6 +28,7 @@ from .dataset import Dataset, Track
 from .errors import InputError
 from .meshrender import MeshRenderConfig, MeshSpin, load_arm_meshes, render_mesh_measurement, track_errors
 from .render import RenderConfig, RenderedSpin, render_measurement
+from .stillness import motion_metadata
 from .tracking import Tracker, TrackerParams, TrackingResult, tracker_metadata
 
 __all__ = [
@@ -254,6 +255,7 @@ class _Timed:
 
     def __init__(self, frames: Iterator[np.ndarray], bar=None):
         self._frames, self._bar, self.seconds = frames, bar, 0.0
+        self.first: np.ndarray | None = None  # (kept: the camera's stillness is read on each video's first frame)
 
     def __iter__(self):
         while True:
@@ -264,6 +266,8 @@ class _Timed:
                 return
             finally:
                 self.seconds += time.perf_counter() - start
+            if self.first is None:
+                self.first = frame
             yield frame
             if self._bar is not None:
                 self._bar.update(1)
@@ -294,6 +298,7 @@ def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | Me
     tracker_params = TrackerParams() if tracker_params is None else tracker_params
     measurements, results, accuracies, spins = [], [], [], []
     render_seconds = track_seconds = 0.0
+    first_frames = []
     n = len(dataset)
     with tqdm(total=n, desc="measurements", unit="spin", disable=not progress, file=sys.stderr) as outer:
         for k in range(n):
@@ -309,6 +314,7 @@ def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | Me
             elapsed = time.perf_counter() - start
             render_seconds += source.seconds
             track_seconds += elapsed - source.seconds
+            first_frames.append(source.first)
             # the tracker numbers the frames it was fed 0, 1, ...: back to the spin's frame numbers
             tracks = [Track(t.pixels, spin.frame_indices[t.frames]) for t in result.tracks]
             rejected = [dataclasses.replace(r, track=Track(r.track.pixels, spin.frame_indices[r.track.frames]))
@@ -330,5 +336,9 @@ def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | Me
                          "tracker_params": dataclasses.asdict(tracker_params)}
     # the image axes' floor of its features
     metadata["tracker"] = tracker_metadata(tracker_params, sum(r.n_corner_tracks for r in results))
+    if n > 1:  # did the camera stay still between the videos? (as make_dataset reads it)
+        motion = motion_metadata(first_frames, [f"measurement {k}" for k in range(n)], "the rendered videos")
+        if motion is not None:
+            metadata["camera_motion"] = motion
     tracked = Dataset(dataset.arm, dataset.camera, measurements, metadata=metadata)
     return VideoScene(tracked, results, accuracies, spins, render_seconds, track_seconds)
