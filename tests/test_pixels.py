@@ -108,6 +108,10 @@ def test_mesh_rendered_scene_is_tracked_against_the_surface_truth():
     scene = dataset_from_video(dataset, truth, MeshRenderConfig(covering="dots"), progress=False)
     assert scene.dataset.metadata["video"]["renderer"] == "mesh"
     assert scene.dataset.metadata["video"]["covering"] == "dots"
+    # the camera stayed still: its videos' background says so (read on each one's first frame)
+    motion = scene.dataset.metadata["camera_motion"]
+    assert motion["floor_px"] == 0.0 and len(motion["shifts_px"]) == 3 and max(
+        abs(v) for shift in motion["shifts_px"] for v in shift) < 0.02
     total = scene.total_accuracy
     assert total.truth == "surface" and "not on the spinning hand" in total.summary()
     assert total.n_tracks >= 6 and total.n_mixed == 0  # nothing tracked on the background or the still links
