@@ -10,10 +10,12 @@ the arm's base do not move unless the camera does, while the links that moved be
 forward-backward check or move far from that consensus. Each video's shift is the median of the consensus, with
 its standard error.
 
-The result is a measurement, not a correction: a turn of the camera shifts near and far points alike, but a move
-of its centre shifts them in inverse proportion to their depth, so the hand (nearer than the background) moves
-more. Declare the largest shift as the image axes' floor (``CalibrationOptions.axis_floor_px``,
-``--axis-floor-px``; :attr:`CameraMotion.floor_px`).
+The result is a measurement, not a correction of the tracks: a turn of the camera shifts near and far points
+alike, but a move of its centre shifts them in inverse proportion to their depth, so the hand (nearer than the
+background) moves more. A dataset carries it (``metadata["camera_motion"]``, :func:`motion_metadata`) and
+``calibrate`` adds what shifts of its scatter (:attr:`CameraMotion.level_px`) move the pose by to the covariance;
+elsewhere, declare the largest shift as the image axes' floor (``--axis-floor-px``, :attr:`CameraMotion.floor_px`:
+more cautious).
 """
 
 from __future__ import annotations
@@ -74,22 +76,35 @@ class CameraMotion:
 
     @property
     def floor_px(self) -> float:
-        """The image axes' floor that covers the moves (px): the largest significant shift, 0 where none is."""
+        """The largest significant shift (px), 0 where none is: as an image axes' floor
+        (``CalibrationOptions.axis_floor_px``) it covers the moves, cautiously (every axis, every pose)."""
         moved = self.moved
         return float(np.max(self.size_px[moved])) if np.any(moved) else 0.0
 
     @property
+    def level_px(self) -> float:
+        """The shifts' scatter about their mean (px, 1 sigma per image coordinate), 0 where no video moved: the
+        level of an image shift per pose (``CalibrationResult.image_shift_covariance`` is per px² of it); their
+        mean is a turn of the camera that every pose shares, which the calibration follows."""
+        if not np.any(self.moved) or len(self.shifts_px) < 2:
+            return 0.0
+        deviations = self.shifts_px - self.shifts_px.mean(axis=0)
+        return float(np.sqrt(np.sum(deviations**2) / (2.0 * (len(self.shifts_px) - 1))))
+
+    @property
     def bound_px(self) -> float:
-        """How far any video may have moved, as far as the background tells (px): the largest shift plus
-        :data:`SIGNIFICANT_Z` standard errors, at least :data:`MIN_MOVE_PX`."""
+        """How far a video may have moved unseen (px): the shift of a video not called moved plus
+        :data:`SIGNIFICANT_Z` standard errors (of a moved one, those alone), the largest, at least
+        :data:`MIN_MOVE_PX`."""
         sigma = np.linalg.norm(self.sigma_px, axis=1)
-        return float(max(np.max(self.size_px + SIGNIFICANT_Z * sigma), MIN_MOVE_PX))
+        unseen = np.where(self.moved, 0.0, self.size_px) + SIGNIFICANT_Z * sigma
+        return float(max(np.max(unseen), MIN_MOVE_PX))
 
     def to_dict(self) -> dict:
-        """As a dataset's ``metadata["camera_motion"]`` holds it (``floor_px`` and ``bound_px`` for ``calibrate``)."""
+        """As a dataset's ``metadata["camera_motion"]`` holds it (``level_px`` and ``bound_px`` for ``calibrate``)."""
         return {"shifts_px": self.shifts_px.tolist(), "sigma_px": self.sigma_px.tolist(),
                 "n_points": [int(n) for n in self.n_points], "names": list(self.names),
-                "floor_px": self.floor_px, "bound_px": self.bound_px}
+                "floor_px": self.floor_px, "level_px": self.level_px, "bound_px": self.bound_px}
 
 
 def _grey(frame: np.ndarray, where: str) -> np.ndarray:
@@ -234,7 +249,7 @@ def camera_motion(videos: Sequence, *, frame: int = 0, names: Sequence[str] | No
 def motion_metadata(frames: Sequence[np.ndarray], names: Sequence[str], source: str = "the videos"
                     ) -> dict | None:
     """:func:`camera_motion` of one frame per measurement (``frames``, named ``names``) as a dataset's
-    ``metadata["camera_motion"]`` (``calibrate`` takes its ``floor_px`` as the image axes' floor), a move said on
+    ``metadata["camera_motion"]`` (``calibrate`` counts its ``level_px`` in the covariance), a move said on
     stderr; None, with a warning, where the background cannot tell (``source`` names the recording in it)."""
     try:
         motion = camera_motion(frames, names=names)
@@ -245,6 +260,6 @@ def motion_metadata(frames: Sequence[np.ndarray], names: Sequence[str], source: 
     if motion.floor_px > 0.0:
         moved = [name for name, m in zip(motion.names, motion.moved, strict=True) if m]
         print(f"warning: the camera moved between {source} (the still background shifts by up to "
-              f"{motion.floor_px:.3f} px: {', '.join(moved)}); calibrate takes it as the image axes' floor "
-              "(`gtsam-rotid still` lists each video's shift)", file=sys.stderr)
+              f"{motion.floor_px:.3f} px: {', '.join(moved)}); calibrate counts what that moves the pose by in "
+              "its covariance (`gtsam-rotid still` lists each video's shift)", file=sys.stderr)
     return motion.to_dict()

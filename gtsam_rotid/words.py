@@ -656,8 +656,8 @@ def image_shift_words(result: CalibrationResult, px: float | None = None) -> str
 
 
 def camera_motion_line(result: CalibrationResult) -> str | None:
-    """What the videos' still background said of the camera's move between them (``result.camera_motion``), and
-    whether the covariance holds it; None where it was not measured."""
+    """What the videos' still background said of the camera's move between them (``result.camera_motion``); None
+    where it was not measured."""
     motion = result.camera_motion
     if not isinstance(motion, dict) or motion.get("floor_px") is None:
         return None
@@ -665,11 +665,9 @@ def camera_motion_line(result: CalibrationResult) -> str | None:
     if floor <= 0.0:
         return (f"camera motion: the videos' still background shows the camera still between them (any shift below "
                 f"{bound:.2g} px)")
-    held = result.axis_floor_px >= floor
+    level = float(motion.get("level_px") or 0.0)
     return (f"camera motion: the videos' still background shows the camera moved between them, by up to {floor:.3g} "
-            "px; " + ("taken as the image axes' floor, in the covariance" if held else
-                      f"the image axes' floor declared ({result.axis_floor_px:g} px) is smaller: the covariance does "
-                      f"not hold it (--axis-floor-px {floor:.3g})"))
+            f"px ({level:.2g} px per pose, 1σ per coordinate): what that moves the pose by is in the covariance")
 
 
 def camera_motion_words(motion: CameraMotion) -> list[str]:
@@ -684,8 +682,9 @@ def camera_motion_words(motion: CameraMotion) -> list[str]:
         lines.append(f"the camera moved between the videos (beyond {SIGNIFICANT_Z:g} sigma and {MIN_MOVE_PX:g} px), "
                      f"up to {motion.floor_px:.3f} px: a shift common to a pose's tracks, which the calibration's "
                      "test all but cannot see; a dataset made from these videos (`gtsam-rotid track`, make_dataset) "
-                     "carries it and calibrate takes it as the image axes' floor, so that its covariance holds it "
-                     f"(elsewhere: --axis-floor-px {motion.floor_px:.3f}); or record again with the camera fixed")
+                     f"carries it ({motion.level_px:.3f} px per pose, 1 sigma per coordinate) and calibrate counts "
+                     "what it moves the pose by in the covariance (elsewhere, more cautiously: --axis-floor-px "
+                     f"{motion.floor_px:.3f}); or record again with the camera fixed")
     else:
         lines.append(f"the camera stayed still between the videos (no shift beyond {SIGNIFICANT_Z:g} sigma and "
                      f"{MIN_MOVE_PX:g} px)")

@@ -103,7 +103,7 @@ def test_the_still_command_names_each_videos_shift_and_the_floor_to_declare(view
 
 def test_make_dataset_measures_the_cameras_move_and_calibrate_takes_it_as_the_floor(views, tmp_path, capsys):
     from gtsam_rotid import simulate
-    from gtsam_rotid.calibration.options import CalibrationOptions, with_tracker_defaults
+    from gtsam_rotid.calibration.options import CalibrationOptions, camera_motion_level_px, with_tracker_defaults
     from gtsam_rotid.camera import Camera
     from gtsam_rotid.dataset import Track
     from gtsam_rotid.recordings import make_dataset
@@ -129,11 +129,12 @@ def test_make_dataset_measures_the_cameras_move_and_calibrate_takes_it_as_the_fl
     assert motion["names"] == ["pose0.mkv", "pose1.mkv", "pose2.mkv"]
     assert motion["floor_px"] == pytest.approx(0.1, abs=0.02)
     assert "the camera moved between the videos" in capsys.readouterr().err
-    # calibrate's default floor is at least the move; a floor given explicitly is the user's
-    assert with_tracker_defaults(CalibrationOptions(), dataset.metadata).axis_floor_px == motion["floor_px"]
-    assert with_tracker_defaults(CalibrationOptions(axis_floor_px=0.01), dataset.metadata).axis_floor_px == 0.01
-    with pytest.raises(InputError, match=r'metadata\["camera_motion"\]\["floor_px"\] must be a finite number'):
-        with_tracker_defaults(CalibrationOptions(), {"camera_motion": {"floor_px": float("nan")}})
+    # the shifts' scatter about their mean (0, 0, 0.1 px along x): the level calibrate counts in the covariance
+    assert motion["level_px"] == pytest.approx(np.sqrt(np.var([0.0, 0.0, 0.1], ddof=1) / 2), abs=0.01)
+    assert camera_motion_level_px(dataset.metadata) == motion["level_px"]
+    assert with_tracker_defaults(CalibrationOptions(), dataset.metadata).axis_floor_px == 0.0  # (no floor from it)
+    with pytest.raises(InputError, match=r'metadata\["camera_motion"\]\["level_px"\] must be a finite number'):
+        camera_motion_level_px({"camera_motion": {"level_px": float("nan")}})
     # saved and loaded with the dataset
     dataset.save(tmp_path / "dataset")
     from gtsam_rotid.dataset import Dataset
@@ -141,7 +142,7 @@ def test_make_dataset_measures_the_cameras_move_and_calibrate_takes_it_as_the_fl
     assert Dataset.load(tmp_path / "dataset").metadata["camera_motion"]["floor_px"] == motion["floor_px"]
     # still videos: measured, no floor; plain frames: nothing to read, said on stderr, nothing claimed
     still = make_dataset(videos[:2], poses[:2], camera, scene.arm, tracker=tracker, progress=False)
-    assert still.metadata["camera_motion"]["floor_px"] == 0.0
+    assert still.metadata["camera_motion"]["floor_px"] == 0.0 and still.metadata["camera_motion"]["level_px"] == 0.0
     plain = []
     for k in (0, 1):
         path = tmp_path / f"plain{k}.mkv"

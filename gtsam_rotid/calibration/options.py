@@ -253,18 +253,18 @@ def tracker_offset_px(metadata: dict) -> float:
     return _metadata_px(metadata, "tracker", "track_offset_px")
 
 
-def camera_motion_floor_px(metadata: dict) -> float:
-    """The image axes' floor (px) that the camera's measured move between the videos asks for
-    (``metadata["camera_motion"]["floor_px"]``, :func:`gtsam_rotid.stillness.camera_motion`, written by
-    ``make_dataset``); 0 where it was not measured or the camera stayed still."""
-    return _metadata_px(metadata, "camera_motion", "floor_px")
+def camera_motion_level_px(metadata: dict) -> float:
+    """The level (px, 1 sigma per image coordinate) of the image shift per pose that the camera's measured move
+    between the videos gives (``metadata["camera_motion"]["level_px"]``, :func:`gtsam_rotid.stillness.camera_motion`,
+    written by ``make_dataset``); 0 where it was not measured or the camera stayed still."""
+    return _metadata_px(metadata, "camera_motion", "level_px")
 
 
 def with_tracker_defaults(options: CalibrationOptions, metadata: dict) -> CalibrationOptions:
     """``options`` with the tracker's values (:func:`tracker_floor_px`, :func:`tracker_offset_px`) where they are
-    None; the floor at least the camera's measured move between the videos (:func:`camera_motion_floor_px`)."""
+    None."""
     if options.axis_floor_px is None:
-        options = replace(options, axis_floor_px=max(tracker_floor_px(metadata), camera_motion_floor_px(metadata)))
+        options = replace(options, axis_floor_px=tracker_floor_px(metadata))
     if options.track_offset_px is None:
         options = replace(options, track_offset_px=tracker_offset_px(metadata))
     return options

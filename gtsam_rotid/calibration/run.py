@@ -20,7 +20,14 @@ from .joint import Fitted, _judged, _weighted
 from .lm import _builder
 from .modelcheck import IMPROVEMENT_Z, intrinsics_check, kinematics_check
 from .offsets import MAX_OFFSET_SIGMAS, OffsetsPrior, offsets_from_axes, shifted
-from .options import MIN_MEASUREMENTS, CalibrationError, CalibrationOptions, Method, with_tracker_defaults
+from .options import (
+    MIN_MEASUREMENTS,
+    CalibrationError,
+    CalibrationOptions,
+    Method,
+    camera_motion_level_px,
+    with_tracker_defaults,
+)
 from .result import CalibrationResult, MeasurementReport, OutlierKind
 from .setup import _Setup, _setup, arc_span_deg
 from .stage2 import _check_scale, _paper, _refined_stage1, _settled
@@ -119,6 +126,9 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
                      readings_ignored=bool(ignored),
                      camera_motion=dict(metadata["camera_motion"]) if isinstance(metadata.get("camera_motion"), dict)
                      else None)
+    level = camera_motion_level_px(metadata)
+    if level > 0.0 and result.image_shift_covariance is not None:  # the camera moved between the videos
+        result = replace(result, covariance=result.covariance + level**2 * result.image_shift_covariance)
     return replace(result, untrusted=_untrusted(result, setup))
 
 

@@ -76,25 +76,22 @@ def test_the_image_shift_covariance_is_saved_with_the_result(scene, tmp_path):
     assert old.image_shift_covariance is None and image_shift_words(old) is None
 
 
-def test_a_measured_camera_move_is_the_floor_and_a_measured_still_camera_silences_the_warning(scene):
-    """``metadata["camera_motion"]`` (what ``make_dataset`` writes from the videos' still background): a move is
-    taken as the image axes' floor and said; a still camera bounds the unseen shift by what the background
-    resolves, far below the 0.1 px assumed otherwise."""
+def test_a_measured_camera_move_is_in_the_covariance_and_a_measured_still_camera_silences_the_warning(scene):
+    """``metadata["camera_motion"]`` (what ``make_dataset`` writes from the videos' still background): a move adds
+    its level squared times the image shift covariance and is said; a still camera bounds the unseen shift by what
+    the background resolves, far below the 0.1 px assumed otherwise."""
     dataset, base = scene
     moved = Dataset(dataset.arm, dataset.camera, list(dataset),
-                    metadata={"camera_motion": {"floor_px": 0.1, "bound_px": 0.11}})
+                    metadata={"camera_motion": {"floor_px": 0.15, "level_px": 0.07, "bound_px": 0.02}})
     result = calibrate(moved, method="joint")
-    assert result.axis_floor_px == 0.1 and result.camera_motion["floor_px"] == 0.1
+    assert result.axis_floor_px == 0.0 and result.camera_motion["level_px"] == 0.07
+    np.testing.assert_allclose(result.covariance, base.covariance + 0.07**2 * base.image_shift_covariance)
     text = summary(result)
-    assert "camera moved between them, by up to 0.1 px; taken as the image axes' floor" in text
-    assert result.image_shift_excess(0.11) < 1.0 and "camera still?" not in text
-    # the floor declared smaller than the move: said
-    low = calibrate(moved, method="joint", options=CalibrationOptions(axis_floor_px=0.02))
-    assert "the covariance does not hold it (--axis-floor-px 0.1)" in summary(low)
+    assert "camera moved between them, by up to 0.15 px (0.07 px per pose, 1σ per coordinate)" in text
+    assert "camera still?" not in text
     still = Dataset(dataset.arm, dataset.camera, list(dataset),
-                    metadata={"camera_motion": {"floor_px": 0.0, "bound_px": 0.02}})
+                    metadata={"camera_motion": {"floor_px": 0.0, "level_px": 0.0, "bound_px": 0.02}})
     result = calibrate(still, method="joint")
-    assert result.axis_floor_px == 0.0
     np.testing.assert_allclose(result.covariance, base.covariance)
     text = summary(result)
     assert "shows the camera still between them (any shift below 0.02 px)" in text and "camera still?" not in text
