@@ -423,9 +423,9 @@ def print_table(rows: list[dict]) -> None:
               f"{high:.2f}]: {'inside' if low <= nees <= high else 'OUTSIDE'}); {outside} outside their 99.9 % region")
         turned = [row for row in rows if "camera_motion" in row and row.get("usable") and row.get("usable_unmeasured")]
         if turned:
-            floors = [row["camera_motion"]["floor_px"] for row in turned]
-            print(f"cameras turned between poses: the background read floors of {min(floors):.3f}-{max(floors):.3f} "
-                  f"px; NEES over the {len(turned)} scenes usable both ways: "
+            levels = [row["camera_motion"]["level_px"] for row in turned]
+            print(f"cameras turned between poses: the background read shifts of {min(levels):.3f}-{max(levels):.3f} "
+                  f"px per pose (1σ per coordinate); NEES over the {len(turned)} scenes usable both ways: "
                   f"{np.mean([r['chi2'] for r in turned]):.2f} with the reading, "
                   f"{np.mean([r['chi2_unmeasured'] for r in turned]):.2f} without it (each scene's χ² without: "
                   + ", ".join(f"{r['chi2_unmeasured']:.3g}" for r in turned) + ")")
