@@ -7,8 +7,9 @@ cannot see it (README, "An image shift per pose"): only the scene around the arm
 corners in one frame of the first video, follows each into the same frame of every other video (pyramidal
 Lucas-Kanade, forward and backward), and takes the shift that most of them agree on: the background, the table and
 the arm's base do not move unless the camera does, while the links that moved between the poses either fail the
-forward-backward check or move far from that consensus. Each video's shift is the median of the consensus, with
-its standard error.
+forward-backward check or move far from that consensus. A window about each of those points is aligned again in
+floating point, and each video's shift is the median of the windows' shifts, with its standard error
+(``benchmarks/stillness.py``: 0.007-0.012 px on textured scenes, JPEG-compressed or blurred).
 
 The result is a measurement, not a correction of the tracks: a turn of the camera shifts near and far points
 alike, but a move of its centre shifts them in inverse proportion to their depth, so the hand (nearer than the
@@ -48,8 +49,8 @@ MIN_POINTS = 20
 ALIGN_HALF = 7
 #: Gauss-Newton steps of that alignment.
 ALIGN_STEPS = 4
-#: A shift counts as a move when it exceeds this many standard errors and :data:`MIN_MOVE_PX` (and is kept as the
-#: floor): below a fiftieth of a pixel the reading's own biases (the background's texture, compression) compete.
+#: A shift counts as a move when it exceeds this many standard errors and :data:`MIN_MOVE_PX`: below a fiftieth of
+#: a pixel the reading's own errors (the background's texture, compression) compete.
 SIGNIFICANT_Z = 3.0
 MIN_MOVE_PX = 0.02
 
