@@ -71,7 +71,7 @@ class CameraMotion:
 
     @property
     def moved(self) -> np.ndarray:
-        """(n,) whether each video's shift exceeds :data:`SIGNIFICANT_Z` standard errors."""
+        """(n,) whether each video's shift exceeds :data:`SIGNIFICANT_Z` standard errors and :data:`MIN_MOVE_PX`."""
         sigma = np.linalg.norm(self.sigma_px, axis=1)
         return (self.size_px > SIGNIFICANT_Z * np.maximum(sigma, 1e-12)) & (self.size_px > MIN_MOVE_PX)
 
