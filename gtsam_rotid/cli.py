@@ -463,8 +463,8 @@ def add_still_parser(subparsers) -> argparse.ArgumentParser:
         description="Read each video's image shift against the first one's off the scene around the arm (the "
                     "background, the table, the arm's base), which does not move unless the camera does: a turn "
                     "of 0.01 deg is 0.1 px at f = 570 px, and the calibration's own test all but cannot see it. "
-                    "A dataset made from the videos (track) carries the same reading, and calibrate takes a move "
-                    "as the image axes' floor. Exit code 0: still; 3: moved; 1: an error.")
+                    "A dataset made from the videos (track) carries the same reading, and calibrate counts what a "
+                    "move does to the pose in its covariance. Exit code 0: still; 3: moved; 1: an error.")
     p.add_argument("videos", nargs="+", metavar="VIDEO", help="one video file or image folder per arm pose")
     p.add_argument("--frame", type=int, default=0, help="the frame of each video compared (default 0)")
     p.set_defaults(func=cmd_still)
