@@ -5,6 +5,7 @@ camera-to-joint-state time offset measured and applied, and the tracker run on e
 
 from __future__ import annotations
 
+import itertools
 import os
 import sys
 from collections.abc import Callable, Mapping, Sequence
@@ -139,8 +140,9 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
                                    "differ by more than the search (--max-time-offset), give the offset "
                                    "(--time-offset)")
                 first, last = int(inside[0]), int(inside[-1])  # every image between, in the bag's order
-                first_images.append(next(iter(bag.images(topics.image, first, first)))[2])
-                frames = (image for _, _, image in bag.images(topics.image, first, last))
+                images = (image for _, _, image in bag.images(topics.image, first, last))
+                first_images.append(next(images))  # (kept: the camera's stillness is read on each spin's first)
+                frames = itertools.chain(first_images[-1:], images)
                 tracks = tracked_frames(frames, last - first + 1, first, Path(where), camera, tracker,
                                         tracker_params, k, label, progress)
                 readings = _spin_readings(image_stamps - shift, stamps, unwrapped[:, arm.spin_index(spin_joint)], a,
