@@ -767,6 +767,9 @@ def check_words(check: CheckResult) -> list[str]:
     sigma_mm, sigma_deg = check.move_sigma
     basis = ("" if check.tolerance is None else f" (the calibration came without a covariance: taken as good to "
              f"{check.tolerance[0]:g} mm and {check.tolerance[1]:g}° per axis, 1σ; --tolerance)")
+    if check.image_shift_px > 0.0:
+        basis += (f" (the camera shook between the new videos, as their background measured: each spin's image "
+                  f"taken to shift by {check.image_shift_px:.3f} px of its own, 1σ)")
     recalibrate = ("Recalibrate: spin the wrist at three or more poses whose axes do not meet in one point (or check "
                    "that the camera mount, the joint readings and the intrinsics are as they were).")
     odd = ("" if check.odd_spin is None else f"Spin {check.odd_spin} alone does not fit: check its joint readings "

@@ -25,7 +25,7 @@ from ..factors import axis_offsets_residuals, axis_point_residuals
 from ..graph import Model, axis_test_points, offset_axis_test_points, track_huber
 from ..uncertainty import chi2_sf
 from .lm import _builder
-from .options import CalibrationError, CalibrationOptions, with_tracker_defaults
+from .options import CalibrationError, CalibrationOptions, camera_motion_level_px, with_tracker_defaults
 from .setup import _setup
 from .stage1 import _checked, _readmit_tracks, _stage1, _stage1_measurement, _start_line, stage1_builders
 from .stage2 import _axis_distances
@@ -88,6 +88,9 @@ class CheckResult:
     residual_chi2: float = 0.0
     residual_dof: int = 0
     residual_p: float = 1.0
+    #: each spin's own image shift counted (px, 1 sigma per coordinate): the camera's shake between the new videos
+    #: that their background measured (``metadata["camera_motion"]["level_px"]``); 0 where none was
+    image_shift_px: float = 0.0
 
     @property
     def consistent(self) -> bool:
@@ -146,7 +149,12 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
     ``axis_scale``: the calibration's scale of its image axes' noise (``CalibrationResult.axis_consistency.scale``
     where its axes disagreed beyond their noise: its covariance carries it): the new spins' axes, tracked the same
     way, are taken to scatter as much (a calibration checked against its own spins had one spin flagged at
-    chi-square 14 that its scale of 2.3 counted as noise)."""
+    chi-square 14 that its scale of 2.3 counted as noise).
+
+    A dataset whose metadata measured the camera's move between its videos (``metadata["camera_motion"]``,
+    :func:`gtsam_rotid.stillness.camera_motion`) counts the moves' scatter (``level_px``, px per image coordinate)
+    as an image shift of each spin's own: it moves the spin's axis across itself, both test points' distances alike
+    (``level_px² [[1, 1], [1, 1]]`` on each spin's covariance); the moves' mean is a move of the camera, tested."""
     if isinstance(dataset, Dataset):
         arm, camera, measurements, metadata = dataset.arm, dataset.camera, list(dataset), dataset.metadata
     else:
@@ -191,6 +199,8 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
     setup = replace(_setup(arm, camera, measurements, options, minimum=1), thin_check=True)
     stage1 = _pose_free_stage1(arm, camera, measurements, arm_T_camera, setup, options)
     variance = [max(s.sigma2, float(np.median([t.sigma2 for t in stage1]))) for s in stage1]
+    level = camera_motion_level_px(metadata)  # each spin's own image shift (px per coordinate)
+    level2 = level**2
 
     def rows(pose: gtsam.Pose3):
         """Per spin: distances (2,), their Jacobian by the pose's tangent (2, 6), their covariance (2, 2)."""
@@ -198,6 +208,7 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
         for k, s in enumerate(stage1):  # the projected-axis factor's own distances and Jacobian
             e, J, _ = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), s.image_axis)
             _, cov = _axis_distances(camera, setup.axes[k], s, pose, axis_scale * variance[k], setup, k, floor=True)
+            cov = cov + level2 * np.ones((len(e), len(e)))
             if not (np.all(np.isfinite(e)) and np.all(np.isfinite(J)) and np.all(np.isfinite(cov))):
                 raise CalibrationError(f"spin {k}: the calibration puts its wrist axis behind the camera or out of "
                                        "the image; is the pose the camera's optical frame in the arm's root frame "
@@ -235,7 +246,7 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
     return CheckResult(arm_T_camera, had_covariance, spins, test.chi2, test.dof, test.p_value,
                        bool(test.p_value >= CHECK_P), test.move, test.move_covariance, test.determined, odd,
                        None if had_covariance else (float(tolerance[0]), float(tolerance[1])),
-                       test.residual, test.residual_dof, test.residual_p)
+                       test.residual, test.residual_dof, test.residual_p, level)
 
 
 class _Test(NamedTuple):

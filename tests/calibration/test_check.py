@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from gtsam_rotid import Dataset, simulate
+from gtsam_rotid import Dataset, Measurement, Track, simulate
 from gtsam_rotid.calibration.check import check_calibration
 from gtsam_rotid.cli import main
 from gtsam_rotid.errors import InputError
@@ -80,6 +80,28 @@ def test_one_spin_that_disagrees_is_named_not_called_a_move(sessions):
                               covariance=result.covariance)
     assert check.still_valid and check.odd_spin == 3  # judged without it
     assert check_words(check)[0].startswith("ONE SPIN DISAGREES: spin 3 alone does not fit")
+
+
+def test_a_camera_that_shook_between_the_new_spins_as_measured_is_not_called_moved(sessions):
+    """The camera shifts each new spin's image by its own 0.3 px (1 sigma per coordinate) and comes back: no move.
+    The dataset's measured camera motion (``metadata["camera_motion"]["level_px"]``, as make_dataset writes it)
+    is counted in each spin's covariance; the same spins without it read the shake as a move."""
+    _, later, truth, result = sessions
+    level, verdicts = 0.3, []
+    for seed in range(4):
+        shifts = np.random.default_rng(seed).normal(0.0, level, (len(later), 2))
+        shaken = [Measurement(m.joint_angles, [Track(t.pixels + shifts[i], t.frames) for t in m.tracks], name=m.name)
+                  for i, m in enumerate(later)]
+        measured = Dataset(later.arm, later.camera, shaken, metadata={"camera_motion": {"level_px": level}})
+        check = check_calibration(result.arm_T_camera, measured, covariance=result.covariance)
+        assert check.still_valid and check.consistent and check.odd_spin is None, seed
+        assert mahalanobis(check, truth) < 22.46, seed  # the move (none) holds its covariance
+        assert check.image_shift_px == level and "each spin's image taken to shift by 0.300 px" in check_words(check)[0]
+        unmeasured = check_calibration(result.arm_T_camera, Dataset(later.arm, later.camera, shaken),
+                                       covariance=result.covariance)
+        assert unmeasured.chi2 > check.chi2, seed
+        verdicts.append(unmeasured.still_valid and mahalanobis(unmeasured, truth) < 22.46)
+    assert not all(verdicts)  # without the reading, a shake is taken for a move (or the move misses the truth)
 
 
 def test_the_calibration_is_read_from_any_file_that_holds_one(sessions, tmp_path):
