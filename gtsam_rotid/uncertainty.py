@@ -123,6 +123,18 @@ def sandwich_marginal(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
     graph's noise models say, ``D`` (per variable, ``extra[variable] = D_block``, or per tuple of variables a block
     over them together, in the tuple's order) being the excess of the estimated meat (e.g. summed per-cluster
     scores) over ``H``. None when ``H`` is singular."""
+    return _sandwich(graph, values, key, dim, extra, True)
+
+
+def meat_marginal(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int], dim: int,
+                  extra: dict[int | tuple[int, ...], np.ndarray]) -> np.ndarray | None:
+    """The block of ``H^-1 D H^-1`` of several variables together (``keys``, their dimensions summing to ``dim``):
+    what an error the graph does not model, of covariance ``D`` on its scores (as :func:`sandwich_marginal`'s
+    ``extra``), adds to their covariance. None when ``H`` is singular."""
+    return _sandwich(graph, values, list(keys), dim, extra, False)
+
+
+def _sandwich(graph, values, key, dim: int, extra, with_hessian: bool) -> np.ndarray | None:
     H, offsets = _hessian_key_first(graph, values, key)
     starts = sorted(offsets.values()) + [len(H)]
     ends = dict(zip(starts[:-1], starts[1:], strict=True))
@@ -139,7 +151,7 @@ def sandwich_marginal(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
         return None
     if not np.all(np.isfinite(X)):
         return None
-    C = X.T @ (H + D) @ X
+    C = X.T @ (H + D if with_hessian else D) @ X
     return 0.5 * (C + C.T)
 
 

@@ -33,6 +33,7 @@ from ..graph import (
 from ..uncertainty import (
     chi2_sf,
     joint_marginal_covariance,
+    meat_marginal,
     pose_information,
     sandwich_marginal,
 )
@@ -388,11 +389,25 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
             if robust is not None:  # cluster-robust, as the pose's
                 offsets_covariance = robust
         determined = determined_offsets(offsets_covariance, offsets.sigma)
+    prior, shift = _prior_floor_covariance(rows, _axis_floors(setup, None, len(used))), _shift_covariance(rows)
+    nuisance = _nuisance_blocks(graph, result, camera, setup, keys, used, builder, offsets, intrinsics) \
+        if covariance is not None else None
+    if nuisance is not None:  # the refined offsets or intrinsics take up part of the floor and of a shift too
+        shift, floor = nuisance["shift"][0], nuisance.get("floor")
+        if floor is not None:
+            prior = floor[0]
+            if offsets_covariance is not None and "offsets" in floor[1]:
+                offsets_covariance, cross = offsets_covariance + floor[1]["offsets"], cross + floor[1]["cross"]
     out = _finish(solved, reports, np.median(list(sigmas.values())), dof=_graph_dof(graph, result) - projected,
                   consistency=_axis_consistency(rows, _axis_floors(setup, axis_offsets, len(used)), options,
                                                 fitted=determined),
-                  prior=_prior_floor_covariance(rows, _axis_floors(setup, None, len(used))),
-                  shift=_shift_covariance(rows))
+                  prior=prior, shift=shift)
+    if nuisance is not None:
+        blocks = nuisance["shift"][1]
+        if intrinsics is not None and "intrinsics" in blocks:
+            chosen = intrinsics.indices
+            blocks["intrinsics"] = blocks["intrinsics"][np.ix_(chosen, chosen)]
+        out = replace(out, image_shift_nuisance={k: v for k, v in blocks.items()})
     if shapes is not None:  # (judged, at the axes' scale that a camera change leaves, by run._checked_model)
         out = replace(out, intrinsics_shapes=shapes)
     if intrinsics is not None:
@@ -659,15 +674,59 @@ def _lifted(factor, values: gtsam.Values, meat: np.ndarray) -> np.ndarray:
     return 0.5 * (lifted + lifted.T)
 
 
+def _nuisance_blocks(graph, values, camera, setup, keys, used, builder, offsets, intrinsics) -> dict | None:
+    """Where joint offsets or intrinsics are refined, what the image axes' prior floor and an image shift per pose
+    (per px², :func:`stage2._shift_covariance`) add to the covariance of the pose and of them together, through the
+    joint graph (:func:`_axis_meats`; through the axes alone, the pose's would leave out what the offsets or the
+    intrinsics take up): ``{"shift": (pose 6x6, blocks), "floor": (pose, blocks)}`` (the floor's where there is
+    one), ``blocks`` holding ``"offsets"`` (n x n rad²), ``"cross"`` (6 x n, pose by offsets) and
+    ``"intrinsics"`` (5x5 px², fx fy s cx cy). None where neither is refined or the graph is singular."""
+    parts = []
+    if offsets is not None:
+        parts.append(("offsets", builder.offsets_key, len(offsets.joints)))
+    if intrinsics is not None:
+        parts.append(("intrinsics", INTRINSICS_KEY, 5))
+    if not parts:
+        return None
+    dim = 6 + sum(d for _, _, d in parts)
+    out = {}
+    errors = [("shift", np.ones((2, 2)))] + ([] if setup.floor_covariance is None else
+                                             [("floor", setup.floor_covariance)])
+    for name, F in errors:
+        S = meat_marginal(graph, values, [POSE_KEY, *[key for _, key, _ in parts]], dim,
+                          _axis_meats(camera, setup, keys, used, values, F))
+        if S is None or not np.all(np.isfinite(S)):
+            return None
+        blocks, start = {}, 6
+        for part, _, d in parts:
+            blocks[part] = S[start:start + d, start:start + d]
+            if part == "offsets":
+                blocks["cross"] = S[:6, start:start + d]
+            start += d
+        out[name] = (S[:6, :6], blocks)
+    return out
+
+
 def _with_floor(correlated: dict, camera, setup, keys, used, values: gtsam.Values) -> dict:
     """The measurements' extra meat ``correlated`` (:func:`_meats`) plus the image axes' prior floor's
-    (:func:`_floor_meat`, carried to the intrinsics as :func:`_meats` does), where the setup has a floor."""
+    (:func:`_axis_meats`), where the setup has a floor."""
     extra = dict(correlated)
     if setup.floor_covariance is None:
         return extra
+    for key, meat in _axis_meats(camera, setup, keys, used, values, setup.floor_covariance).items():
+        extra[key] = extra.get(key, np.zeros(meat.shape)) + meat
+    return extra
+
+
+def _axis_meats(camera, setup, keys, used, values: gtsam.Values, F: np.ndarray) -> dict:
+    """Per used measurement's line variable, the meat of an error ``F`` (2x2 px², on its image axis' test-point
+    distances) that the graph does not model (:func:`_floor_meat`), carried to the intrinsics as :func:`_meats`
+    does where they are refined: the prior floor's (``setup.floor_covariance``), or an image shift per pose's
+    (``[[1, 1], [1, 1]]`` per px²)."""
     pose = values.atPose3(POSE_KEY)
+    extra = {}
     for k in used:
-        meat = _floor_meat(camera, setup, keys[k], values, pose, setup.axes[k])
+        meat = _floor_meat(camera, keys[k], values, pose, setup.axes[k], F)
         factor = keys[k].coaxial
         if getattr(factor, "intrinsics_key", None) is None:
             key = keys[k].line_key
@@ -677,12 +736,12 @@ def _with_floor(correlated: dict, camera, setup, keys, used, values: gtsam.Value
     return extra
 
 
-def _floor_meat(camera, setup, keys, values: gtsam.Values, pose: gtsam.Pose3, axis) -> np.ndarray:
-    """(3, 3) what the image axes' prior floor (:attr:`_Setup.floor_covariance` ``F``, on the test points'
-    distances) adds to the meat of a measurement's line variable in the joint graph: a shift ``b`` of its image axis
-    is what its tracks say of a line moved by the least (in its own information ``H``) that moves the test points'
-    distances by ``b``, whose score is ``A^T L b`` (``A`` the distances' Jacobian by the line, ``L = (A H^-1
-    A^T)^-1`` their information): ``A^T L F L A``."""
+def _floor_meat(camera, keys, values: gtsam.Values, pose: gtsam.Pose3, axis, F: np.ndarray) -> np.ndarray:
+    """(3, 3) what an error ``F`` on the image axis' test points' distances (the prior floor,
+    :attr:`_Setup.floor_covariance`, or an image shift) adds to the meat of a measurement's line variable in the
+    joint graph: a shift ``b`` of its image axis is what its tracks say of a line moved by the least (in its own
+    information ``H``) that moves the test points' distances by ``b``, whose score is ``A^T L b`` (``A`` the
+    distances' Jacobian by the line, ``L = (A H^-1 A^T)^-1`` their information): ``A^T L F L A``."""
     factor = keys.coaxial
     H = factor.track_information(values).sum(axis=0)
     line, J_line = image_line_from_rot3(camera.K, values.atRot3(keys.line_key))
@@ -691,7 +750,7 @@ def _floor_meat(camera, setup, keys, values: gtsam.Values, pose: gtsam.Pose3, ax
         L = np.linalg.inv(A @ np.linalg.solve(H, A.T))
     except np.linalg.LinAlgError:
         return np.zeros((3, 3))
-    meat = A.T @ L @ setup.floor_covariance @ L @ A
+    meat = A.T @ L @ F @ L @ A
     return 0.5 * (meat + meat.T) if np.all(np.isfinite(meat)) else np.zeros((3, 3))
 
 

@@ -305,6 +305,10 @@ class CalibrationResult:
     #: to ``covariance``, which the axes' test all but cannot see (README, "An image shift per pose"); None where
     #: not computed (``paper``, an undetermined pose, files written before it was)
     image_shift_covariance: np.ndarray | None = None
+    #: where joint offsets or intrinsics were refined, the same per px² for them: ``"offsets"`` (n x n rad², as
+    #: ``joint_offsets_covariance``), ``"cross"`` (6 x n, as ``pose_offsets_covariance``), ``"intrinsics"`` (as
+    #: ``intrinsics_covariance``); None otherwise
+    image_shift_nuisance: dict | None = None
     #: the camera's move between the videos as their still background showed it (the dataset's
     #: ``metadata["camera_motion"]``, :func:`gtsam_rotid.stillness.camera_motion`: ``shifts_px``, ``sigma_px``,
     #: ``floor_px``, ``bound_px``, ...); None where it was not measured
@@ -443,6 +447,8 @@ class CalibrationResult:
             "swapped": self.swapped,
             "image_shift_covariance": None if self.image_shift_covariance is None
             else np.asarray(self.image_shift_covariance).tolist(),
+            "image_shift_nuisance": None if self.image_shift_nuisance is None
+            else {k: np.asarray(v).tolist() for k, v in self.image_shift_nuisance.items()},
             "camera_motion": self.camera_motion,
         }
 
@@ -510,6 +516,8 @@ class CalibrationResult:
                    for k in ("miss_px", "swapped_miss_px", "next_miss_px", "sigma_mm")}},
             image_shift_covariance=None if data.get("image_shift_covariance") is None
             else np.array(data["image_shift_covariance"], dtype=float),
+            image_shift_nuisance=None if data.get("image_shift_nuisance") is None
+            else {str(k): np.array(v, dtype=float) for k, v in data["image_shift_nuisance"].items()},
             camera_motion=None if data.get("camera_motion") is None else dict(data["camera_motion"]),
         )
 

@@ -129,6 +129,14 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
     level = camera_motion_level_px(metadata)
     if level > 0.0 and result.image_shift_covariance is not None:  # the camera moved between the videos
         result = replace(result, covariance=result.covariance + level**2 * result.image_shift_covariance)
+        blocks = result.image_shift_nuisance or {}  # (and the refined offsets and intrinsics with it)
+        if result.joint_offsets_covariance is not None and "offsets" in blocks:
+            result = replace(result,
+                             joint_offsets_covariance=result.joint_offsets_covariance + level**2 * blocks["offsets"],
+                             pose_offsets_covariance=result.pose_offsets_covariance + level**2 * blocks["cross"])
+        if result.intrinsics_covariance is not None and "intrinsics" in blocks:
+            result = replace(result,
+                             intrinsics_covariance=result.intrinsics_covariance + level**2 * blocks["intrinsics"])
     return replace(result, untrusted=_untrusted(result, setup))
 
 

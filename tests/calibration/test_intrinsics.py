@@ -174,3 +174,41 @@ def test_offsets_and_intrinsics_refined_at_six_planned_poses_hold_their_covarian
     assert result.intrinsics_covariance is not None and set(result.intrinsics_sigma) == set(NAMES)
     assert intrinsics_chi2(result, dataset.camera) < CHI2_999_4
     assert not result.covariance_usable or chi2_of_error(result, truth) < CHI2_999_6
+
+
+def test_an_image_shift_per_pose_is_counted_for_the_pose_and_the_intrinsics_together():
+    """With the intrinsics refined, an image shift per pose moves the pose and the intrinsics together (a shift of
+    every pose alike is a move of the principal point): ``image_shift_covariance`` and
+    ``image_shift_nuisance["intrinsics"]`` are computed through the joint graph. The ground truth is the refined
+    calibration fitted again with each pose's pixels moved by 0.05 px along x and along y in turn (the sum of the
+    outer products of those moves per px): within 15 % per 1σ, to first order. A measured camera move adds its
+    level squared times them."""
+    from gtsam_rotid import Measurement, Track
+
+    dataset, _ = simulate.reference_scene(seed=0, duration=12.0)
+    options = CalibrationOptions(refine_intrinsics=True)
+    base = calibrate(dataset, options=options)
+    names = list(base.refined_intrinsics)
+    assert names == list(NAMES)
+    start = np.array([base.intrinsics[n] for n in names])
+    h = 0.05
+    moved = np.zeros((6 + len(names),) * 2)
+    for k in range(len(dataset)):
+        for shift in (np.array([h, 0.0]), np.array([0.0, h])):
+            shifted = Dataset(dataset.arm, dataset.camera, [
+                Measurement(m.joint_angles, [Track(t.pixels + (shift if i == k else 0.0), t.frames) for t in m.tracks])
+                for i, m in enumerate(dataset)])
+            result = calibrate(shifted, options=options)
+            d = np.concatenate([base.arm_T_camera.localCoordinates(result.arm_T_camera),
+                                np.array([result.intrinsics[n] for n in names]) - start]) / h
+            moved += np.outer(d, d)
+    blocks = base.image_shift_nuisance
+    assert sorted(blocks) == ["intrinsics"] and blocks["intrinsics"].shape == (4, 4)
+    predicted = np.concatenate([np.diag(base.image_shift_covariance), np.diag(blocks["intrinsics"])])
+    np.testing.assert_allclose(np.sqrt(predicted), np.sqrt(np.diag(moved)), rtol=0.15)
+    level = 0.07
+    measured = calibrate(Dataset(dataset.arm, dataset.camera, list(dataset),
+                                 metadata={"camera_motion": {"floor_px": 0.15, "level_px": level, "bound_px": 0.02}}),
+                         options=options)
+    np.testing.assert_allclose(measured.intrinsics_covariance,
+                               base.intrinsics_covariance + level**2 * blocks["intrinsics"])

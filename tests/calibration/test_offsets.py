@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import yaml
 
-from gtsam_rotid import Dataset, InputError, Measurement, simulate
+from gtsam_rotid import Dataset, InputError, Measurement, Track, simulate
 from gtsam_rotid.calibration import CalibrationOptions
 from gtsam_rotid.calibration.result import CalibrationResult
 from gtsam_rotid.errors import RotIdError
@@ -172,3 +172,46 @@ def test_offsets_beyond_their_prior_are_refused_with_the_readings_named(scene):
     with pytest.raises(RotIdError, match=r"lie beyond 5 times their prior \(0.5°\)"):
         calibrate(with_offsets(dataset, [0.0, 4.0, -4.0, 4.0, 4.0]),
                   options=CalibrationOptions(joint_offsets=True, joint_offset_sigma_deg=0.5))
+
+
+def test_an_image_shift_per_pose_is_counted_for_the_pose_and_the_offsets_together(scene):
+    """With the offsets refined, an image shift per pose moves the pose and the offsets together (the offsets take
+    up part of it): ``image_shift_covariance`` and ``image_shift_nuisance`` are computed through the joint graph.
+    The ground truth is the refined calibration itself, fitted again with each pose's pixels moved by 0.05 px
+    along x and along y in turn: the sum of the outer products of those moves (per px) is the covariance under a
+    shift per pose of N(0, 1 px²) per image coordinate. (Through the axes alone, as without offsets, the pose's
+    1σ along rx was 5x too large and along rz 3x too small.) A measured camera move adds its level squared times
+    them to the pose's, the offsets' and their cross-covariance."""
+    dataset, _ = scene
+    readings = with_offsets(dataset, OFFSETS_DEG)
+    options = CalibrationOptions(joint_offsets=True)
+    base = calibrate(readings, options=options)
+    start = np.array(list(base.joint_offsets.values()))
+    h, n = 0.05, len(start)
+    moved = np.zeros((6 + n, 6 + n))
+    for k in range(len(readings)):
+        for shift in (np.array([h, 0.0]), np.array([0.0, h])):
+            shifted = Dataset(readings.arm, readings.camera, [
+                Measurement(m.joint_angles, [Track(t.pixels + (shift if i == k else 0.0), t.frames) for t in m.tracks])
+                for i, m in enumerate(readings)])
+            result = calibrate(shifted, options=options)
+            d = np.concatenate([base.arm_T_camera.localCoordinates(result.arm_T_camera),
+                                np.array(list(result.joint_offsets.values())) - start]) / h
+            moved += np.outer(d, d)
+    blocks = base.image_shift_nuisance
+    assert sorted(blocks) == ["cross", "offsets"]
+    predicted = np.block([[base.image_shift_covariance, blocks["cross"]], [blocks["cross"].T, blocks["offsets"]]])
+    np.testing.assert_allclose(np.sqrt(np.diag(predicted)), np.sqrt(np.diag(moved)), rtol=0.05)
+    scale = np.sqrt(np.outer(np.diag(moved), np.diag(moved)))
+    assert np.max(np.abs(predicted - moved) / scale) < 0.1
+    level = 0.07
+    measured = calibrate(Dataset(readings.arm, readings.camera, list(readings),
+                                 metadata={"camera_motion": {"floor_px": 0.15, "level_px": level, "bound_px": 0.02}}),
+                         options=options)
+    np.testing.assert_allclose(measured.covariance, base.covariance + level**2 * base.image_shift_covariance)
+    np.testing.assert_allclose(measured.joint_offsets_covariance,
+                               base.joint_offsets_covariance + level**2 * blocks["offsets"])
+    np.testing.assert_allclose(measured.pose_offsets_covariance,
+                               base.pose_offsets_covariance + level**2 * blocks["cross"])
+    loaded = CalibrationResult.from_dict(base.to_dict())
+    np.testing.assert_allclose(loaded.image_shift_nuisance["cross"], blocks["cross"])
