@@ -23,6 +23,7 @@ import time
 import cv2
 import numpy as np
 
+from gtsam_rotid import stillness
 from gtsam_rotid.stillness import camera_motion
 
 W, H, MARGIN = 480, 360, 32
@@ -62,19 +63,10 @@ def moved_view(scene: np.ndarray, shift, arm_at: int, rng, margin: int = MARGIN,
 
 
 def lk_consensus(reference: np.ndarray, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Lucas-Kanade's consensus alone (``background_shift`` without the floating-point re-alignment): the median
-    displacement of the corners it follows both ways, and its standard error."""
-    corners = cv2.goodFeaturesToTrack(reference, 3000, 0.01, 7)
-    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
-    ahead, found, _ = cv2.calcOpticalFlowPyrLK(reference, frame, corners, None, winSize=(21, 21), maxLevel=3,
-                                               criteria=criteria)
-    back, returned, _ = cv2.calcOpticalFlowPyrLK(frame, reference, ahead, None, winSize=(21, 21), maxLevel=3,
-                                                 criteria=criteria)
-    good = (found[:, 0] == 1) & (returned[:, 0] == 1) & (np.linalg.norm((back - corners)[:, 0], axis=1) < 0.05)
-    moves = (ahead - corners)[good, 0].astype(float)
-    centre = np.median(moves, axis=0)
-    near = moves[np.linalg.norm(moves - centre, axis=1) < 0.5]
-    centre = np.median(near, axis=0)
+    """Lucas-Kanade's consensus alone (``background_shift`` without the floating-point re-alignment,
+    :func:`gtsam_rotid.stillness.lk_consensus`): the median displacement of the corners that agree, and its
+    standard error."""
+    centre, near, _ = stillness.lk_consensus(reference, frame, stillness.reference_corners(reference))
     return centre, 1.2533 * 1.4826 * np.median(np.abs(near - centre), axis=0) / np.sqrt(len(near))
 
 

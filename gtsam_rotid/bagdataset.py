@@ -5,7 +5,6 @@ camera-to-joint-state time offset measured and applied, and the tracker run on e
 
 from __future__ import annotations
 
-import itertools
 import os
 import sys
 from collections.abc import Callable, Mapping, Sequence
@@ -21,6 +20,7 @@ from .camera import Camera
 from .camerafiles import load_camera
 from .dataset import Dataset, Measurement, SpinReadings
 from .errors import ArmError, InputError, ValidationError
+from .frames import with_ends
 from .recordings import (
     MIN_SPIN_DEG,
     READINGS_MARGIN_S,
@@ -123,7 +123,7 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
                       "stamps are taken as they are (give it with --time-offset if known)", file=sys.stderr)
         joint_file = JointFile(Path(f"{bag.path}:{topics.joints}"), positions, stamps)
         tracker, described, corner_tracks = default_tracker(tracker, tracker_params)
-        measurements, spans, first_images = [], [], []
+        measurements, spans, first_images, last_images = [], [], [], []
         with tqdm(total=len(runs), desc="spins", unit="spin", disable=not progress, file=sys.stderr) as bar:
             for k, (a, b, joint) in enumerate(runs):
                 spin_joint = None if arm.spins_wrist(joint) else joint
@@ -140,11 +140,12 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
                                    "differ by more than the search (--max-time-offset), give the offset "
                                    "(--time-offset)")
                 first, last = int(inside[0]), int(inside[-1])  # every image between, in the bag's order
-                images = (image for _, _, image in bag.images(topics.image, first, last))
-                first_images.append(next(images))  # (kept: the camera's stillness is read on each spin's first)
-                frames = itertools.chain(first_images[-1:], images)
+                ends: list = []  # (kept: the camera's stillness is read on each spin's first and last image)
+                frames = with_ends((image for _, _, image in bag.images(topics.image, first, last)), ends)
                 tracks = tracked_frames(frames, last - first + 1, first, Path(where), camera, tracker,
                                         tracker_params, k, label, progress)
+                first_images.append(ends[0])
+                last_images.append(ends[1])
                 readings = _spin_readings(image_stamps - shift, stamps, unwrapped[:, arm.spin_index(spin_joint)], a,
                                           b, label)
                 measurements.append(Measurement(angles, tracks, name=f"spin {k}", spin_readings=readings,
@@ -168,10 +169,11 @@ def dataset_from_bag(path: str | os.PathLike, arm: Arm, *, image_topic: str | No
     if corner_tracks is not None:
         from .trackparams import tracker_metadata
         extra["tracker"] = tracker_metadata(tracker_params, sum(corner_tracks))
-    if len(first_images) > 1:  # did the camera stay still between the spins? (their first images' background)
+    if len(first_images) > 1:  # did the camera stay still between and during the spins? (their images' background)
         from .stillness import motion_metadata
 
-        motion = motion_metadata(first_images, [m.name for m in measurements], f"the spins of {path}")
+        motion = motion_metadata(first_images, [m.name for m in measurements], f"the spins of {path}",
+                                 last=last_images)
         if motion is not None:
             extra["camera_motion"] = motion
     return Dataset(arm, camera, measurements, metadata={**extra, **dict(metadata or {})})

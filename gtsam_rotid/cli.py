@@ -462,11 +462,15 @@ def add_still_parser(subparsers) -> argparse.ArgumentParser:
         "still", help="did the camera stay still between the videos? (each video's shift on the still background)",
         description="Read each video's image shift against the first one's off the scene around the arm (the "
                     "background, the table, the arm's base), which does not move unless the camera does: a turn "
-                    "of 0.01 deg is 0.1 px at f = 570 px, and the calibration's own test all but cannot see it. "
+                    "of 0.01 deg is 0.1 px at f = 570 px, and the calibration's own test all but cannot see it; "
+                    "and each video's last frame against that frame (a move during it). "
                     "A dataset made from the videos (track) carries the same reading, and calibrate counts what a "
                     "move does to the pose in its covariance. Exit code 0: still; 3: moved; 1: an error.")
     p.add_argument("videos", nargs="+", metavar="VIDEO", help="one video file or image folder per arm pose")
     p.add_argument("--frame", type=int, default=0, help="the frame of each video compared (default 0)")
+    p.add_argument("--between-only", action="store_true",
+                   help="compare the videos only, not each video's last frame against that frame (the camera's move "
+                        "during it): no video is then decoded to its end")
     p.set_defaults(func=cmd_still)
     return p
 
@@ -477,7 +481,8 @@ def cmd_still(args) -> int:
 
     if args.frame < 0:
         raise InputError(f"--frame must be >= 0, got {args.frame}")
-    motion = camera_motion(args.videos, frame=args.frame, names=args.videos)
+    motion = camera_motion(args.videos, frame=args.frame, names=args.videos,
+                           last=None if args.between_only else args.videos)
     print("\n".join(camera_motion_words(motion)))
     return 3 if motion.floor_px > 0.0 else 0
 

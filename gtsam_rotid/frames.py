@@ -19,8 +19,8 @@ import numpy as np
 from .errors import InputError, RecordingError
 from .files import IMAGE_SUFFIXES, image_files
 
-__all__ = ["Source", "checked_range", "frames_of", "open_source", "read_frames", "small_grey", "with_motion",
-           "video_fps"]
+__all__ = ["Source", "checked_range", "frames_of", "open_source", "read_frames", "small_grey", "with_ends",
+           "with_motion", "video_fps"]
 
 
 def checked_range(frame_range, path: Path) -> tuple[int, int | None]:
@@ -186,6 +186,17 @@ def with_motion(frames: Iterator[np.ndarray], motion: list, size: int = 64) -> I
         motion.append(0.0 if previous is None or previous.shape != small.shape
                       else float(np.mean(np.abs(small - previous))))
         previous = small
+        yield image
+
+
+def with_ends(frames: Iterator[np.ndarray], ends: list) -> Iterator[np.ndarray]:
+    """The frames unchanged, keeping the first and the last that pass in ``ends`` (``[first, last]``; one frame:
+    the same twice): what the camera's stillness is read on (:mod:`gtsam_rotid.stillness`), without a second
+    decoding."""
+    for image in frames:
+        if not ends:
+            ends.extend([image, image])
+        ends[1] = image
         yield image
 
 

@@ -255,7 +255,9 @@ class _Timed:
 
     def __init__(self, frames: Iterator[np.ndarray], bar=None):
         self._frames, self._bar, self.seconds = frames, bar, 0.0
-        self.first: np.ndarray | None = None  # (kept: the camera's stillness is read on each video's first frame)
+        # (kept: the camera's stillness is read on each video's first frame, and during it against its last)
+        self.first: np.ndarray | None = None
+        self.last: np.ndarray | None = None
 
     def __iter__(self):
         while True:
@@ -268,6 +270,7 @@ class _Timed:
                 self.seconds += time.perf_counter() - start
             if self.first is None:
                 self.first = frame
+            self.last = frame
             yield frame
             if self._bar is not None:
                 self._bar.update(1)
@@ -298,7 +301,7 @@ def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | Me
     tracker_params = TrackerParams() if tracker_params is None else tracker_params
     measurements, results, accuracies, spins = [], [], [], []
     render_seconds = track_seconds = 0.0
-    first_frames = []
+    first_frames, last_frames = [], []
     n = len(dataset)
     with tqdm(total=n, desc="measurements", unit="spin", disable=not progress, file=sys.stderr) as outer:
         for k in range(n):
@@ -315,6 +318,7 @@ def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | Me
             render_seconds += source.seconds
             track_seconds += elapsed - source.seconds
             first_frames.append(source.first)
+            last_frames.append(source.last)
             # the tracker numbers the frames it was fed 0, 1, ...: back to the spin's frame numbers
             tracks = [Track(t.pixels, spin.frame_indices[t.frames]) for t in result.tracks]
             rejected = [dataclasses.replace(r, track=Track(r.track.pixels, spin.frame_indices[r.track.frames]))
@@ -336,8 +340,9 @@ def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | Me
                          "tracker_params": dataclasses.asdict(tracker_params)}
     # the image axes' floor of its features
     metadata["tracker"] = tracker_metadata(tracker_params, sum(r.n_corner_tracks for r in results))
-    if n > 1:  # did the camera stay still between the videos? (as make_dataset reads it)
-        motion = motion_metadata(first_frames, [f"measurement {k}" for k in range(n)], "the rendered videos")
+    if n > 1:  # did the camera stay still between and during the videos? (as make_dataset reads it)
+        motion = motion_metadata(first_frames, [f"measurement {k}" for k in range(n)], "the rendered videos",
+                                 last=last_frames)
         if motion is not None:
             metadata["camera_motion"] = motion
     tracked = Dataset(dataset.arm, dataset.camera, measurements, metadata=metadata)

@@ -48,6 +48,7 @@ from .frames import (  # noqa: F401 (read_frames: re-export)
     open_source,
     read_frames,
     video_fps,
+    with_ends,
     with_motion,
 )
 from .trackrun import default_tracker, tracked_frames, tracker_description
@@ -467,13 +468,15 @@ def _joint_rows(joints, arm: Arm, labels: list[str], joint_options: Mapping | No
 
 
 def _tracked(source, frame_range, camera: Camera, tracker: Callable, tracker_params, k: int, label: str,
-             progress: bool, motion: list | None = None) -> tuple[list[Track], int]:
+             progress: bool, motion: list | None = None, ends: list | None = None) -> tuple[list[Track], int]:
     """The tracks of one video (frame indices the video's own), at least 2, or a RecordingError naming it; and the
     index of its first frame. ``motion``: filled with each frame's change from the one before (see
-    :func:`gtsam_rotid.frames.with_motion`)."""
+    :func:`gtsam_rotid.frames.with_motion`); ``ends``: with its first and last frame (:func:`~.frames.with_ends`)."""
     frames, expected, first = frames_of(source, frame_range)
     if motion is not None:
         frames = with_motion(frames, motion)
+    if ends is not None:
+        frames = with_ends(frames, ends)
     return tracked_frames(frames, expected, first, source.path, camera, tracker, tracker_params, k, label,
                           progress), first
 
@@ -661,7 +664,7 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
     _check_distinct_frames(videos, checked_ranges, labels)
     from .trackparams import tracker_metadata
     tracker, described, corner_tracks = default_tracker(tracker, tracker_params)
-    measurements, placed = [], []
+    measurements, placed, video_ends = [], [], []
     # each video's camera clock: its path from the videos' common folder (the same video twice, for two of its
     # spins: numbered)
     paths = [os.path.abspath(v) for v in videos]
@@ -673,8 +676,10 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
             spin_joint = None if spin_joints is None else spin_joints[k]
             rate = fps if fps is not None else video_fps(source)
             motion = [] if series and rate is not None else None
+            ends: list = []
             tracks, first = _tracked(source, frame_range, camera, tracker, tracker_params, k, _label(k, labels),
-                                     progress, motion)
+                                     progress, motion, ends)
+            video_ends.append(ends)
             spin_readings = None
             if motion is not None:
                 clock = clocks[k]
@@ -705,24 +710,13 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
     extra = {"recording": recording}
     if corner_tracks is not None:
         extra["tracker"] = tracker_metadata(tracker_params, sum(corner_tracks))
-    motion = _camera_motion(videos, checked_ranges) if n > 1 else None
-    if motion is not None:
-        extra["camera_motion"] = motion
+    if n > 1:  # did the camera stay still between and during the videos? (the first and last frame of each range)
+        from .stillness import motion_metadata
+
+        motion = motion_metadata([e[0] for e in video_ends], [v.name for v in videos], last=[e[1] for e in video_ends])
+        if motion is not None:
+            extra["camera_motion"] = motion
     return Dataset(arm, camera, measurements, metadata={**extra, **dict(metadata or {})})
-
-
-def _camera_motion(videos: list[Path], ranges) -> dict | None:
-    """Each video's shift on the still background against the first's, from the first frame of each video's range
-    (:func:`gtsam_rotid.stillness.motion_metadata`)."""
-    from .stillness import motion_metadata
-
-    try:
-        frames = [next(iter(read_frames(v, (start, start + 1)))) for v, (start, _) in zip(videos, ranges, strict=True)]
-    except (InputError, StopIteration) as exc:
-        print(f"warning: whether the camera stayed still between the videos could not be told: {exc}",
-              file=sys.stderr)
-        return None
-    return motion_metadata(frames, [v.name for v in videos])
 
 
 # ---------------------------------------------------------------------------------------------- command line

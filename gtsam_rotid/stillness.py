@@ -9,7 +9,8 @@ Lucas-Kanade, forward and backward), and takes the shift that most of them agree
 the arm's base do not move unless the camera does, while the links that moved between the poses either fail the
 forward-backward check or move far from that consensus. A window about each of those points is aligned again in
 floating point, and each video's shift is the median of the windows' shifts, with its standard error
-(``benchmarks/stillness.py``: 0.007-0.012 px on textured scenes, JPEG-compressed or blurred).
+(``benchmarks/stillness.py``: 0.007-0.012 px on textured scenes, JPEG-compressed or blurred). Given each video's
+last frame too, its move during the video (its drift) is read the same way, against its own first frame.
 
 The result is a measurement, not a correction of the tracks: a turn of the camera shifts near and far points
 alike, but a move of its centre shifts them in inverse proportion to their depth, so the hand (nearer than the
@@ -23,6 +24,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -53,6 +55,12 @@ ALIGN_STEPS = 4
 #: a pixel the reading's own errors (the background's texture, compression) compete.
 SIGNIFICANT_Z = 3.0
 MIN_MOVE_PX = 0.02
+#: A move during a video (its drift, last frame against first) shifts the spin's image axis by half of it and by up
+#: to this fraction of it more, in a direction that depends on where the arcs were when the image slid: counted as
+#: this fraction of its length, 1 sigma, in no known direction (a steady drift of N(0, 0.5²) px per coordinate per
+#: pose during the 12 s reference scene moved the joint estimate by a mean squared Mahalanobis length of 3.78 under
+#: the level so counted, 6 if exact, over 12 draws; 7.41 with half the drift as a shift alone, up to 27.8).
+DRIFT_SPREAD = 0.5
 
 
 @dataclass
@@ -63,6 +71,11 @@ class CameraMotion:
     sigma_px: np.ndarray    # (n, 2) standard errors (the first row zero)
     n_points: np.ndarray    # (n,) background points in each video's consensus (0 for the first)
     names: list[str]
+    #: (n, 2) each video's move during it: its last frame's shift against its first (px), with standard errors;
+    #: None where it was not read (the last frames not given, or ``drift_error`` says why)
+    drift_px: np.ndarray | None = None
+    drift_sigma_px: np.ndarray | None = None
+    drift_error: str | None = None
 
     @property
     def size_px(self) -> np.ndarray:
@@ -72,40 +85,84 @@ class CameraMotion:
     @property
     def moved(self) -> np.ndarray:
         """(n,) whether each video's shift exceeds :data:`SIGNIFICANT_Z` standard errors and :data:`MIN_MOVE_PX`."""
-        sigma = np.linalg.norm(self.sigma_px, axis=1)
-        return (self.size_px > SIGNIFICANT_Z * np.maximum(sigma, 1e-12)) & (self.size_px > MIN_MOVE_PX)
+        return _significant(self.shifts_px, self.sigma_px)
+
+    @property
+    def drifted(self) -> np.ndarray:
+        """(n,) whether the camera moved during each video: its drift (last frame against first) beyond
+        :data:`SIGNIFICANT_Z` standard errors and :data:`MIN_MOVE_PX` (all False where the drift was not read)."""
+        if self.drift_px is None:
+            return np.zeros(len(self.shifts_px), bool)
+        return _significant(self.drift_px, self.drift_sigma_px)
+
+    @property
+    def positions_px(self) -> np.ndarray:
+        """(n, 2) where each video's image sits on average against the first video's first frame: its shift plus
+        half its drift; the shifts alone where the drift was not read."""
+        return self.shifts_px if self.drift_px is None else self.shifts_px + 0.5 * self.drift_px
 
     @property
     def floor_px(self) -> float:
-        """The largest significant shift (px), 0 where none is: as an image axes' floor
+        """The largest significant shift (px), a drift's end included, 0 where none is: as an image axes' floor
         (``CalibrationOptions.axis_floor_px``) it covers the moves, cautiously (every axis, every pose)."""
-        moved = self.moved
-        return float(np.max(self.size_px[moved])) if np.any(moved) else 0.0
+        sizes = [self.size_px[self.moved]]
+        if self.drift_px is not None:
+            sizes.append(np.linalg.norm(self.shifts_px + self.drift_px, axis=1)[self.drifted])
+        sizes = np.concatenate(sizes)
+        return float(np.max(sizes)) if len(sizes) else 0.0
 
     @property
     def level_px(self) -> float:
-        """The shifts' scatter about their mean (px, 1 sigma per image coordinate), 0 where no video moved: the
-        level of an image shift per pose (``CalibrationResult.image_shift_covariance`` is per px² of it); their
-        mean is a turn of the camera that every pose shares, which the calibration follows."""
-        if not np.any(self.moved) or len(self.shifts_px) < 2:
+        """The level of an image shift per pose (px, 1 sigma per image coordinate;
+        ``CalibrationResult.image_shift_covariance`` is per px² of it), 0 where no video moved, between or during
+        the videos: the scatter of the videos' positions (:attr:`positions_px`) about their mean (which is a turn
+        of the camera that every pose shares, and the calibration follows), and, where the camera moved during a
+        video, :data:`DRIFT_SPREAD` of its drift as a shift in no known direction (a drift does not move a spin's
+        image axis exactly as a shift of half of it does: the centre of a circle fitted to an arc traced while the
+        image slid moves across the slide too)."""
+        if not np.any(self.moved | self.drifted) or len(self.shifts_px) < 2:
             return 0.0
-        deviations = self.shifts_px - self.shifts_px.mean(axis=0)
-        return float(np.sqrt(np.sum(deviations**2) / (2.0 * (len(self.shifts_px) - 1))))
+        positions = self.positions_px
+        deviations = positions - positions.mean(axis=0)
+        variance = np.sum(deviations**2) / (2.0 * (len(positions) - 1))
+        if self.drift_px is not None:  # (|d| DRIFT_SPREAD in all, half of its square per coordinate)
+            variance += 0.5 * DRIFT_SPREAD**2 * float(np.mean(np.sum(self.drift_px**2, axis=1)))
+        return float(np.sqrt(variance))
 
     @property
     def bound_px(self) -> float:
-        """How far a video may have moved unseen (px): the shift of a video not called moved plus
-        :data:`SIGNIFICANT_Z` standard errors (of a moved one, those alone), the largest, at least
-        :data:`MIN_MOVE_PX`."""
-        sigma = np.linalg.norm(self.sigma_px, axis=1)
-        unseen = np.where(self.moved, 0.0, self.size_px) + SIGNIFICANT_Z * sigma
+        """How far a video's position may have moved unseen (px): the shift of a video not called moved plus
+        :data:`SIGNIFICANT_Z` standard errors (of a moved one, those alone), and half the same of its drift, the
+        largest, at least :data:`MIN_MOVE_PX`."""
+        unseen = _unseen(self.shifts_px, self.sigma_px, self.moved)
+        if self.drift_px is not None:
+            unseen = unseen + 0.5 * _unseen(self.drift_px, self.drift_sigma_px, self.drifted)
         return float(max(np.max(unseen), MIN_MOVE_PX))
 
     def to_dict(self) -> dict:
         """As a dataset's ``metadata["camera_motion"]`` holds it (``level_px`` and ``bound_px`` for ``calibrate``)."""
-        return {"shifts_px": self.shifts_px.tolist(), "sigma_px": self.sigma_px.tolist(),
-                "n_points": [int(n) for n in self.n_points], "names": list(self.names),
-                "floor_px": self.floor_px, "level_px": self.level_px, "bound_px": self.bound_px}
+        out = {"shifts_px": self.shifts_px.tolist(), "sigma_px": self.sigma_px.tolist(),
+               "n_points": [int(n) for n in self.n_points], "names": list(self.names),
+               "floor_px": self.floor_px, "level_px": self.level_px, "bound_px": self.bound_px}
+        if self.drift_px is not None:
+            out.update(drift_px=self.drift_px.tolist(), drift_sigma_px=self.drift_sigma_px.tolist(),
+                       drifted=[bool(d) for d in self.drifted])
+        elif self.drift_error is not None:
+            out["drift_error"] = self.drift_error
+        return out
+
+
+def _significant(shifts: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
+    """(n,) shifts beyond :data:`SIGNIFICANT_Z` times their standard errors' length and :data:`MIN_MOVE_PX`."""
+    size, sigma = np.linalg.norm(shifts, axis=1), np.linalg.norm(sigmas, axis=1)
+    return (size > SIGNIFICANT_Z * np.maximum(sigma, 1e-12)) & (size > MIN_MOVE_PX)
+
+
+def _unseen(shifts: np.ndarray, sigmas: np.ndarray, significant: np.ndarray) -> np.ndarray:
+    """(n,) how far each shift may be unseen: its size where it is not significant, plus :data:`SIGNIFICANT_Z`
+    standard errors."""
+    size, sigma = np.linalg.norm(shifts, axis=1), np.linalg.norm(sigmas, axis=1)
+    return np.where(significant, 0.0, size) + SIGNIFICANT_Z * sigma
 
 
 def _grey(frame: np.ndarray, where: str) -> np.ndarray:
@@ -127,24 +184,30 @@ def _first_frame(video, index: int, where: str) -> np.ndarray:
     return np.asarray(video)
 
 
-def background_shift(reference: np.ndarray, frame: np.ndarray, where: str = "frame"
-                     ) -> tuple[np.ndarray, np.ndarray, int]:
-    """The image shift of ``frame`` against ``reference`` (two uint8 images of the same size) that most of the
-    reference's corners agree on: (shift (2,) px, its standard error (2,), points in the consensus). Raises
-    :class:`InputError` naming ``where`` when the sizes differ or fewer than :data:`MIN_POINTS` points agree."""
-    a, b = _grey(reference, "the reference frame"), _grey(frame, where)
-    if a.shape != b.shape:
-        raise InputError(f"{where}: {b.shape[1]}x{b.shape[0]} px, but the first video's frame is "
-                         f"{a.shape[1]}x{a.shape[0]}: the videos must come from one camera")
+def reference_corners(reference: np.ndarray) -> np.ndarray:
+    """The corners (Shi-Tomasi, (m, 1, 2) float32) :func:`background_shift` follows from ``reference`` (a uint8 grey
+    or BGR image), found once for every frame compared with it; an :class:`InputError` where there are fewer than
+    :data:`MIN_POINTS`."""
+    a = _grey(reference, "the reference frame")
     corners = cv2.goodFeaturesToTrack(a, MAX_CORNERS, QUALITY, MIN_DISTANCE)
     if corners is None or len(corners) < MIN_POINTS:
         raise InputError(f"the first video's frame has {0 if corners is None else len(corners)} corners, fewer "
                          f"than {MIN_POINTS}: too little texture around the arm to tell whether the camera moved")
+    return corners
+
+
+def lk_consensus(reference: np.ndarray, frame: np.ndarray, corners: np.ndarray, where: str = "frame"
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lucas-Kanade's consensus: ``corners`` of ``reference`` (grey uint8) followed into ``frame`` (grey uint8) and
+    back (pyramidal, :data:`WINDOW`, :data:`LEVELS`), those that return within :data:`FORWARD_BACKWARD_PX`, and of
+    them those within :data:`CONSENSUS_PX` of their median move (three rounds): (the consensus' median move (2,),
+    the moves in it (m, 2), their corners (m, 2)). An :class:`InputError` naming ``where`` where fewer than
+    :data:`MIN_POINTS` are found again or agree."""
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
     window = (WINDOW, WINDOW)
-    ahead, found, _ = cv2.calcOpticalFlowPyrLK(a, b, corners, None, winSize=window, maxLevel=LEVELS,
+    ahead, found, _ = cv2.calcOpticalFlowPyrLK(reference, frame, corners, None, winSize=window, maxLevel=LEVELS,
                                                criteria=criteria)
-    back, returned, _ = cv2.calcOpticalFlowPyrLK(b, a, ahead, None, winSize=window, maxLevel=LEVELS,
+    back, returned, _ = cv2.calcOpticalFlowPyrLK(frame, reference, ahead, None, winSize=window, maxLevel=LEVELS,
                                                  criteria=criteria)
     good = (found[:, 0] == 1) & (returned[:, 0] == 1) & (
         np.linalg.norm((back - corners)[:, 0], axis=1) < FORWARD_BACKWARD_PX)
@@ -161,12 +224,26 @@ def background_shift(reference: np.ndarray, frame: np.ndarray, where: str = "fra
                              "needed): too little of the scene around the arm stayed still to tell whether the "
                              "camera moved")
         centre = np.median(moves[near], axis=0)
+    return centre, moves[near], corners[good, 0][near]
+
+
+def background_shift(reference: np.ndarray, frame: np.ndarray, where: str = "frame",
+                     corners: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """The image shift of ``frame`` against ``reference`` (two uint8 images of the same size) that most of the
+    reference's corners agree on: (shift (2,) px, its standard error (2,), points in the consensus). ``corners``:
+    the reference's (:func:`reference_corners`), where it is compared with several frames. Raises
+    :class:`InputError` naming ``where`` when the sizes differ or fewer than :data:`MIN_POINTS` points agree."""
+    a, b = _grey(reference, "the reference frame"), _grey(frame, where)
+    if a.shape != b.shape:
+        raise InputError(f"{where}: {b.shape[1]}x{b.shape[0]} px, but the first video's frame is "
+                         f"{a.shape[1]}x{a.shape[0]}: the videos must come from one camera")
+    corners = reference_corners(a) if corners is None else corners
+    centre, _, still = lk_consensus(a, b, corners, where)
     # Lucas-Kanade's points share errors (its fixed-point interpolation locks them towards whole pixels, and every
     # still point has the same fraction of a pixel): the standard error of their median understated its error 1.3-
     # 1.9x (benchmarks/stillness.py). Each window about a consensus point is aligned again in floating point, whose
     # errors are nearer independent (the mean of (error / sigma)^2 1.4-3.4, 2 if honest)
-    per_point = _window_shifts(a.astype(np.float32), b.astype(np.float32),
-                               corners[good, 0][near], np.rint(centre).astype(int))
+    per_point = _window_shifts(a.astype(np.float32), b.astype(np.float32), still, np.rint(centre).astype(int))
     if len(per_point) < MIN_POINTS:
         raise InputError(f"{where}: only {len(per_point)} still points lie far enough inside both frames (at least "
                          f"{MIN_POINTS} needed) to tell whether the camera moved")
@@ -226,41 +303,80 @@ def _window_shifts(a: np.ndarray, b: np.ndarray, points: np.ndarray, whole: np.n
     return shift[ok]
 
 
-def camera_motion(videos: Sequence, *, frame: int = 0, names: Sequence[str] | None = None) -> CameraMotion:
+def camera_motion(videos: Sequence, *, frame: int = 0, names: Sequence[str] | None = None,
+                  last: Sequence | None = None) -> CameraMotion:
     """Each video's image shift against the first one's, on the still background (see the module docstring).
 
     ``videos``: one per arm pose, each a video file or image folder (its frame ``frame`` is read), or that frame
-    itself (a uint8 grey or BGR image). ``names`` name them in errors and words (default: ``video k``)."""
+    itself (a uint8 grey or BGR image). ``names`` name them in errors and words (default: ``video k``). ``last``:
+    each video's last frame (an image, or the video file or image folder, decoded to its end), to read the camera's
+    move during each video too (:attr:`CameraMotion.drift_px`); where one cannot be read, no drift is, and
+    :attr:`CameraMotion.drift_error` says why."""
     videos = list(videos)
     if len(videos) < 2:
         raise InputError(f"camera_motion needs at least two videos to compare, got {len(videos)}")
     names = [f"video {k}" for k in range(len(videos))] if names is None else [str(n) for n in names]
     if len(names) != len(videos):
         raise InputError(f"{len(names)} names for {len(videos)} videos")
-    reference = _first_frame(videos[0], frame, names[0])
+    if last is not None and len(last) != len(videos):
+        raise InputError(f"{len(last)} last frames for {len(videos)} videos")
+    firsts = [_first_frame(video, frame, name) for video, name in zip(videos, names, strict=True)]
+    corners = reference_corners(firsts[0])  # (once, for every video compared with the first)
     shifts, sigmas, counts = [np.zeros(2)], [np.zeros(2)], [0]
-    for video, name in zip(videos[1:], names[1:], strict=True):
-        shift, sigma, n = background_shift(reference, _first_frame(video, frame, name), name)
+    for image, name in zip(firsts[1:], names[1:], strict=True):
+        shift, sigma, n = background_shift(firsts[0], image, name, corners)
         shifts.append(shift)
         sigmas.append(sigma)
         counts.append(n)
-    return CameraMotion(np.array(shifts), np.array(sigmas), np.array(counts), names)
-
-
-def motion_metadata(frames: Sequence[np.ndarray], names: Sequence[str], source: str = "the videos"
-                    ) -> dict | None:
-    """:func:`camera_motion` of one frame per measurement (``frames``, named ``names``) as a dataset's
-    ``metadata["camera_motion"]`` (``calibrate`` counts its ``level_px`` in the covariance), a move said on
-    stderr; None, with a warning, where the background cannot tell (``source`` names the recording in it)."""
+    motion = CameraMotion(np.array(shifts), np.array(sigmas), np.array(counts), names)
+    if last is None:
+        return motion
+    drifts, drift_sigmas = [], []
     try:
-        motion = camera_motion(frames, names=names)
+        for image, end, name in zip(firsts, last, names, strict=True):
+            drift, sigma, _ = background_shift(image, _last_frame(end, f"{name} (its last frame)"),
+                                               f"{name} (its last frame against its first)")
+            drifts.append(drift)
+            drift_sigmas.append(sigma)
+    except InputError as exc:
+        motion.drift_error = str(exc)
+        return motion
+    motion.drift_px, motion.drift_sigma_px = np.array(drifts), np.array(drift_sigmas)
+    return motion
+
+
+def _last_frame(video, where: str) -> np.ndarray:
+    if isinstance(video, str | os.PathLike):
+        kept = deque(read_frames(video), maxlen=1)  # (decoded to its end: a video's frame count is an estimate)
+        if not kept:
+            raise InputError(f"{where}: it has no frames")
+        return kept[0]
+    return np.asarray(video)
+
+
+def motion_metadata(frames: Sequence[np.ndarray], names: Sequence[str], source: str = "the videos",
+                    last: Sequence[np.ndarray] | None = None) -> dict | None:
+    """:func:`camera_motion` of one frame per measurement (``frames``, named ``names``; with each one's ``last``
+    frame, its move during it too) as a dataset's ``metadata["camera_motion"]`` (``calibrate`` counts its
+    ``level_px`` in the covariance), a move said on stderr; None, with a warning, where the background cannot tell
+    (``source`` names the recording in it)."""
+    try:
+        motion = camera_motion(frames, names=names, last=last)
     except InputError as exc:
         print(f"warning: whether the camera stayed still between {source} could not be told from their "
               f"background: {exc}", file=sys.stderr)
         return None
-    if motion.floor_px > 0.0:
+    if motion.drift_error is not None:
+        print(f"warning: whether the camera stayed still during {source} could not be told: {motion.drift_error}",
+              file=sys.stderr)
+    if np.any(motion.moved):
         moved = [name for name, m in zip(motion.names, motion.moved, strict=True) if m]
         print(f"warning: the camera moved between {source} (the still background shifts by up to "
-              f"{motion.floor_px:.3f} px: {', '.join(moved)}); calibrate counts what that moves the pose by in "
-              "its covariance (`gtsam-rotid still` lists each video's shift)", file=sys.stderr)
+              f"{np.max(motion.size_px[motion.moved]):.3f} px: {', '.join(moved)}); calibrate counts what that moves "
+              "the pose by in its covariance (`gtsam-rotid still` lists each video's shift)", file=sys.stderr)
+    if np.any(motion.drifted):
+        drifted = [f"{name} ({np.linalg.norm(d):.3f} px)" for name, d, m
+                   in zip(motion.names, motion.drift_px, motion.drifted, strict=True) if m]
+        print(f"warning: the camera moved during {', '.join(drifted)} (the still background's last frame against "
+              "its first); calibrate counts what that moves the pose by in its covariance", file=sys.stderr)
     return motion.to_dict()

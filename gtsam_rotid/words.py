@@ -663,31 +663,53 @@ def camera_motion_line(result: CalibrationResult) -> str | None:
         return None
     floor, bound = float(motion["floor_px"]), float(motion.get("bound_px") or 0.0)
     if floor <= 0.0:
-        return (f"camera motion: the videos' still background shows the camera still between them (any shift below "
-                f"{bound:.2g} px)")
+        during = " and during" if motion.get("drift_px") is not None else ""
+        return (f"camera motion: the videos' still background shows the camera still between{during} them (any shift "
+                f"below {bound:.2g} px)")
     level = float(motion.get("level_px") or 0.0)
-    return (f"camera motion: the videos' still background shows the camera moved between them, by up to {floor:.3g} "
-            f"px ({level:.2g} px per pose, 1σ per coordinate): what that moves the pose by is in the covariance")
+    drifted = [name for name, d in zip(motion.get("names") or [], motion.get("drifted") or [], strict=False) if d]
+    during = f" and during {_listed(drifted, 'and')}" if drifted else ""
+    return (f"camera motion: the videos' still background shows the camera moved between them{during}, by up to "
+            f"{floor:.3g} px ({level:.2g} px per pose, 1σ per coordinate): what that moves the pose by is in the "
+            "covariance")
 
 
 def camera_motion_words(motion: CameraMotion) -> list[str]:
     """Each video's shift on the still background (:func:`gtsam_rotid.stillness.camera_motion`) and what to do."""
-    lines = [f"image shift of each video against {motion.names[0]}, on the still background (px, x y; 1 sigma):"]
-    for k in range(1, len(motion.names)):
-        x, y = motion.shifts_px[k]
-        sx, sy = motion.sigma_px[k]
-        lines.append(f"  {motion.names[k]}: {x:+.3f} {y:+.3f} (± {sx:.3f} {sy:.3f}; {int(motion.n_points[k])} "
-                     f"points){'  MOVED' if motion.moved[k] else ''}")
+    drift = motion.drift_px is not None
+    lines = [f"image shift of each video against {motion.names[0]}, on the still background (px, x y; 1 sigma)"
+             + ("; and during it, its last frame against its first:" if drift else ":")]
+    for k in range(len(motion.names)):
+        line = f"  {motion.names[k]}: "
+        if k:
+            x, y = motion.shifts_px[k]
+            sx, sy = motion.sigma_px[k]
+            line += (f"{x:+.3f} {y:+.3f} (± {sx:.3f} {sy:.3f}; {int(motion.n_points[k])} points)"
+                     f"{'  MOVED' if motion.moved[k] else ''}")
+        elif not drift:
+            continue
+        else:
+            line += "(the reference)"
+        if drift:
+            x, y = motion.drift_px[k]
+            sx, sy = motion.drift_sigma_px[k]
+            line += (f"; during it {x:+.3f} {y:+.3f} (± {sx:.3f} {sy:.3f})"
+                     f"{'  MOVED DURING IT' if motion.drifted[k] else ''}")
+        lines.append(line)
+    if motion.drift_error is not None:
+        lines.append(f"the camera's move during each video could not be read: {motion.drift_error}")
     if motion.floor_px > 0.0:
-        lines.append(f"the camera moved between the videos (beyond {SIGNIFICANT_Z:g} sigma and {MIN_MOVE_PX:g} px), "
+        when = ("between the videos" if not np.any(motion.drifted) else "during a video" if not np.any(motion.moved)
+                else "between and during the videos")
+        lines.append(f"the camera moved {when} (beyond {SIGNIFICANT_Z:g} sigma and {MIN_MOVE_PX:g} px), "
                      f"up to {motion.floor_px:.3f} px: a shift common to a pose's tracks, which the calibration's "
                      "test all but cannot see; a dataset made from these videos (`gtsam-rotid track`, make_dataset) "
                      f"carries it ({motion.level_px:.3f} px per pose, 1 sigma per coordinate) and calibrate counts "
                      "what it moves the pose by in the covariance (elsewhere, more cautiously: --axis-floor-px "
                      f"{motion.floor_px:.3f}); or record again with the camera fixed")
     else:
-        lines.append(f"the camera stayed still between the videos (no shift beyond {SIGNIFICANT_Z:g} sigma and "
-                     f"{MIN_MOVE_PX:g} px)")
+        lines.append(f"the camera stayed still between{' and during' if drift else ''} the videos (no shift beyond "
+                     f"{SIGNIFICANT_Z:g} sigma and {MIN_MOVE_PX:g} px)")
     return lines
 
 

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from gtsam_rotid.errors import InputError
-from gtsam_rotid.stillness import SIGNIFICANT_Z, background_shift, camera_motion
+from gtsam_rotid.stillness import DRIFT_SPREAD, SIGNIFICANT_Z, background_shift, camera_motion
 from gtsam_rotid.videos import write_video
+from gtsam_rotid.words import camera_motion_words
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from stillness import H, W, moved_view, still_scene  # noqa: E402 (the benchmark's scenes)
@@ -59,6 +60,50 @@ def test_videos_are_read_from_files_and_a_still_camera_needs_no_floor(views, tmp
     motion = camera_motion(paths, names=["pose0.mkv", "pose1.mkv"])
     assert motion.names == ["pose0.mkv", "pose1.mkv"]
     assert motion.size_px[1] < 0.01 and not motion.moved[1] and motion.floor_px == 0.0
+
+
+@pytest.fixture(scope="module")
+def drifting():
+    """Four videos' first and last frames: shifts between the videos and moves during them (px, x y), the arm
+    elsewhere in each frame."""
+    rng = np.random.default_rng(11)
+    scene = _scene(rng)
+    shifts = np.array([[0.0, 0.0], [0.1, 0.0], [0.0, 0.0], [0.0, 0.0]])
+    drifts = np.array([[0.0, 0.0], [0.0, 0.0], [0.0, 0.2], [0.06, -0.03]])
+    firsts = [_view(scene, s, 40 + 70 * k, rng) for k, s in enumerate(shifts)]
+    lasts = [_view(scene, s + d, 330 - 60 * k, rng) for k, (s, d) in enumerate(zip(shifts, drifts, strict=True))]
+    return firsts, lasts, shifts, drifts
+
+
+def test_the_cameras_move_during_each_video_is_read_against_its_last_frame(drifting):
+    firsts, lasts, shifts, drifts = drifting
+    motion = camera_motion(firsts, last=lasts)
+    error = np.abs(motion.drift_px - drifts)
+    assert np.all(error < 0.02) and np.all(error < 4 * motion.drift_sigma_px + 1e-3)
+    assert list(motion.drifted) == [False, False, True, True] and list(motion.moved) == [False, True, False, False]
+    np.testing.assert_allclose(motion.positions_px, motion.shifts_px + 0.5 * motion.drift_px)
+    # the largest move, a drift's end included (video 2: 0.2 px during it)
+    assert motion.floor_px == pytest.approx(0.2, abs=0.02)
+    positions = motion.positions_px
+    scatter = np.sum((positions - positions.mean(axis=0)) ** 2) / (2 * 3)
+    spread = 0.5 * DRIFT_SPREAD**2 * np.mean(np.sum(motion.drift_px**2, axis=1))
+    assert motion.level_px == pytest.approx(np.sqrt(scatter + spread))
+    data = motion.to_dict()
+    assert data["drifted"] == [False, False, True, True] and len(data["drift_px"]) == 4
+    words = "\n".join(camera_motion_words(motion))
+    assert "MOVED DURING IT" in words and "moved between and during the videos" in words
+    # without the last frames: the shifts alone, as before
+    between = camera_motion(firsts)
+    assert between.drift_px is None and not between.drifted.any() and "drift_px" not in between.to_dict()
+    np.testing.assert_allclose(between.shifts_px, motion.shifts_px)
+    # a last frame that cannot be read loses the drift, not the shifts between the videos, and says why
+    plain = [*lasts[:3], np.full((H, W), 90, np.uint8)]
+    lost = camera_motion(firsts, last=plain)
+    assert lost.drift_px is None and "video 3 (its last frame against its first)" in lost.drift_error
+    np.testing.assert_allclose(lost.shifts_px, motion.shifts_px)
+    assert "drift_error" in lost.to_dict() and "could not be read" in "\n".join(camera_motion_words(lost))
+    with pytest.raises(InputError, match="3 last frames for 4 videos"):
+        camera_motion(firsts, last=lasts[:3])
 
 
 def test_what_cannot_be_measured_is_named(views):
@@ -152,6 +197,43 @@ def test_make_dataset_measures_the_cameras_move_and_calibrate_takes_it_as_the_fl
     blank = make_dataset(plain, poses[:2], camera, scene.arm, tracker=tracker, progress=False)
     assert "camera_motion" not in blank.metadata
     assert "could not be told from their background" in capsys.readouterr().err
+
+
+def test_a_move_during_a_video_is_read_by_the_still_command_and_carried_by_make_dataset(drifting, tmp_path, capsys):
+    from gtsam_rotid import simulate
+    from gtsam_rotid.camera import Camera
+    from gtsam_rotid.cli import main
+    from gtsam_rotid.dataset import Track
+    from gtsam_rotid.recordings import make_dataset
+
+    firsts, lasts, _, _ = drifting
+    videos = []
+    for k in (0, 2):  # still; still between the videos, 0.2 px during the second
+        path = tmp_path / f"pose{k}.mkv"
+        write_video([firsts[k], firsts[k], lasts[k]], path, fps=30)  # (FFV1: lossless)
+        videos.append(path)
+    assert main(["still", *map(str, videos)]) == 3
+    out = capsys.readouterr().out
+    line = next(line for line in out.splitlines() if "pose2.mkv:" in line)
+    assert line.endswith("MOVED DURING IT") and line.count("MOVED") == 1 and "moved during a video" in out
+    assert main(["still", "--between-only", *map(str, videos)]) == 0
+    assert "stayed still between the videos" in capsys.readouterr().out
+
+    scene, _ = simulate.reference_scene(seed=0, duration=1.0)
+    camera = Camera(np.array([[570.0, 0, W / 2], [0, 570.0, H / 2], [0, 0, 1]]), W, H)
+
+    def tracker(images, params=None):
+        n = len(list(images))
+        angles = np.linspace(0.0, 1.0, n)
+        return [Track(np.column_stack([200 + (20 + j) * np.cos(angles), 150 + (20 + j) * np.sin(angles)]),
+                      np.arange(n)) for j in range(3)]
+
+    dataset = make_dataset(videos, [scene.joint_angles(k) for k in range(2)], camera, scene.arm, tracker=tracker,
+                           progress=False)
+    motion = dataset.metadata["camera_motion"]
+    assert motion["drifted"] == [False, True] and motion["drift_px"][1][1] == pytest.approx(0.2, abs=0.02)
+    assert motion["level_px"] > 0.0 and motion["floor_px"] == pytest.approx(0.2, abs=0.02)
+    assert "the camera moved during pose2.mkv (0.2" in capsys.readouterr().err
 
 
 def test_on_the_rendered_arm_a_still_camera_reads_still_and_a_turn_of_a_hundredth_of_a_degree_is_seen():
