@@ -164,14 +164,54 @@ def camera_turn(seed: int, k: int, turn_deg: float):
     return gtsam.Pose3(gtsam.Rot3.Rx(a) * gtsam.Rot3.Ry(b), np.zeros(3))
 
 
+def drifting(images: list, camera, seed: int, k: int, drift_deg: float) -> list:
+    """Pose ``k``'s frames as a camera that turns steadily during the video would see them (``--camera-drift-deg``):
+    by the last frame, about the camera's x and y axes by N(0, drift_deg²) each, independent across poses; frame
+    ``i`` of ``n`` turned by ``i / (n - 1)`` of that. A turn about the camera's centre maps the image by the
+    homography ``K R K^-1`` at every depth, nearly a shift for turns this small (0.099-0.117 px over the view for
+    0.01° about x at f = 570 px): each rendered frame is shifted by the homography's move of the principal point,
+    bilinearly in floating point (OpenCV's warps place their samples to 1/32 px, a third of a 0.1 px drift; the
+    interpolation smooths the noise a little)."""
+    if drift_deg <= 0.0:
+        return images
+    a, b = np.radians(drift_deg) * np.random.default_rng([37, seed, k]).standard_normal(2)
+    K = np.asarray(camera.K, dtype=float)
+    n, out = len(images), []
+    for i, image in enumerate(images):
+        f = i / max(n - 1, 1)
+        ca, sa, cb, sb = np.cos(f * a), np.sin(f * a), np.cos(f * b), np.sin(f * b)
+        R = np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]]) @ np.array([[cb, 0, sb], [0, 1, 0], [-sb, 0, cb]])
+        # (the turned camera sees at pixel x' what the still one saw at K R K^-1 x')
+        source = K @ R @ np.array([0.0, 0.0, 1.0])
+        out.append(_shifted(image, source[:2] / source[2] - K[:2, 2]))
+    return out
+
+
+def _shifted(image: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """``image`` (uint8) sampled bilinearly at ``(x, y) + offset`` for each pixel (edges replicated)."""
+    whole = np.floor(offset).astype(int)
+    fx, fy = offset - whole
+    pad = int(np.max(np.abs(whole))) + 2
+    f = cv2.copyMakeBorder(image, pad, pad, pad, pad, cv2.BORDER_REPLICATE).astype(np.float32)
+    h, w = image.shape[:2]
+    y, x = pad + whole[1], pad + whole[0]
+
+    def at(dy, dx):
+        return f[y + dy:y + dy + h, x + dx:x + dx + w]
+
+    value = (1 - fy) * ((1 - fx) * at(0, 0) + fx * at(0, 1)) + fy * ((1 - fx) * at(1, 0) + fx * at(1, 1))
+    return np.clip(np.rint(value), 0, 255).astype(np.uint8)
+
+
 def run_scene(robot: str, covering: str, seed: int, variant: str, duration: float, params: TrackerParams,
               save: str | None = None, options: CalibrationOptions | None = None, poses: str = "sampled",
-              method: str = "joint", turn_deg: float = 0.0) -> dict:
+              method: str = "joint", turn_deg: float = 0.0, drift_deg: float = 0.0) -> dict:
     """Render, track and calibrate one scene; a dict of the measured numbers (or why it could not run). With
     ``save``, the tracked dataset and the scene's numbers are written under that directory first. With
     ``turn_deg``, each pose's camera is turned (:func:`camera_turn`; the room stays), the turns are measured on the
     videos' first frames (``stillness.motion_metadata``, as ``make_dataset`` does) and the scene is calibrated with
-    that reading and without it (``*_unmeasured``)."""
+    that reading and without it (``*_unmeasured``). With ``drift_deg``, the camera turns during each video instead
+    (:func:`drifting`), read on each video's first and last frames."""
     cv2.setNumThreads(1)
     length, changes = VARIANTS[variant]
     duration = duration if length is None else length
@@ -185,7 +225,7 @@ def run_scene(robot: str, covering: str, seed: int, variant: str, duration: floa
         meshes = mr.load_arm_meshes(dataset.arm)
         config = mr.MeshRenderConfig(covering=covering, seed=seed, **changes)
         measurements, kept, errors, track_time, frames, off, skipped = [], [], [], 0.0, 0, 0, []
-        hand_px, arcs, corner_tracks, first_frames = [], [], 0, []
+        hand_px, arcs, corner_tracks, first_frames, last_frames = [], [], 0, [], []
         for k in range(len(dataset)):
             if len(kept) == POSES:
                 break
@@ -196,8 +236,9 @@ def run_scene(robot: str, covering: str, seed: int, variant: str, duration: floa
                 skipped.append(f"{k}: {why}")
                 continue
             hand_px.append(int(spin.moving_mask(int(spin.frame_indices[0])).sum()))
-            images = list(spin.frames())
+            images = drifting(list(spin.frames()), dataset.camera, seed, k, drift_deg)
             first_frames.append(images[0])
+            last_frames.append(images[-1])
             start = time.perf_counter()
             result = Tracker(params).run(images)
             corner_tracks += result.n_corner_tracks
@@ -232,9 +273,10 @@ def run_scene(robot: str, covering: str, seed: int, variant: str, duration: floa
     out["track_rigid_rms_px"] = float(np.sqrt(sum(e[3] for e in errors) / n_compared)) if n_compared else float("nan")
     usable_measurements = [m for m in measurements if m is not None]
     motion = None
-    if turn_deg > 0.0:  # the turns as the videos' background shows them (the poses with tracks)
+    if turn_deg > 0.0 or drift_deg > 0.0:  # the turns as the videos' background shows them (poses with tracks)
         motion = motion_metadata([f for f, m in zip(first_frames, measurements, strict=True) if m is not None],
-                                 [f"pose {k}" for k, m in enumerate(measurements) if m is not None])
+                                 [f"pose {k}" for k, m in enumerate(measurements) if m is not None],
+                                 last=[f for f, m in zip(last_frames, measurements, strict=True) if m is not None])
     tracked = None
     try:
         tracked = Dataset(dataset.arm, dataset.camera, usable_measurements,
@@ -424,8 +466,12 @@ def print_table(rows: list[dict]) -> None:
         turned = [row for row in rows if "camera_motion" in row and row.get("usable") and row.get("usable_unmeasured")]
         if turned:
             levels = [row["camera_motion"]["level_px"] for row in turned]
-            print(f"cameras turned between poses: the background read shifts of {min(levels):.3f}-{max(levels):.3f} "
-                  f"px per pose (1σ per coordinate); NEES over the {len(turned)} scenes usable both ways: "
+            drifts = [float(np.max(np.linalg.norm(row["camera_motion"]["drift_px"], axis=1))) for row in turned
+                      if row["camera_motion"].get("drift_px") is not None]
+            drifted = f" (the largest drift during a video {min(drifts):.3f}-{max(drifts):.3f} px)" if drifts else ""
+            print(f"cameras turned between or during the videos: the background read a level of {min(levels):.3f}-"
+                  f"{max(levels):.3f} px per pose (1σ per coordinate){drifted}; NEES over the {len(turned)} scenes "
+                  "usable both ways: "
                   f"{np.mean([r['chi2'] for r in turned]):.2f} with the reading, "
                   f"{np.mean([r['chi2_unmeasured'] for r in turned]):.2f} without it (each scene's χ² without: "
                   + ", ".join(f"{r['chi2_unmeasured']:.3g}" for r in turned) + ")")
@@ -479,6 +525,10 @@ def main(argv=None) -> int:
     parser.add_argument("--camera-turn-deg", type=float, default=0.0, metavar="DEG",
                         help="turn each pose's camera by N(0, DEG²) about its x and y axes (the room stays), read the "
                         "turns off the videos' background and calibrate with and without that reading")
+    parser.add_argument("--camera-drift-deg", type=float, default=0.0, metavar="DEG",
+                        help="turn each pose's camera steadily during its video, by N(0, DEG²) about its x and y axes "
+                        "by the last frame (each frame warped), read it off the videos' background and calibrate "
+                        "with and without that reading")
     parser.add_argument("--poses", default="sampled", choices=("sampled", "planned"),
                         help="the simulator's sampled arm poses, or gtsam_rotid.planning's at a perturbed guess")
     args = parser.parse_args(argv)
@@ -520,11 +570,12 @@ def main(argv=None) -> int:
     if args.jobs > 1:
         from joblib import Parallel, delayed
         rows = Parallel(n_jobs=args.jobs)(delayed(run_scene)(r, c, s, v, args.duration, params, args.save, options,
-                                                             args.poses, args.method, args.camera_turn_deg)
+                                                             args.poses, args.method, args.camera_turn_deg,
+                                                             args.camera_drift_deg)
                                           for r, c, v, s in scenes)
     else:
         rows = [run_scene(r, c, s, v, args.duration, params, args.save, options, args.poses, args.method,
-                          args.camera_turn_deg) for r, c, v, s in scenes]
+                          args.camera_turn_deg, args.camera_drift_deg) for r, c, v, s in scenes]
     _report(rows, args.json, started)
     return 0
 
