@@ -146,22 +146,25 @@ def test_the_still_command_names_each_videos_shift_and_the_floor_to_declare(view
     assert "missing.mp4" in capsys.readouterr().err
 
 
+def _three_arcs(images, params=None):
+    """A tracker for make_dataset that reads the frames and returns three arcs (the camera's motion is the test)."""
+    from gtsam_rotid.dataset import Track
+
+    n = len(list(images))
+    angles = np.linspace(0.0, 1.0, n)
+    return [Track(np.column_stack([200 + (20 + j) * np.cos(angles), 150 + (20 + j) * np.sin(angles)]), np.arange(n))
+            for j in range(3)]
+
+
 def test_make_dataset_measures_the_cameras_move_and_calibrate_takes_it_as_the_floor(views, tmp_path, capsys):
     from gtsam_rotid import simulate
     from gtsam_rotid.calibration.options import CalibrationOptions, camera_motion_level_px, with_tracker_defaults
     from gtsam_rotid.camera import Camera
-    from gtsam_rotid.dataset import Track
     from gtsam_rotid.recordings import make_dataset
 
     frames, shifts = views
     scene, _ = simulate.reference_scene(seed=0, duration=1.0)
     camera = Camera(np.array([[570.0, 0, W / 2], [0, 570.0, H / 2], [0, 0, 1]]), W, H)
-
-    def tracker(images, params=None):
-        n = len(list(images))
-        angles = np.linspace(0.0, 1.0, n)
-        return [Track(np.column_stack([200 + (20 + j) * np.cos(angles), 150 + (20 + j) * np.sin(angles)]),
-                      np.arange(n)) for j in range(3)]
 
     videos = []
     for k in (0, 1, 2):  # still, still, moved by 0.1 px
@@ -169,7 +172,7 @@ def test_make_dataset_measures_the_cameras_move_and_calibrate_takes_it_as_the_fl
         write_video([frames[k]] * 3, path, fps=30)
         videos.append(path)
     poses = [scene.joint_angles(k) for k in range(3)]
-    dataset = make_dataset(videos, poses, camera, scene.arm, tracker=tracker, progress=False)
+    dataset = make_dataset(videos, poses, camera, scene.arm, tracker=_three_arcs, progress=False)
     motion = dataset.metadata["camera_motion"]
     assert motion["names"] == ["pose0.mkv", "pose1.mkv", "pose2.mkv"]
     assert motion["floor_px"] == pytest.approx(0.1, abs=0.02)
@@ -186,7 +189,7 @@ def test_make_dataset_measures_the_cameras_move_and_calibrate_takes_it_as_the_fl
 
     assert Dataset.load(tmp_path / "dataset").metadata["camera_motion"]["floor_px"] == motion["floor_px"]
     # still videos: measured, no floor; plain frames: nothing to read, said on stderr, nothing claimed
-    still = make_dataset(videos[:2], poses[:2], camera, scene.arm, tracker=tracker, progress=False)
+    still = make_dataset(videos[:2], poses[:2], camera, scene.arm, tracker=_three_arcs, progress=False)
     assert still.metadata["camera_motion"]["floor_px"] == 0.0 and still.metadata["camera_motion"]["level_px"] == 0.0
     plain = []
     for k in (0, 1):
@@ -194,7 +197,7 @@ def test_make_dataset_measures_the_cameras_move_and_calibrate_takes_it_as_the_fl
         write_video([np.full((H, W), 90, np.uint8)] * 3, path, fps=30)
         plain.append(path)
     capsys.readouterr()
-    blank = make_dataset(plain, poses[:2], camera, scene.arm, tracker=tracker, progress=False)
+    blank = make_dataset(plain, poses[:2], camera, scene.arm, tracker=_three_arcs, progress=False)
     assert "camera_motion" not in blank.metadata
     assert "could not be told from their background" in capsys.readouterr().err
 
@@ -203,7 +206,6 @@ def test_a_move_during_a_video_is_read_by_the_still_command_and_carried_by_make_
     from gtsam_rotid import simulate
     from gtsam_rotid.camera import Camera
     from gtsam_rotid.cli import main
-    from gtsam_rotid.dataset import Track
     from gtsam_rotid.recordings import make_dataset
 
     firsts, lasts, _, _ = drifting
@@ -222,13 +224,7 @@ def test_a_move_during_a_video_is_read_by_the_still_command_and_carried_by_make_
     scene, _ = simulate.reference_scene(seed=0, duration=1.0)
     camera = Camera(np.array([[570.0, 0, W / 2], [0, 570.0, H / 2], [0, 0, 1]]), W, H)
 
-    def tracker(images, params=None):
-        n = len(list(images))
-        angles = np.linspace(0.0, 1.0, n)
-        return [Track(np.column_stack([200 + (20 + j) * np.cos(angles), 150 + (20 + j) * np.sin(angles)]),
-                      np.arange(n)) for j in range(3)]
-
-    dataset = make_dataset(videos, [scene.joint_angles(k) for k in range(2)], camera, scene.arm, tracker=tracker,
+    dataset = make_dataset(videos, [scene.joint_angles(k) for k in range(2)], camera, scene.arm, tracker=_three_arcs,
                            progress=False)
     motion = dataset.metadata["camera_motion"]
     assert motion["drifted"] == [False, True] and motion["drift_px"][1][1] == pytest.approx(0.2, abs=0.02)

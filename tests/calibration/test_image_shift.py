@@ -4,6 +4,7 @@ and its words say so where that exceeds the 1σ."""
 
 import numpy as np
 import pytest
+from shift_refits import refitted_shift_covariance
 
 from gtsam_rotid import Dataset, Measurement, Track, simulate
 from gtsam_rotid.estimate import CalibrationOptions, CalibrationResult, calibrate
@@ -17,25 +18,13 @@ def scene():
     return dataset, calibrate(dataset, method="joint")
 
 
-def _shifted(dataset: Dataset, k: int, shift) -> Dataset:
-    return Dataset(dataset.arm, dataset.camera, [
-        Measurement(m.joint_angles, [Track(t.pixels + (shift if i == k else 0.0), t.frames) for t in m.tracks],
-                    name=m.name) for i, m in enumerate(dataset)])
-
-
 def test_the_image_shift_covariance_is_how_the_joint_estimate_moves_when_a_poses_image_shifts(scene):
     """The covariance per px² is computed to first order through the image axes; the ground truth here is the joint
     estimate itself, fitted again with each pose's pixels moved by 0.05 px along x and along y in turn: the sum
     of the outer products of those moves (per px) is the covariance of the estimate under a shift per pose of
     N(0, 1 px²) per image coordinate."""
     dataset, base = scene
-    h = 0.05
-    moved = np.zeros((6, 6))
-    for k in range(len(dataset)):
-        for shift in (np.array([h, 0.0]), np.array([0.0, h])):
-            result = calibrate(_shifted(dataset, k, shift), method="joint")
-            d = base.arm_T_camera.localCoordinates(result.arm_T_camera) / h
-            moved += np.outer(d, d)
+    moved = refitted_shift_covariance(dataset, base, method="joint")
     predicted = base.image_shift_covariance
     assert predicted.shape == (6, 6)
     np.testing.assert_allclose(np.sqrt(np.diag(predicted)), np.sqrt(np.diag(moved)), rtol=0.05)

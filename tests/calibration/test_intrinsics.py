@@ -3,6 +3,7 @@ which the estimator never sees: it is given a camera whose focal length and prin
 
 import numpy as np
 import pytest
+from shift_refits import refitted_shift_covariance
 
 from gtsam_rotid import Dataset, InputError, simulate
 from gtsam_rotid.calibration import CalibrationOptions
@@ -183,25 +184,12 @@ def test_an_image_shift_per_pose_is_counted_for_the_pose_and_the_intrinsics_toge
     calibration fitted again with each pose's pixels moved by 0.05 px along x and along y in turn (the sum of the
     outer products of those moves per px): within 15 % per 1σ, to first order. A measured camera move adds its
     level squared times them."""
-    from gtsam_rotid import Measurement, Track
-
     dataset, _ = simulate.reference_scene(seed=0, duration=12.0)
     options = CalibrationOptions(refine_intrinsics=True)
     base = calibrate(dataset, options=options)
     names = list(base.refined_intrinsics)
     assert names == list(NAMES)
-    start = np.array([base.intrinsics[n] for n in names])
-    h = 0.05
-    moved = np.zeros((6 + len(names),) * 2)
-    for k in range(len(dataset)):
-        for shift in (np.array([h, 0.0]), np.array([0.0, h])):
-            shifted = Dataset(dataset.arm, dataset.camera, [
-                Measurement(m.joint_angles, [Track(t.pixels + (shift if i == k else 0.0), t.frames) for t in m.tracks])
-                for i, m in enumerate(dataset)])
-            result = calibrate(shifted, options=options)
-            d = np.concatenate([base.arm_T_camera.localCoordinates(result.arm_T_camera),
-                                np.array([result.intrinsics[n] for n in names]) - start]) / h
-            moved += np.outer(d, d)
+    moved = refitted_shift_covariance(dataset, base, lambda r: [r.intrinsics[n] for n in names], options=options)
     blocks = base.image_shift_nuisance
     assert sorted(blocks) == ["intrinsics"] and blocks["intrinsics"].shape == (4, 4)
     predicted = np.concatenate([np.diag(base.image_shift_covariance), np.diag(blocks["intrinsics"])])

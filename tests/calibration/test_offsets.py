@@ -5,8 +5,9 @@ import gtsam
 import numpy as np
 import pytest
 import yaml
+from shift_refits import refitted_shift_covariance
 
-from gtsam_rotid import Dataset, InputError, Measurement, Track, simulate
+from gtsam_rotid import Dataset, InputError, Measurement, simulate
 from gtsam_rotid.calibration import CalibrationOptions
 from gtsam_rotid.calibration.result import CalibrationResult
 from gtsam_rotid.errors import RotIdError
@@ -186,18 +187,7 @@ def test_an_image_shift_per_pose_is_counted_for_the_pose_and_the_offsets_togethe
     readings = with_offsets(dataset, OFFSETS_DEG)
     options = CalibrationOptions(joint_offsets=True)
     base = calibrate(readings, options=options)
-    start = np.array(list(base.joint_offsets.values()))
-    h, n = 0.05, len(start)
-    moved = np.zeros((6 + n, 6 + n))
-    for k in range(len(readings)):
-        for shift in (np.array([h, 0.0]), np.array([0.0, h])):
-            shifted = Dataset(readings.arm, readings.camera, [
-                Measurement(m.joint_angles, [Track(t.pixels + (shift if i == k else 0.0), t.frames) for t in m.tracks])
-                for i, m in enumerate(readings)])
-            result = calibrate(shifted, options=options)
-            d = np.concatenate([base.arm_T_camera.localCoordinates(result.arm_T_camera),
-                                np.array(list(result.joint_offsets.values())) - start]) / h
-            moved += np.outer(d, d)
+    moved = refitted_shift_covariance(readings, base, lambda r: list(r.joint_offsets.values()), options=options)
     blocks = base.image_shift_nuisance
     assert sorted(blocks) == ["cross", "offsets"]
     predicted = np.block([[base.image_shift_covariance, blocks["cross"]], [blocks["cross"].T, blocks["offsets"]]])
