@@ -407,7 +407,7 @@ def _joint_fit(arm, camera, measurements, setup, fit: _Stage2, options) -> Calib
         if intrinsics is not None and "intrinsics" in blocks:
             chosen = intrinsics.indices
             blocks["intrinsics"] = blocks["intrinsics"][np.ix_(chosen, chosen)]
-        out = replace(out, image_shift_nuisance={k: v for k, v in blocks.items()})
+        out = replace(out, image_shift_nuisance=dict(blocks))
     if shapes is not None:  # (judged, at the axes' scale that a camera change leaves, by run._checked_model)
         out = replace(out, intrinsics_shapes=shapes)
     if intrinsics is not None:
