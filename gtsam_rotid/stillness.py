@@ -143,7 +143,8 @@ class CameraMotion:
         """As a dataset's ``metadata["camera_motion"]`` holds it (``level_px`` and ``bound_px`` for ``calibrate``)."""
         out = {"shifts_px": self.shifts_px.tolist(), "sigma_px": self.sigma_px.tolist(),
                "n_points": [int(n) for n in self.n_points], "names": list(self.names),
-               "floor_px": self.floor_px, "level_px": self.level_px, "bound_px": self.bound_px}
+               "floor_px": self.floor_px, "level_px": self.level_px, "bound_px": self.bound_px,
+               "moved": [bool(m) for m in self.moved]}
         if self.drift_px is not None:
             out.update(drift_px=self.drift_px.tolist(), drift_sigma_px=self.drift_sigma_px.tolist(),
                        drifted=[bool(d) for d in self.drifted])

@@ -668,8 +668,10 @@ def camera_motion_line(result: CalibrationResult) -> str | None:
                 f"below {bound:.2g} px)")
     level = float(motion.get("level_px") or 0.0)
     drifted = [name for name, d in zip(motion.get("names") or [], motion.get("drifted") or [], strict=False) if d]
-    during = f" and during {_listed(drifted, 'and')}" if drifted else ""
-    return (f"camera motion: the videos' still background shows the camera moved between them{during}, by up to "
+    between = motion.get("moved") is None or any(motion["moved"])  # (written before "moved" was: between them)
+    when = " and ".join(filter(None, ["between them" if between else "",
+                                      f"during {_listed(drifted, 'and')}" if drifted else ""]))
+    return (f"camera motion: the videos' still background shows the camera moved {when}, by up to "
             f"{floor:.3g} px ({level:.2g} px per pose, 1σ per coordinate): what that moves the pose by is in the "
             "covariance")
 

@@ -87,6 +87,15 @@ def test_a_measured_camera_move_is_in_the_covariance_and_a_measured_still_camera
     assert image_shift_words(result, 0.1) is not None  # (an unmeasured 0.1 px would still be worth saying)
     loaded = CalibrationResult.from_dict(result.to_dict())
     assert loaded.camera_motion == result.camera_motion
+    # still between the videos, moved during two of them: said so, and counted at its level
+    names = [f"pose{k}.mp4" for k in range(len(dataset))]
+    during = {"names": names, "floor_px": 0.3, "level_px": 0.07, "bound_px": 0.02, "moved": [False] * len(names),
+              "drift_px": [[0.0, 0.0]] * len(names), "drifted": [k in (1, 4) for k in range(len(names))]}
+    result = calibrate(Dataset(dataset.arm, dataset.camera, list(dataset), metadata={"camera_motion": during}),
+                       method="joint")
+    np.testing.assert_allclose(result.covariance, base.covariance + 0.07**2 * base.image_shift_covariance)
+    line = next(line for line in summary(result).splitlines() if "camera motion" in line)
+    assert "moved during pose1.mp4 and pose4.mp4, by up to 0.3 px" in line and "between" not in line
 
 
 def _drifted(dataset: Dataset, drift) -> Dataset:
