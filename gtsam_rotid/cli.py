@@ -471,6 +471,7 @@ def add_still_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--between-only", action="store_true",
                    help="compare the videos only, not each video's last frame against that frame (the camera's move "
                         "during it): no video is then decoded to its end")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar while the videos are decoded")
     p.set_defaults(func=cmd_still)
     return p
 
@@ -482,7 +483,7 @@ def cmd_still(args) -> int:
     if args.frame < 0:
         raise InputError(f"--frame must be >= 0, got {args.frame}")
     motion = camera_motion(args.videos, frame=args.frame, names=args.videos,
-                           last=None if args.between_only else args.videos)
+                           last=None if args.between_only else args.videos, progress=not args.no_progress)
     print("\n".join(camera_motion_words(motion)))
     return 3 if motion.floor_px > 0.0 else 0
 

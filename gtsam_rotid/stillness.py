@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from .errors import InputError
 from .frames import read_frames
@@ -305,14 +306,14 @@ def _window_shifts(a: np.ndarray, b: np.ndarray, points: np.ndarray, whole: np.n
 
 
 def camera_motion(videos: Sequence, *, frame: int = 0, names: Sequence[str] | None = None,
-                  last: Sequence | None = None) -> CameraMotion:
+                  last: Sequence | None = None, progress: bool = False) -> CameraMotion:
     """Each video's image shift against the first one's, on the still background (see the module docstring).
 
     ``videos``: one per arm pose, each a video file or image folder (its frame ``frame`` is read), or that frame
     itself (a uint8 grey or BGR image). ``names`` name them in errors and words (default: ``video k``). ``last``:
     each video's last frame (an image, or the video file or image folder, decoded to its end), to read the camera's
     move during each video too (:attr:`CameraMotion.drift_px`); where one cannot be read, no drift is, and
-    :attr:`CameraMotion.drift_error` says why."""
+    :attr:`CameraMotion.drift_error` says why. ``progress``: a progress bar over the videos' last frames."""
     videos = list(videos)
     if len(videos) < 2:
         raise InputError(f"camera_motion needs at least two videos to compare, got {len(videos)}")
@@ -334,7 +335,8 @@ def camera_motion(videos: Sequence, *, frame: int = 0, names: Sequence[str] | No
         return motion
     drifts, drift_sigmas = [], []
     try:
-        for image, end, name in zip(firsts, last, names, strict=True):
+        for image, end, name in tqdm(list(zip(firsts, last, names, strict=True)), desc="last frames", unit="video",
+                                     disable=not progress, file=sys.stderr):
             drift, sigma, _ = background_shift(image, _last_frame(end, f"{name} (its last frame)"),
                                                f"{name} (its last frame against its first)")
             drifts.append(drift)
