@@ -536,7 +536,9 @@ def cmd_track(args: argparse.Namespace) -> int:
         else:
             print(f"measurement {k} ({m.name}): placed at {start['start_s']:.3f} s on the joint series' clock "
                   f"(correlation {start['correlation']:.2f}), frames {start['frames_kept'][0]}-"
-                  f"{start['frames_kept'][1]} kept, readings attached on clock {m.spin_readings.clock!r}")
+                  f"{start['frames_kept'][1]} kept, readings attached on clock {m.spin_readings.clock!r}"
+                  + (f" (its spin's frame rate: {start['fps_from_spin']:.3g} fps, {start['fps']:.3g} given)"
+                     if start.get("fps_from_spin") is not None else ""))
     print(f"wrote {output}")
     return 0
 

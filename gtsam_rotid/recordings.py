@@ -501,10 +501,60 @@ REST_PAIRS = 2
 #: their nine still frames, 0.86-0.91. A placement still wrong makes the readings disagree with the tracks, and the
 #: calibration refuses them.
 MIN_VIDEO_CORRELATION = 0.65
+#: A video whose spin starts and stops within it gives its frame rate: the frames between its first and last moving
+#: pair against the time its spinning joint takes in the series from leaving its rest angle by FPS_CHECK_DEG to
+#: reaching its final one within that (above the readings' noise; the image registers a spin's first frame, the
+#: angle lags by the time it takes to turn that far: on 4 s spins with half-second ramps the rate reads 2-6 % high
+#: for 0.1-0.5 deg, a 20 s spin's a fifth of that). Where the videos' median differs from the rate given (or stated
+#: by the files) by more than FPS_CHECK_RATIO, make_dataset says so: a rate off by half (15 fps given for a 30 fps
+#: recording) leaves every video unplaced or its readings refused, with nothing naming the frame rate before.
+FPS_CHECK_DEG = 0.25
+FPS_CHECK_RATIO = 1.15
 #: With readings, a video's frames (a bag's images) this close (s) to the ends of its pose's span in the joint
 #: series (where the other joints start or stop moving) are left out: the readings' smoothing there mixes in the
 #: arm's move, and the stamps have their own jitter.
 SPIN_MARGIN_S = 0.1
+
+
+def _spin_rate(loaded: _LoadedJoints, k: int, motion: list, spin: int) -> tuple[float, int, float] | None:
+    """Video ``k``'s frame rate as its spin gives it (see FPS_CHECK_DEG): (frames per second, the frames its spin
+    takes, the seconds it takes in the joint series); None where the spin does not both start and stop within the
+    video (REST_PAIRS frames at rest at each end) or does not turn by FPS_CHECK_DEG in the series."""
+    moving = np.asarray(motion[1:], dtype=float)
+    if len(moving) <= 2 * REST_PAIRS:
+        return None
+    still = STILL_MOTION_RATIO * np.percentile(moving, 90)
+    if moving[:REST_PAIRS].max() > still or moving[-REST_PAIRS:].max() > still:
+        return None
+    on = np.flatnonzero(moving > still)
+    rows = loaded.selections[k]
+    q, t = loaded.unwrapped[rows, spin], loaded.joint_file.stamps[rows]
+    eps = np.radians(FPS_CHECK_DEG)
+    left, right = np.flatnonzero(np.abs(q - q[0]) > eps), np.flatnonzero(np.abs(q - q[-1]) > eps)
+    if not len(on) or not len(left) or not len(right) or t[right[-1]] <= t[left[0]]:
+        return None
+    pairs, seconds = int(on[-1] - on[0] + 1), float(t[right[-1]] - t[left[0]])
+    return pairs / seconds, pairs, seconds
+
+
+def _checked_rate(spins: list, rate_of: list, stated: bool) -> None:
+    """Says on stderr where the videos' spins give a frame rate (:func:`_spin_rate`, per video or None) that differs
+    from the one each was given (``rate_of``) by more than FPS_CHECK_RATIO over their median; ``stated``: the rate
+    came from the video files, not fps / --fps."""
+    ratios = [m[0] / r for m, r in zip(spins, rate_of, strict=True) if m is not None and r]
+    if not ratios:
+        return
+    ratio = float(np.median(ratios))
+    if 1.0 / FPS_CHECK_RATIO <= ratio <= FPS_CHECK_RATIO:
+        return
+    given = float(np.median([r for m, r in zip(spins, rate_of, strict=True) if m is not None and r]))
+    example = next(m for m in spins if m is not None)
+    source = "their files state" if stated else "given (fps / --fps)"
+    print(f"warning: the videos' frame rate looks like about {ratio * given:.3g} fps, not the {given:.3g} fps "
+          f"{source}: their spins take {example[1]} frames where the joint series takes {example[2]:.2f} s (the "
+          f"first of {len(ratios)} video(s) that start and stop their spin; median ratio {ratio:.2f}); the "
+          "readings are placed on the joint series at the rate given (where they could be placed at all): give the "
+          "right one with fps / --fps", file=sys.stderr)
 
 
 def _video_readings(loaded: _LoadedJoints, k: int, motion: list, first: int, fps: float, arm: Arm,
@@ -664,7 +714,7 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
     _check_distinct_frames(videos, checked_ranges, labels)
     from .trackparams import tracker_metadata
     tracker, described, corner_tracks = default_tracker(tracker, tracker_params)
-    measurements, placed, video_ends = [], [], []
+    measurements, placed, video_ends, spin_rates, rates = [], [], [], [], []
     # each video's camera clock: its path from the videos' common folder (the same video twice, for two of its
     # spins: numbered)
     paths = [os.path.abspath(v) for v in videos]
@@ -683,8 +733,12 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
             spin_readings = None
             if motion is not None:
                 clock = clocks[k]
+                spin_rates.append(_spin_rate(loaded, k, motion, arm.spin_index(spin_joint)))
+                rates.append(rate)
                 spin_readings, found = _video_readings(loaded, k, motion, first, rate, arm, spin_joint,
                                                        _label(k, labels), clock)
+                if spin_rates[-1] is not None:
+                    found["fps_from_spin"] = spin_rates[-1][0]
                 if spin_readings is not None:
                     tracks, found["frames_kept"] = _held_frames(tracks, spin_readings.frame_times, found["held_s"],
                                                                 _label(k, labels))
@@ -696,6 +750,8 @@ def make_dataset(videos: Sequence[str | os.PathLike], joints, camera: Camera | s
             measurements.append(Measurement(angles[k], tracks, name=source.path.name, spin_joint=spin_joint,
                                             spin_readings=spin_readings))
             bar.update(1)
+    if spin_rates:  # (a frame rate far from the spins' says so)
+        _checked_rate(spin_rates, rates, fps is None)
     recording = {
         "videos": [os.path.abspath(v) for v in videos],
         "frame_ranges": [None if given is None else list(checked)
