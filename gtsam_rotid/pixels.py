@@ -26,6 +26,7 @@ import numpy as np
 
 from .dataset import Dataset, Track
 from .errors import InputError
+from .frames import with_ends
 from .meshrender import MeshRenderConfig, MeshSpin, load_arm_meshes, render_mesh_measurement, track_errors
 from .render import RenderConfig, RenderedSpin, render_measurement
 from .stillness import motion_metadata
@@ -255,9 +256,6 @@ class _Timed:
 
     def __init__(self, frames: Iterator[np.ndarray], bar=None):
         self._frames, self._bar, self.seconds = frames, bar, 0.0
-        # (kept: the camera's stillness is read on each video's first frame, and during it against its last)
-        self.first: np.ndarray | None = None
-        self.last: np.ndarray | None = None
 
     def __iter__(self):
         while True:
@@ -268,9 +266,6 @@ class _Timed:
                 return
             finally:
                 self.seconds += time.perf_counter() - start
-            if self.first is None:
-                self.first = frame
-            self.last = frame
             yield frame
             if self._bar is not None:
                 self._bar.update(1)
@@ -312,13 +307,14 @@ def dataset_from_video(dataset: Dataset, truth, render_config: RenderConfig | Me
             start = time.perf_counter()
             with tqdm(total=spin.n_frames, desc=f"render + track {k}", unit="frame", leave=False,
                       disable=not progress, file=sys.stderr) as bar:
-                source = _Timed(spin.frames(), bar)
+                ends: list = []  # (kept: the camera's stillness is read on each video's first and last frame)
+                source = _Timed(with_ends(spin.frames(), ends), bar)
                 result = Tracker(tracker_params).run(source)
             elapsed = time.perf_counter() - start
             render_seconds += source.seconds
             track_seconds += elapsed - source.seconds
-            first_frames.append(source.first)
-            last_frames.append(source.last)
+            first_frames.append(ends[0])
+            last_frames.append(ends[1])
             # the tracker numbers the frames it was fed 0, 1, ...: back to the spin's frame numbers
             tracks = [Track(t.pixels, spin.frame_indices[t.frames]) for t in result.tracks]
             rejected = [dataclasses.replace(r, track=Track(r.track.pixels, spin.frame_indices[r.track.frames]))

@@ -335,10 +335,10 @@ def camera_motion(videos: Sequence, *, frame: int = 0, names: Sequence[str] | No
         return motion
     drifts, drift_sigmas = [], []
     try:
-        for image, end, name in tqdm(list(zip(firsts, last, names, strict=True)), desc="last frames", unit="video",
-                                     disable=not progress, file=sys.stderr):
+        for k, (image, end, name) in enumerate(tqdm(list(zip(firsts, last, names, strict=True)), desc="last frames",
+                                                    unit="video", disable=not progress, file=sys.stderr)):
             drift, sigma, _ = background_shift(image, _last_frame(end, f"{name} (its last frame)"),
-                                               f"{name} (its last frame against its first)")
+                                               f"{name} (its last frame against its first)", None if k else corners)
             drifts.append(drift)
             drift_sigmas.append(sigma)
     except InputError as exc:

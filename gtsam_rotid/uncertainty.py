@@ -123,36 +123,42 @@ def sandwich_marginal(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
     graph's noise models say, ``D`` (per variable, ``extra[variable] = D_block``, or per tuple of variables a block
     over them together, in the tuple's order) being the excess of the estimated meat (e.g. summed per-cluster
     scores) over ``H``. None when ``H`` is singular."""
-    return _sandwich(graph, values, key, dim, extra, True)
+    out = _sandwiches(graph, values, key, dim, [extra], True)
+    return None if out is None else out[0]
 
 
-def meat_marginal(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int], dim: int,
-                  extra: dict[int | tuple[int, ...], np.ndarray]) -> np.ndarray | None:
-    """The block of ``H^-1 D H^-1`` of several variables together (``keys``, their dimensions summing to ``dim``):
-    what an error the graph does not model, of covariance ``D`` on its scores (as :func:`sandwich_marginal`'s
-    ``extra``), adds to their covariance. None when ``H`` is singular."""
-    return _sandwich(graph, values, list(keys), dim, extra, False)
+def meat_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int], dim: int,
+                   extras: list[dict[int | tuple[int, ...], np.ndarray]]) -> list[np.ndarray] | None:
+    """Per error of ``extras``, the block of ``H^-1 D H^-1`` of several variables together (``keys``, their
+    dimensions summing to ``dim``): what an error the graph does not model, of covariance ``D`` on its scores (as
+    :func:`sandwich_marginal`'s ``extra``), adds to their covariance (``H`` linearised and solved once for all).
+    None when ``H`` is singular."""
+    return _sandwiches(graph, values, list(keys), dim, extras, False)
 
 
-def _sandwich(graph, values, key, dim: int, extra, with_hessian: bool) -> np.ndarray | None:
+def _sandwiches(graph, values, key, dim: int, extras: list, with_hessian: bool) -> list[np.ndarray] | None:
     H, offsets = _hessian_key_first(graph, values, key)
-    starts = sorted(offsets.values()) + [len(H)]
-    ends = dict(zip(starts[:-1], starts[1:], strict=True))
-    D = np.zeros_like(H)
-    for variables, block in extra.items():
-        index = np.concatenate([np.arange(offsets[v], ends[offsets[v]])
-                                for v in (variables if isinstance(variables, tuple) else (variables,))])
-        if len(index) != len(block):
-            raise ValueError(f"a {len(block)}x{len(block)} block for variables {variables} of dimension {len(index)}")
-        D[np.ix_(index, index)] += block
     try:
         X = np.linalg.solve(H, np.eye(len(H))[:, :dim])  # the key's columns of H^-1
     except np.linalg.LinAlgError:
         return None
     if not np.all(np.isfinite(X)):
         return None
-    C = X.T @ (H + D if with_hessian else D) @ X
-    return 0.5 * (C + C.T)
+    starts = sorted(offsets.values()) + [len(H)]
+    ends = dict(zip(starts[:-1], starts[1:], strict=True))
+    out = []
+    for extra in extras:
+        D = np.zeros_like(H)
+        for variables, block in extra.items():
+            index = np.concatenate([np.arange(offsets[v], ends[offsets[v]])
+                                    for v in (variables if isinstance(variables, tuple) else (variables,))])
+            if len(index) != len(block):
+                raise ValueError(f"a {len(block)}x{len(block)} block for variables {variables} of dimension "
+                                 f"{len(index)}")
+            D[np.ix_(index, index)] += block
+        C = X.T @ (H + D if with_hessian else D) @ X
+        out.append(0.5 * (C + C.T))
+    return out
 
 
 def pose_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, pose_key: int) -> np.ndarray:

@@ -33,7 +33,7 @@ from ..graph import (
 from ..uncertainty import (
     chi2_sf,
     joint_marginal_covariance,
-    meat_marginal,
+    meat_marginals,
     pose_information,
     sandwich_marginal,
 )
@@ -689,14 +689,14 @@ def _nuisance_blocks(graph, values, camera, setup, keys, used, builder, offsets,
     if not parts:
         return None
     dim = 6 + sum(d for _, _, d in parts)
-    out = {}
     errors = [("shift", np.ones((2, 2)))] + ([] if setup.floor_covariance is None else
                                              [("floor", setup.floor_covariance)])
-    for name, F in errors:
-        S = meat_marginal(graph, values, [POSE_KEY, *[key for _, key, _ in parts]], dim,
-                          _axis_meats(camera, setup, keys, used, values, F))
-        if S is None or not np.all(np.isfinite(S)):
-            return None
+    covariances = meat_marginals(graph, values, [POSE_KEY, *[key for _, key, _ in parts]], dim,
+                                 [_axis_meats(camera, setup, keys, used, values, F) for _, F in errors])
+    if covariances is None or not all(np.all(np.isfinite(S)) for S in covariances):
+        return None
+    out = {}
+    for (name, _), S in zip(errors, covariances, strict=True):
         blocks, start = {}, 6
         for part, _, d in parts:
             blocks[part] = S[start:start + d, start:start + d]
