@@ -348,8 +348,8 @@ def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
     checked at the true pose: 8 of the 222 spins checked ended beyond the 99.9 % point of their 2-dof chi-square,
     up to 581, one with 2 of its 10 tracks rejected at 1.73 px² where the FK axis' start keeps all ten at 1.49 px²,
     its axis 32 px off; three draws stopped with "behind the camera" (:func:`_move`); the seed-0 calibration of
-    ``benchmarks/check.py`` checked against one draw was called moved at chi-square 4.9e6. With both starts: 1 of
-    234 beyond, at 15.7)."""
+    ``benchmarks/check.py`` checked against one draw was called moved at chi-square 4.9e6. With both starts: 4 of
+    240, three in one draw of 6-10 tracks per spin whose spins fit two minima alike, called moved at 33)."""
     turns = START_TURNS_DEG if setup.short_arcs else ()
     starts = [pose] + [pose.compose(gtsam.Pose3(gtsam.Rot3.AxisAngle(axis, float(sign * np.radians(deg))), np.zeros(3)))
                        for deg in turns for sign in (-1.0, 1.0)
