@@ -203,16 +203,19 @@ def test_a_short_spin_that_its_ellipse_centres_start_in_another_minimum_does_not
     (chi-square 4.9e6); in the other draw leaving out one spin moved the pose until a spin's axis fell behind the
     camera and the check stopped with an error blaming the pose. Every spin is now fitted from the checked pose's
     FK axis too (the better fit kept: all ten tracks at 1.49 px^2), and the move's steps are halved where they
-    would put an axis behind the camera."""
+    would put an axis behind the camera. A third draw (6-10 tracks per spin) has three spins whose two free-phase
+    minima cost nearly alike, the wrong one lower (chi-square 19-28 each, the unmoved camera called moved at 33):
+    the rigid spin, fitted from both, puts each where it belongs."""
     from dataclasses import replace
 
     config = simulate.SceneConfig(duration=6.0)
     dataset, _ = simulate.simulate(config, seed=19)
     config = replace(config, joint_angles=tuple(tuple(np.asarray(m.joint_angles).tolist()) for m in dataset))
-    for seed, spin in ((136, 2), (102, None)):
+    for seed, spin in ((136, 2), (102, None), (111, None)):
         draw, truth = simulate.simulate(config, seed=seed)
         result = check_calibration(truth.arm_T_camera, draw, covariance=np.eye(6) * 1e-14)
-        # measured: the move's chi-square 9.4 (136) and 4.4 (102) for 6 dof; spin 2 of 136 at 0.25 for 2 dof
+        # measured: the move's chi-square 3.3-6.1 for 6 dof, every spin's below 4 for 2 dof
         assert result.still_valid and result.chi2 < 22.46, (seed, result.chi2, [s.chi2 for s in result.spins])
+        assert max(s.chi2 for s in result.spins) < 13.8, (seed, [s.chi2 for s in result.spins])
         if spin is not None:
-            assert result.spins[spin].n_tracks == 10 and result.spins[spin].chi2 < 13.8
+            assert result.spins[spin].n_tracks == 10
