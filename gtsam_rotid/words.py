@@ -798,14 +798,6 @@ def check_words(check: CheckResult) -> list[str]:
                    "that the camera mount, the joint readings and the intrinsics are as they were).")
     odd = ("" if check.odd_spin is None else f"Spin {check.odd_spin} alone does not fit: check its joint readings "
            "and tracks, or record it again; what follows is without it. ")
-    weak = [s.index for s in check.spins if s.weak]
-    left_out = check.weak_left_out
-    if left_out:
-        basis += (f" (spin{'s' if len(left_out) > 1 else ''} {', '.join(map(str, left_out))} left out of the test: "
-                  "thin evidence, below)")
-    elif weak:
-        basis += (" (every new spin is thin evidence: few tracks, or short arcs, whose image axes need not be "
-                  "Gaussian; the test rests on them all: spin longer, or where there is more texture)")
     if not check.still_valid and check.fully_determined:
         lines = [f"MOVED: {odd}the {spins} disagree with the calibration ({test}){basis}: the camera moved by about "
                  f"{mm:.2f} mm and {deg:.3f}° (1σ {sigma_mm:.2f} mm, {sigma_deg:.3f}°, the calibration's own "
@@ -829,8 +821,7 @@ def check_words(check: CheckResult) -> list[str]:
                 if check.fully_determined else "")
         lines = [f"STILL VALID: the {spins} {verb} with the calibration ({test}){basis}.{size}"]
     lines.extend(f"  spin {s.index}{f' ({s.name})' if s.name else ''}: {s.n_tracks} tracks, χ² {s.chi2:.3g} (2 dof "
-                 "at the calibration)" + (f"; thin evidence ({s.weak})" + (", not in the test" if left_out else "")
-                                          if s.weak else "") for s in check.spins)
+                 "at the calibration)" for s in check.spins)
     return lines
 
 

@@ -26,7 +26,6 @@ from ..errors import InputError, RotIdError
 from ..factors import RigidLineFactor, axis_offsets_residuals, axis_point_residuals, image_line_from_rot3
 from ..graph import Model, SpinModel, axis_test_points, offset_axis_test_points, track_huber
 from ..uncertainty import chi2_sf, marginal_information
-from .evidence import classify
 from .lm import _builder, _lm
 from .options import CalibrationError, CalibrationOptions, camera_motion_level_px, with_tracker_defaults
 from .setup import _setup
@@ -74,9 +73,6 @@ class SpinCheck:
     n_tracks: int
     chi2: float
     name: str = ""
-    #: its evidence in words where it is thin (few tracks, or not many and only short arcs: its image axis need not
-    #: be Gaussian, ``evidence.classify``); such a spin is left out of the test where any other is not thin
-    weak: str = ""
 
 
 @dataclass
@@ -110,12 +106,6 @@ class CheckResult:
     #: each spin's own image shift counted (px, 1 sigma per coordinate): the camera's shake between the new videos
     #: that their background measured (``metadata["camera_motion"]["level_px"]``); 0 where none was
     image_shift_px: float = 0.0
-
-    @property
-    def weak_left_out(self) -> list[int]:
-        """The spins of thin evidence left out of the test (none where every spin is thin: then all are tested)."""
-        weak = [s.index for s in self.spins if s.weak]
-        return [] if len(weak) == len(self.spins) else weak
 
     @property
     def consistent(self) -> bool:
@@ -230,17 +220,10 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
     level = camera_motion_level_px(metadata)  # each spin's own image shift (px per coordinate)
     level2 = level**2
 
-    # spins of thin evidence (few tracks, or not many and only short arcs) are named and left out of the test where
-    # any other is not thin: their image axes need not be Gaussian (a rendered Panda session checked at its true
-    # pose: a spin of 2 tracks at chi-square 50-100 for 2 dof, one of 17 short arcs at 22-63; called moved at 33)
-    weak = classify(setup, stage1).weak
-    tested = [k for k in range(len(stage1)) if k not in weak] or list(range(len(stage1)))
-
-    def rows(pose: gtsam.Pose3, ks=tested):
-        """Per spin of ``ks``: distances (2,), their Jacobian by the pose's tangent (2, 6), their covariance (2, 2)."""
+    def rows(pose: gtsam.Pose3):
+        """Per spin: distances (2,), their Jacobian by the pose's tangent (2, 6), their covariance (2, 2)."""
         out = []
-        for k in ks:  # the projected-axis factor's own distances and Jacobian
-            s = stage1[k]
+        for k, s in enumerate(stage1):  # the projected-axis factor's own distances and Jacobian
             e, J, _ = axis_point_residuals(camera.K, pose, axis_test_points(setup.axes[k]), s.image_axis)
             _, cov = _axis_distances(camera, setup.axes[k], s, pose, axis_scale * variance[k], setup, k, floor=True)
             cov = cov + level2 * np.ones((len(e), len(e)))
@@ -251,35 +234,33 @@ def check_calibration(arm_T_camera: gtsam.Pose3, dataset: Dataset | tuple[Arm, C
             out.append((e, J, cov))
         return out
 
-    every = rows(arm_T_camera, range(len(stage1)))
-    G_every = None if offsets is None else [_offsets_jacobian(arm, camera, measurements[k], offsets[0], arm_T_camera,
-                                                              s.image_axis) for k, s in enumerate(stage1)]
+    at_pose = rows(arm_T_camera)
+    G = None if offsets is None else [_offsets_jacobian(arm, camera, measurements[k], offsets[0], arm_T_camera,
+                                                        s.image_axis) for k, s in enumerate(stage1)]
     if offsets is None:
         chi2_each = [float(e @ np.linalg.pinv(cov + J @ covariance @ J.T, hermitian=True) @ e)
-                     for e, J, cov in every]
+                     for e, J, cov in at_pose]
     else:
         _, C, X = offsets
         joint = np.block([[covariance, X], [X.T, C]])
         chi2_each = [float(e @ np.linalg.pinv(cov + np.hstack([J, g]) @ joint @ np.hstack([J, g]).T, hermitian=True)
-                           @ e) for (e, J, cov), g in zip(every, G_every, strict=True)]
-
-    def test_of(ks) -> _Test:
-        return _test(arm_T_camera, lambda pose: rows(pose, ks), [every[k] for k in ks], prior, covariance,
-                     None if G_every is None else [G_every[k] for k in ks], None if offsets is None else offsets[1:])
-
-    test = test_of(tested)
+                           @ e) for (e, J, cov), g in zip(at_pose, G, strict=True)]
+    test = _test(arm_T_camera, rows, at_pose, prior, covariance, G, None if offsets is None else offsets[1:])
     odd = None
-    if test.residual_p < CHECK_P and len(tested) >= 2:  # the spins disagree among themselves: one of them alone?
+    if test.residual_p < CHECK_P and len(stage1) >= 2:  # the spins disagree among themselves: one of them alone?
         # leave each out in turn (a wrong spin drags the fit, so the largest residual need not be its own)
         best = None
-        for left in tested:
-            rest = test_of([k for k in tested if k != left])
+        for left in range(len(stage1)):
+            keep = [k for k in range(len(stage1)) if k != left]
+            rest = _test(arm_T_camera, lambda pose, keep=keep: [rows(pose)[k] for k in keep],
+                         [at_pose[k] for k in keep], prior, covariance, None if G is None else [G[k] for k in keep],
+                         None if offsets is None else offsets[1:])
             if rest.residual_p >= CHECK_P and (best is None or rest.residual < best[1].residual):
                 best = (left, rest)
         if best is not None:
             odd, test = best  # the move is judged without it
-    spins = [SpinCheck(k, len(s.keys.tracks), chi2_each[k], getattr(measurements[k], "name", "") or "",
-                       weak.get(k, "")) for k, s in enumerate(stage1)]
+    spins = [SpinCheck(k, len(s.keys.tracks), chi2_each[k], getattr(measurements[k], "name", "") or "")
+             for k, s in enumerate(stage1)]
     return CheckResult(arm_T_camera, had_covariance, spins, test.chi2, test.dof, test.p_value,
                        bool(test.p_value >= CHECK_P), test.move, test.move_covariance, test.determined, odd,
                        None if had_covariance else (float(tolerance[0]), float(tolerance[1])),
