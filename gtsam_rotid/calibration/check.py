@@ -26,6 +26,7 @@ from ..errors import InputError, RotIdError
 from ..factors import RigidLineFactor, axis_offsets_residuals, axis_point_residuals, image_line_from_rot3
 from ..graph import Model, SpinModel, axis_test_points, offset_axis_test_points, track_huber
 from ..uncertainty import chi2_sf, marginal_information
+from .joint import _joint_variance
 from .lm import _builder, _lm
 from .options import CalibrationError, CalibrationOptions, camera_motion_level_px, with_tracker_defaults
 from .setup import _setup
@@ -449,8 +450,7 @@ def _rigid_spins(arm, camera, measurements, pose, setup, options, fits, candidat
             continue
         _, graph, keys, result = best
         factor = keys.coaxial
-        sigma2 = max(float(factor.track_sse(result).sum()) / max(factor.pixel_dof(result) - 1, 1),
-                     options.min_sigma_px**2)
+        sigma2 = _joint_variance(graph, keys, result, options)  # (the rigid spin's noise, as the joint fit reads it)
         info = marginal_information(graph, result, keys.line_key, 3)  # (at the free fit's noise sigma)
         try:
             bread = np.linalg.inv(info)
