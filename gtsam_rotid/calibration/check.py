@@ -42,7 +42,7 @@ from .stage1 import (
     stage1_builders,
 )
 from .stage2 import _axis_distances
-from .tuning import STAGE1_MAX_ITERATIONS
+from .tuning import STAGE1_MAX_ITERATIONS, WEAK_ARC_DEG
 
 #: The calibration still holds unless the new spins' χ² is beyond this P value (the 99.9 % point).
 CHECK_P = 1e-3
@@ -356,10 +356,11 @@ def _better(s, than) -> bool:
 
 def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
     """Each spin's stage-1 fit from the FK axis of ``pose`` turned onto the image axis through its ellipses' centres
-    and, where some spin has only short arcs, from poses turned by START_TURNS_DEG: the best fit of each spin kept
-    (:func:`_better`; short arcs jackknifed). Where every spin has a long arc (``_Setup.short_arcs`` false), the fit
-    from the image axis lands on the same circles whatever the pose's tilt (``stage1._start_line``): one start (8
-    starts took 25 s on a 12 s reference session for the same answer). Every spin is fitted again from the FK axis
+    and, for each spin with only short arcs (no track turning by WEAK_ARC_DEG), from poses turned by
+    START_TURNS_DEG: the best fit of each spin kept (:func:`_better`; short arcs jackknifed). A spin with a long arc
+    lands on the same circles from the image axis whatever the pose's tilt (``stage1._start_line``): one start (8
+    starts took 25 s on a 12 s reference session for the same answer; turning only the short spins took 1.3-1.8x
+    less time on rendered ambient sessions with one to three long-arc spins of six, their chi-squares alike). Every spin is fitted again from the FK axis
     itself, and the better fit kept (:func:`_better`): its ellipses' centres can start it in a poor minimum, which
     need not look poor against the others' (6 s spins of ~10 tracks at 1.5 px², one pose set, 40 noise draws
     checked at the true pose: 8 of the 222 spins checked ended beyond the 99.9 % point of their 2-dof chi-square,
@@ -370,25 +371,37 @@ def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
 
     Returns (the best fit of each spin, jackknifed where its covariance is in doubt; each spin's fits, the best of the
     starts from the image axis first and the FK axis' second where it could be made)."""
-    turns = START_TURNS_DEG if setup.short_arcs else ()
-    starts = [pose] + [pose.compose(gtsam.Pose3(gtsam.Rot3.AxisAngle(axis, float(sign * np.radians(deg))), np.zeros(3)))
-                       for deg in turns for sign in (-1.0, 1.0)
-                       for axis in (np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))]
-    best = None
-    for start in starts:
-        try:
-            fits = _stage1(arm, camera, measurements, start, setup, options)
-        except (RotIdError, RuntimeError, np.linalg.LinAlgError):
-            continue
-        if best is None:
-            best = list(fits)
-            continue
-        for k, s in enumerate(fits):
-            if _better(s, best[k]):
-                best[k] = s
-    if best is None:
-        raise CalibrationError("no spin's circles could be fitted from the pose checked (few or short tracks?)")
+    try:
+        best = list(_stage1(arm, camera, measurements, pose, setup, options))
+    except (RotIdError, RuntimeError, np.linalg.LinAlgError) as error:
+        raise CalibrationError("no spin's circles could be fitted from the pose checked (few or short tracks?): "
+                               f"{error}") from error
     builders = stage1_builders(arm, camera, options)
+    # the turned starts only for the spins with only short arcs (a spin with a long arc lands on the same circles
+    # from any of them): each such spin fitted alone from each turned pose, its rejected tracks re-tested as
+    # _stage1 does (against every spin's noise levels)
+    short = [k for k, t in enumerate(setup.turning) if t < WEAK_ARC_DEG]
+    for deg in START_TURNS_DEG if short else ():
+        for sign in (-1.0, 1.0):
+            for axis in (np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])):
+                start = pose.compose(gtsam.Pose3(gtsam.Rot3.AxisAngle(axis, float(sign * np.radians(deg))),
+                                                 np.zeros(3)))
+                trial, fitted = list(best), []
+                for k in short:
+                    try:
+                        trial[k] = _stage1_measurement(
+                            builders, measurements[k], k, start, setup.prepared[k], options,
+                            _start_line(camera, setup.axes[k], setup.centre_axes[k], start))
+                    except (RotIdError, RuntimeError, np.linalg.LinAlgError):
+                        continue
+                    fitted.append(k)
+                try:
+                    trial = _readmit_tracks(builders, measurements, start, setup, trial, options, only=fitted)
+                except (RotIdError, RuntimeError, np.linalg.LinAlgError):
+                    continue
+                for k in fitted:
+                    if _better(trial[k], best[k]):
+                        best[k] = trial[k]
     trial, refitted, candidates = list(best), [], [[s] for s in best]
     for k in range(len(best)):
         try:
