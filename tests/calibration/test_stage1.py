@@ -139,9 +139,15 @@ def test_a_track_that_holds_a_direction_alone_does_not_blow_up_the_cluster_robus
 def test_one_track_more_or_fewer_does_not_make_the_jackknifed_covariance_jump():
     """The jackknife's growth is continuous in its eigenvalue, and a track left out moves one group only: on three
     measurements of the blurred Jaco2 photo scene (tests/data; short corner arcs, 24-51 tracks), leaving out any
-    one of eight kept tracks changes the jackknifed line's largest sigma by less than 1.4x (measured 0.79-1.29x;
+    one of eight kept tracks changes the jackknifed line's largest sigma by less than 1.4x (measured 0.79-1.21x;
     with the groups dealt round robin over the kept tracks and a threshold alone, 0.67-1.64x). Before, a rendered
-    Jaco2 photo scene's verdict turned on one track that 1e-6 px of pixel noise kept or left out."""
+    Jaco2 photo scene's verdict turned on one track that 1e-6 px of pixel noise kept or left out.
+
+    The fit without the track starts from the full fit's line and circles and keeps its other tracks (one round):
+    refitted from the start with its rounds of rejection, a measurement of short arcs can land in another minimum
+    (measurement 2: the same tracks at residual cost 4.89 from the start against 3.01 after the rounds, its image
+    axis 3 px apart) or keep another set of tracks (measurement 0: 23 or 24 tracks as float-level differences in
+    the start circles go), which is not the jackknife's doing."""
     limit = 3.1
     m = np.linspace(0.0, 6.0, 6001)
     growth = stage1.jackknife_growth(m, limit)
@@ -162,13 +168,18 @@ def test_one_track_more_or_fewer_does_not_make_the_jackknifed_covariance_jump():
         start = stage1._start_line(dataset.camera, setup.axes[k], setup.centre_axes[k], truth)
         prepared = setup.prepared[k]
 
-        def jackknifed(skip, k=k, start=start, prepared=prepared):
-            s = stage1._stage1_measurement(builders, measurements[k], k, truth, prepared, options, start, skip=skip)
-            return s, stage1._jackknife(builders[0], measurements[k], k, truth, prepared, s, options)
-
-        fit, full = jackknifed({})
+        fit = stage1._stage1_measurement(builders, measurements[k], k, truth, prepared, options, start)
+        full = stage1._jackknife(builders[0], measurements[k], k, truth, prepared, fit, options)
         for j in rng.choice(list(fit.keys.tracks), size=8, replace=False):
-            ratio = largest_sigma(jackknifed({**fit.outliers, int(j): "left out"})[1]) / largest_sigma(full)
+            skip = {**fit.outliers, int(j): "left out"}
+            r = stage1._stage1_round(builders[0], measurements[k], k, truth, prepared, skip, fit.rotation,
+                                     {i: c for i, c in fit.circles.items() if i != j}, options)
+            without = stage1._stage1_result(builders[0], r.graph, r.keys, r.values,
+                                            stage1._track_stats(r.graph, r.keys, r.values), skip, r.iterations,
+                                            options)
+            assert set(without.keys.tracks) == set(fit.keys.tracks) - {j}
+            jackknifed = stage1._jackknife(builders[0], measurements[k], k, truth, prepared, without, options)
+            ratio = largest_sigma(jackknifed) / largest_sigma(full)
             assert 1.0 / 1.4 < ratio < 1.4, (k, int(j), ratio)
 
 
