@@ -356,18 +356,18 @@ def _better(s, than) -> bool:
 
 def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
     """Each spin's stage-1 fit from the FK axis of ``pose`` turned onto the image axis through its ellipses' centres
-    and, for each spin with only short arcs (no track turning by WEAK_ARC_DEG), from poses turned by
-    START_TURNS_DEG: the best fit of each spin kept (:func:`_better`; short arcs jackknifed). A spin with a long arc
-    lands on the same circles from the image axis whatever the pose's tilt (``stage1._start_line``): one start (8
-    starts took 25 s on a 12 s reference session for the same answer; turning only the short spins took 1.3-1.8x
-    less time on rendered ambient sessions with one to three long-arc spins of six, their chi-squares alike). Every spin is fitted again from the FK axis
-    itself, and the better fit kept (:func:`_better`): its ellipses' centres can start it in a poor minimum, which
-    need not look poor against the others' (6 s spins of ~10 tracks at 1.5 px², one pose set, 40 noise draws
-    checked at the true pose: 8 of the 222 spins checked ended beyond the 99.9 % point of their 2-dof chi-square,
-    up to 581, one with 2 of its 10 tracks rejected at 1.73 px² where the FK axis' start keeps all ten at 1.49 px²,
-    its axis 32 px off; three draws stopped with "behind the camera" (:func:`_move`); the seed-0 calibration of
-    ``benchmarks/check.py`` checked against one draw was called moved at chi-square 4.9e6. With both starts: 4 of
-    240, three in one draw whose spins fit two minima alike, called moved at 33: see :func:`_rigid_spins`).
+    and, for each spin with only short arcs (no track turning by WEAK_ARC_DEG), from poses turned by START_TURNS_DEG:
+    the best fit of each spin kept (:func:`_better`; short arcs jackknifed). A spin with a long arc lands on the same
+    circles from the image axis whatever the pose's tilt (``stage1._start_line``): one start (8 starts took 25 s on a
+    12 s reference session for the same answer; turning only the short spins took 1.3-1.8x less time on rendered ambient
+    sessions with one to three long-arc spins of six, their chi-squares alike). Every spin is fitted again from the FK
+    axis itself, and the better fit kept (:func:`_better`): its ellipses' centres can start it in a poor minimum, which
+    need not look poor against the others' (6 s spins of ~10 tracks at 1.5 px², one pose set, 40 noise draws checked at
+    the true pose: 8 of the 222 spins checked ended beyond the 99.9 % point of their 2-dof chi-square, up to 581, one
+    with 2 of its 10 tracks rejected at 1.73 px² where the FK axis' start keeps all ten at 1.49 px², its axis 32 px off;
+    three draws stopped with "behind the camera" (:func:`_move`); the seed-0 calibration of ``benchmarks/check.py``
+    checked against one draw was called moved at chi-square 4.9e6. With both starts: 4 of 240, three in one draw whose
+    spins fit two minima alike, called moved at 33: see :func:`_rigid_spins`).
 
     Returns (the best fit of each spin, jackknifed where its covariance is in doubt; each spin's fits, the best of the
     starts from the image axis first and the FK axis' second where it could be made)."""
