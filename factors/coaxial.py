@@ -332,7 +332,10 @@ class CoaxialLineFactor:
         return per_track[self.tracks._layout.row_track][:, None]
 
     def _residual(self, state: _LineState, scale: np.ndarray) -> np.ndarray:
-        return self.tracks._flat(state.ev.V[0] * self._per_row(scale))
+        # (a trial line far off can leave a track's circle unsolved, inf: its residual is then not finite and LM
+        # refuses the trial)
+        with np.errstate(invalid="ignore", over="ignore"):
+            return self.tracks._flat(state.ev.V[0] * self._per_row(scale))
 
     def _jacobian(self, state: _LineState, scale: np.ndarray) -> np.ndarray:
         """(N, 3) ``P H_R`` per track, rows scaled."""

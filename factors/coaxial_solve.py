@@ -160,11 +160,12 @@ def _update_curvature(tracks, update, previous, ev, g_old, g_new, step) -> None:
     sel = np.flatnonzero(update[row_track])
     cross = tracks._subset_sums(np.einsum("irl,rl->ri", previous.V[1:3, sel], ev.V[0, sel]), row_track[sel])
     s0, s1 = step[0], step[1]
-    y0, y1 = g_new[:, 0] - g_old[:, 0], g_new[:, 1] - g_old[:, 1]
-    p0, p1 = g_new[:, 0] - cross[:, 0], g_new[:, 1] - cross[:, 1]  # y#
     Sdd, Sdr, Srr = tracks._curvature
-    Ss0, Ss1 = Sdd * s0 + Sdr * s1, Sdr * s0 + Srr * s1
-    with np.errstate(divide="ignore", invalid="ignore"):
+    # (a trial line far off can send a track's gradient to inf: its update is then not made, ``ok`` below)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        y0, y1 = g_new[:, 0] - g_old[:, 0], g_new[:, 1] - g_old[:, 1]
+        p0, p1 = g_new[:, 0] - cross[:, 0], g_new[:, 1] - cross[:, 1]  # y#
+        Ss0, Ss1 = Sdd * s0 + Sdr * s1, Sdr * s0 + Srr * s1
         sSs = s0 * Ss0 + s1 * Ss1
         size = np.where(sSs != 0.0, np.minimum(1.0, np.abs(s0 * p0 + s1 * p1) / np.abs(sSs)), 1.0)
         Sdd, Sdr, Srr, Ss0, Ss1 = Sdd * size, Sdr * size, Srr * size, Ss0 * size, Ss1 * size
