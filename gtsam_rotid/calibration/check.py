@@ -371,37 +371,42 @@ def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
 
     Returns (the best fit of each spin, jackknifed where its covariance is in doubt; each spin's fits, the best of the
     starts from the image axis first and the FK axis' second where it could be made)."""
-    try:
-        best = list(_stage1(arm, camera, measurements, pose, setup, options))
-    except (RotIdError, RuntimeError, np.linalg.LinAlgError) as error:
+    turned = [pose.compose(gtsam.Pose3(gtsam.Rot3.AxisAngle(axis, float(sign * np.radians(deg))), np.zeros(3)))
+              for deg in START_TURNS_DEG for sign in (-1.0, 1.0)
+              for axis in (np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))]
+    best, failure = None, None
+    for start in [pose, *turned]:  # (a turned pose's fit of every spin only where the pose's own fails)
+        try:
+            best = list(_stage1(arm, camera, measurements, start, setup, options))
+        except (RotIdError, RuntimeError, np.linalg.LinAlgError) as error:
+            failure = error
+            continue
+        break
+    if best is None:
         raise CalibrationError("no spin's circles could be fitted from the pose checked (few or short tracks?): "
-                               f"{error}") from error
+                               f"{failure}") from failure
     builders = stage1_builders(arm, camera, options)
     # the turned starts only for the spins with only short arcs (a spin with a long arc lands on the same circles
     # from any of them): each such spin fitted alone from each turned pose, its rejected tracks re-tested as
     # _stage1 does (against every spin's noise levels)
     short = [k for k, t in enumerate(setup.turning) if t < WEAK_ARC_DEG]
-    for deg in START_TURNS_DEG if short else ():
-        for sign in (-1.0, 1.0):
-            for axis in (np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])):
-                start = pose.compose(gtsam.Pose3(gtsam.Rot3.AxisAngle(axis, float(sign * np.radians(deg))),
-                                                 np.zeros(3)))
-                trial, fitted = list(best), []
-                for k in short:
-                    try:
-                        trial[k] = _stage1_measurement(
-                            builders, measurements[k], k, start, setup.prepared[k], options,
-                            _start_line(camera, setup.axes[k], setup.centre_axes[k], start))
-                    except (RotIdError, RuntimeError, np.linalg.LinAlgError):
-                        continue
-                    fitted.append(k)
-                try:
-                    trial = _readmit_tracks(builders, measurements, start, setup, trial, options, only=fitted)
-                except (RotIdError, RuntimeError, np.linalg.LinAlgError):
-                    continue
-                for k in fitted:
-                    if _better(trial[k], best[k]):
-                        best[k] = trial[k]
+    for start in turned if short else ():
+        trial, fitted = list(best), []
+        for k in short:
+            try:
+                trial[k] = _stage1_measurement(
+                    builders, measurements[k], k, start, setup.prepared[k], options,
+                    _start_line(camera, setup.axes[k], setup.centre_axes[k], start))
+            except (RotIdError, RuntimeError, np.linalg.LinAlgError):
+                continue
+            fitted.append(k)
+        try:
+            trial = _readmit_tracks(builders, measurements, start, setup, trial, options, only=fitted)
+        except (RotIdError, RuntimeError, np.linalg.LinAlgError):
+            continue
+        for k in fitted:
+            if _better(trial[k], best[k]):
+                best[k] = trial[k]
     trial, refitted, candidates = list(best), [], [[s] for s in best]
     for k in range(len(best)):
         try:
