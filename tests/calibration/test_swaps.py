@@ -17,8 +17,8 @@ from gtsam_rotid.simulate import SceneConfig
 from gtsam_rotid.words import summary, verdict
 
 
-def _scene(seed: int, duration: float = 6.0):
-    return simulate.simulate(SceneConfig(duration=duration), seed)
+def _scene(seed: int, duration: float = 6.0, n_measurements: int = 6):
+    return simulate.simulate(SceneConfig(duration=duration, n_measurements=n_measurements), seed)
 
 
 def _exchanged(dataset: Dataset, a: int, b: int) -> Dataset:
@@ -30,7 +30,11 @@ def _exchanged(dataset: Dataset, a: int, b: int) -> Dataset:
 
 
 def test_a_result_names_the_exchanged_measurements(tmp_path):
-    dataset, _ = _scene(1)
+    """Ten poses, two exchanged: the other eight hold the calibration, which completes with the two disagreeing,
+    and the exchange is confirmed (the screen's exchanged miss 0.18 of the miss as given). On six poses (seed 1)
+    the same path sat at the scale check's limit, features 0.50 m from the axis against 0.5: float-level
+    differences turned it into a refusal (which names the exchange too, tested below)."""
+    dataset, _ = _scene(3, n_measurements=10)
     result = calibrate(_exchanged(dataset, 1, 3), method="weighted")
     assert result.swapped is not None and result.swapped["measurements"] == [1, 3]
     assert result.swapped["swapped_miss_px"] <= 0.5 * result.swapped["miss_px"]
