@@ -42,7 +42,7 @@ from .stage1 import (
     stage1_builders,
 )
 from .stage2 import _axis_distances
-from .tuning import STAGE1_MAX_ITERATIONS, WEAK_ARC_DEG
+from .tuning import STAGE1_MAX_ITERATIONS
 
 #: The calibration still holds unless the new spins' χ² is beyond this P value (the 99.9 % point).
 CHECK_P = 1e-3
@@ -387,36 +387,19 @@ def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
                                f"{failure}") from failure
     builders = stage1_builders(arm, camera, options)
     # the turned starts only for the spins with only short arcs (a spin with a long arc lands on the same circles
-    # from any of them): each such spin fitted alone from each turned pose, its rejected tracks re-tested as
-    # _stage1 does (against every spin's noise levels)
-    short = [k for k, t in enumerate(setup.turning) if t < WEAK_ARC_DEG]
+    # from any of them)
+    short = setup.short_arc_measurements
     for start in turned if short else ():
-        trial, fitted = list(best), []
-        for k in short:
-            try:
-                trial[k] = _stage1_measurement(
-                    builders, measurements[k], k, start, setup.prepared[k], options,
-                    _start_line(camera, setup.axes[k], setup.centre_axes[k], start))
-            except (RotIdError, RuntimeError, np.linalg.LinAlgError):
-                continue
-            fitted.append(k)
         try:
-            trial = _readmit_tracks(builders, measurements, start, setup, trial, options, only=fitted)
+            trial, fitted = _refit(builders, camera, measurements, start, setup, options, best, short)
         except (RotIdError, RuntimeError, np.linalg.LinAlgError):
             continue
         for k in fitted:
             if _better(trial[k], best[k]):
                 best[k] = trial[k]
-    trial, refitted, candidates = list(best), [], [[s] for s in best]
-    for k in range(len(best)):
-        try:
-            trial[k] = _stage1_measurement(builders, measurements[k], k, pose, setup.prepared[k], options,
-                                           _start_line(camera, setup.axes[k], None, pose), settle=True)
-        except (RotIdError, RuntimeError, np.linalg.LinAlgError):
-            continue
-        refitted.append(k)
-    # the tracks a refit rejected for their fit re-tested at its final line, as _stage1 does for every fit
-    trial = _readmit_tracks(builders, measurements, pose, setup, trial, options, only=refitted)
+    candidates = [[s] for s in best]
+    trial, refitted = _refit(builders, camera, measurements, pose, setup, options, best, range(len(best)),
+                             image_axes=False)
     for k in refitted:
         candidates[k].append(trial[k])
         if _better(trial[k], best[k]):
@@ -424,6 +407,24 @@ def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
     builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
     return [_checked(builder, measurements[k], k, pose, setup.prepared[k], s, options, setup)
             for k, s in enumerate(best)], candidates
+
+
+def _refit(builders, camera, measurements, start, setup, options, fits, ks, image_axes: bool = True):
+    """``fits`` with each spin of ``ks`` fitted again alone from ``start``: its FK axis turned onto the image axis
+    through the ellipses' centres, or (``image_axes`` false) the FK axis itself with the circles settled first; the
+    tracks a refit rejected for their fit re-tested at its final line, as ``_stage1`` does for every fit. Returns
+    (the fits, the spins refitted); a spin whose refit fails keeps its fit."""
+    trial, fitted = list(fits), []
+    for k in ks:
+        try:
+            trial[k] = _stage1_measurement(
+                builders, measurements[k], k, start, setup.prepared[k], options,
+                _start_line(camera, setup.axes[k], setup.centre_axes[k] if image_axes else None, start),
+                settle=not image_axes)
+        except (RotIdError, RuntimeError, np.linalg.LinAlgError):
+            continue
+        fitted.append(k)
+    return _readmit_tracks(builders, measurements, start, setup, trial, options, only=fitted), fitted
 
 
 def _rigid_spins(arm, camera, measurements, pose, setup, options, fits, candidates):

@@ -81,10 +81,15 @@ class _Setup:
         return 2.0 * self.floor_px**2 * np.eye(2) if self.floor_px > 0.0 else None
 
     @property
+    def short_arc_measurements(self) -> list[int]:
+        """The measurements with no track that turns by WEAK_ARC_DEG."""
+        return [k for k, t in enumerate(self.turning) if t < WEAK_ARC_DEG]
+
+    @property
     def short_arcs(self) -> bool:
         """Some measurement has no track that turns by WEAK_ARC_DEG: stage 1 is then refitted from its own
         estimate and jackknifed, and the axes' scatter scales the covariance at a lower level (``_calibrate``)."""
-        return any(t < WEAK_ARC_DEG for t in self.turning)
+        return bool(self.short_arc_measurements)
 
 
 def _setup(arm: Arm, camera: Camera, measurements: list[Measurement], options: CalibrationOptions,
