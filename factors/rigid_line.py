@@ -584,7 +584,9 @@ class RigidLineFactor(CoaxialLineFactor):
             # J X per pixel: sum over (d, r, phi0) of a * X_track, plus a_phi * X_theta
             Xt = xt.reshape(m, 3, q)[tracks.track]  # (N, param, column)
             Xf = xf[tracks.frame]  # (N, column)
-            JX = np.einsum("asn,nal->lsn", ev.a, Xt) + ev.a[2][None] * Xf.T[:, None, :]
+            XtT = Xt.transpose(1, 2, 0)  # (param, column, N)
+            JX = (ev.a[0][None] * XtT[0][:, None] + ev.a[1][None] * XtT[1][:, None]
+                  + ev.a[2][None] * (XtT[2] + Xf.T)[:, None])
             H = [ev.H_R] + ([ev.H_K] if self.intrinsics_key is not None else [])
             if self.time_key is not None:  # the pixels do not depend on the time offset
                 H.append(np.zeros((1,) + ev.e.shape))

@@ -197,6 +197,36 @@ def initial_circle(camera_point: np.ndarray, camera_direction: np.ndarray, rays:
     return float(s), radius
 
 
+def initial_circles(camera_point: np.ndarray, camera_direction: np.ndarray, rays: list[np.ndarray],
+                    ellipse_centre_rays: np.ndarray) -> np.ndarray:
+    """(m, 2) :func:`initial_circle` of m tracks at once (``rays``: one (N_j, 3) array per track,
+    ``ellipse_centre_rays``: (m, 3)): the same offsets and radii, in a few array operations for all tracks."""
+    counts = np.array([len(r) for r in rays], dtype=np.int64)
+    all_rays = np.concatenate(rays) if len(rays) else np.zeros((0, 3))
+    return _initial_circles(camera_point, camera_direction, all_rays, counts, ellipse_centre_rays)
+
+
+def _initial_circles(camera_point, camera_direction, all_rays: np.ndarray, counts: np.ndarray,
+                     ellipse_centre_rays) -> np.ndarray:
+    """:func:`initial_circles` of the tracks' rays concatenated (``counts``: rays per track)."""
+    a, p = np.asarray(camera_direction, dtype=float), np.asarray(camera_point, dtype=float)
+    c = np.asarray(ellipse_centre_rays, dtype=float).reshape(-1, 3)
+    if len(c) == 0:
+        return np.zeros((0, 2))
+    # the 2x2 normal equations of :func:`initial_circle`, solved by Cramer's rule for every track
+    aa, ac, cc, pa, pc = a @ a, c @ a, np.einsum("ij,ij->i", c, c), p @ a, c @ p
+    s = (pa * cc - ac * pc) / (ac * ac - aa * cc)
+    centre = p + s[:, None] * a  # (m, 3)
+    track = np.repeat(np.arange(len(c)), counts)
+    points = all_rays * ((centre @ a)[track] / (all_rays @ a))[:, None]
+    distance = np.linalg.norm(np.cross(points - centre[track], a), axis=1)
+    # each track's median: its distances sorted within the track, the middle one (or the mean of the two)
+    ordered = distance[np.lexsort((distance, track))]
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    low, high = start + (counts - 1) // 2, start + counts // 2
+    return np.column_stack([s, 0.5 * (ordered[low] + ordered[high])])
+
+
 def axis_in_camera(axis, arm_T_camera: gtsam.Pose3) -> tuple[np.ndarray, np.ndarray]:
     """An FK axis (``point``, ``direction`` in the arm frame) in the camera frame of ``arm_T_camera``: (point,
     direction); :func:`rot3_from_line` of them is the line variable on that axis."""
@@ -514,6 +544,10 @@ class RotIdGraph:
         new_factors = []
         projected = self.model is Model.PROJECTED
         start_circles = []
+        wanted = [j for j in prepared.usable if j not in skip_tracks
+                  and (initial_circles is None or j not in initial_circles)]
+        started = dict(zip(wanted, _start_circles([prepared.usable[j] for j in wanted], K_inv, point_cam,
+                                                  direction_cam, foot_offset, scale), strict=True))
         for j, track in prepared.usable.items():
             if j in skip_tracks:
                 continue
@@ -524,7 +558,7 @@ class RotIdGraph:
             if initial_circles is not None and j in initial_circles:
                 circle = np.asarray(initial_circles[j], dtype=float).reshape(2)
             else:
-                circle = _start_circle(track, K_inv, point_cam, direction_cam, foot_offset, scale)
+                circle = started[j]
             keys.tracks.append(j)
             if projected:
                 start_circles.append(circle)
@@ -664,14 +698,18 @@ def _commit(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, factors: li
     values.insert(new_values)
 
 
-def _start_circle(track, K_inv: np.ndarray, point_cam: np.ndarray, direction_cam: np.ndarray, foot_offset: float,
-                  scale: float) -> np.ndarray:
-    """A track's start ``(d, r)`` about the axis (camera frame, in units of the line's ``scale``) from its rays and
-    its ellipse centre."""
-    centre_ray = K_inv @ np.append(track.ellipse.centre, 1.0)
-    rays = np.column_stack([track.ideal, np.ones(len(track.ideal))]) @ K_inv.T
-    offset, radius = initial_circle(point_cam, direction_cam, rays, centre_ray)
-    return np.array([(offset + foot_offset) / scale, radius / scale])
+def _start_circles(tracks: list, K_inv: np.ndarray, point_cam: np.ndarray, direction_cam: np.ndarray,
+                   foot_offset: float, scale: float) -> np.ndarray:
+    """(m, 2) the tracks' start ``(d, r)`` about the axis (camera frame, in units of the line's ``scale``) from
+    their rays and their ellipse centres."""
+    if not tracks:
+        return np.zeros((0, 2))
+    centre_rays = np.column_stack([np.array([t.ellipse.centre for t in tracks]), np.ones(len(tracks))]) @ K_inv.T
+    ideal = np.concatenate([t.ideal for t in tracks])
+    rays = np.column_stack([ideal, np.ones(len(ideal))]) @ K_inv.T
+    circles = _initial_circles(point_cam, direction_cam, rays, np.array([len(t.ideal) for t in tracks]),
+                               centre_rays)
+    return np.column_stack([(circles[:, 0] + foot_offset) / scale, circles[:, 1] / scale])
 
 
 def _start_line(point_cam: np.ndarray, direction_cam: np.ndarray, initial_line: gtsam.Rot3 | None, tie: bool,
