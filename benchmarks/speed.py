@@ -116,7 +116,7 @@ def main(argv=None) -> int:
     print(f"  joint calibrate / one per-pixel linearisation: {seconds['joint'] / (t_pixel * n_points):.2f} "
           "(target < 1)")
     if args.scaling:
-        print("\ncost against the observations: 20 s spins, joint calibrate (best of 2) / one per-pixel linearisation "
+        print("\ncost against the observations: 20 s spins, joint calibrate (best of 3) / one per-pixel linearisation "
               f"of the same observations at {1e6 * t_pixel:.2f} us each (target at 48 poses: <= 2)")
         first = None
         for n in (int(v) for v in args.scaling.split(",")):
@@ -124,7 +124,7 @@ def main(argv=None) -> int:
             data = simulate.reference_scene(seed=args.seed, duration=20.0, n_measurements=n,
                                             min_axis_separation_deg=20.0 if n <= 12 else 5.0)[0]
             points = sum(m.n_observations for m in data)
-            t = best_time(lambda data=data: calibrate(data), 2)
+            t = best_time(lambda data=data: calibrate(data), 3)
             first = first or (t, points)
             print(f"  {n:3} poses, {points:7} observations: {t:6.2f} s, {1e6 * t / points:5.1f} us per observation "
                   f"({t / first[0]:.1f}x the time of {first[1] / 1000:.0f}k for {points / first[1]:.1f}x the "
