@@ -429,7 +429,8 @@ class CoaxialTracks:
         """Per-track sums (m, ...) of per-row values (rows, ...)."""
         out = np.zeros((self.n_tracks,) + per_row.shape[1:])
         if len(self._nonempty):
-            out[self._nonempty] = np.add.reduceat(per_row, self._first_rows, axis=0)
+            with np.errstate(invalid="ignore", over="ignore"):  # (rows not finite sum to NaN: LM refuses the trial)
+                out[self._nonempty] = np.add.reduceat(per_row, self._first_rows, axis=0)
         return out
 
     def _gram(self, ev: _Eval, n: int, active: np.ndarray | None = None) -> np.ndarray:
@@ -450,7 +451,8 @@ class CoaxialTracks:
         out = np.zeros((self.n_tracks,) + per_row.shape[1:])
         if len(tracks):
             starts = np.flatnonzero(np.diff(tracks, prepend=-1))
-            out[tracks[starts]] = np.add.reduceat(per_row, starts, axis=0)
+            with np.errstate(invalid="ignore", over="ignore"):  # (rows not finite sum to NaN: LM refuses the trial)
+                out[tracks[starts]] = np.add.reduceat(per_row, starts, axis=0)
         return out
 
     @staticmethod
