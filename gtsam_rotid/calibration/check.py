@@ -31,6 +31,7 @@ from .lm import _builder, _lm
 from .options import CalibrationError, CalibrationOptions, camera_motion_level_px, with_tracker_defaults
 from .setup import _setup
 from .stage1 import (
+    _better,
     _checked,
     _readmit_tracks,
     _stage1,
@@ -54,11 +55,6 @@ DEFAULT_TOLERANCE = (1.0, 0.1)
 #: the camera's x and y axes; the fit of lowest cost is kept, so that where a spin's fit lands does not depend on
 #: the pose being checked (from one start a short spin can settle in a minimum of its own).
 START_TURNS_DEG = (8.0, 20.0)
-#: A spin's stage-1 fit whose residual sigma is more than this times another fit's of the same spin is a poor
-#: minimum, however many tracks it kept (its inflated noise lets every track pass: a cylinder-rendered wrist spin of
-#: a two-spin recording, fitted from the image axis through its ellipses' centres, kept all 43 tracks at 2.5 px and
-#: read as a changed calibration, chi-square 45; from the checked pose's FK axis, 41 tracks at 0.028 px, 2.4).
-POOR_FIT_SIGMA_RATIO = 3.0
 #: Halvings of a step of the move's Gauss-Newton that puts some spin's axis behind the camera, before it stops.
 MOVE_HALVINGS = 10
 #: A direction of the move counts as determined by the new spins when their information there is at least this
@@ -338,22 +334,6 @@ def _test(pose: gtsam.Pose3, rows, at_pose, prior: np.ndarray, covariance: np.nd
                  residual_dof, float(chi2_sf(residual, residual_dof)) if residual_dof > 0 else 1.0, residuals)
 
 
-def _rank(s) -> tuple[int, float]:
-    cost = float(sum(v[0] for v in s.stats.values()))
-    return -len(s.stats), cost if np.isfinite(cost) else np.inf
-
-
-def _better(s, than) -> bool:
-    """Whether stage-1 fit ``s`` of a spin is better than ``than``: a fit whose residual sigma is beyond
-    POOR_FIT_SIGMA_RATIO times the other's loses (a poor minimum); else the most tracks kept, then the lowest cost."""
-    ratio = POOR_FIT_SIGMA_RATIO**2
-    if np.isfinite(s.sigma2) and not than.sigma2 <= ratio * s.sigma2:
-        return True
-    if np.isfinite(than.sigma2) and not s.sigma2 <= ratio * than.sigma2:
-        return False
-    return _rank(s) < _rank(than)
-
-
 def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
     """Each spin's stage-1 fit from the FK axis of ``pose`` turned onto the image axis through its ellipses' centres
     and, for each spin with only short arcs (no track turning by WEAK_ARC_DEG), from poses turned by START_TURNS_DEG:
@@ -377,7 +357,7 @@ def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
     best, failure = None, None
     for start in [pose, *turned]:  # (a turned pose's fit of every spin only where the pose's own fails)
         try:
-            best = list(_stage1(arm, camera, measurements, start, setup, options))
+            best = list(_stage1(arm, camera, measurements, start, setup, options, alternatives=False))
         except (RotIdError, RuntimeError, np.linalg.LinAlgError) as error:
             failure = error
             continue

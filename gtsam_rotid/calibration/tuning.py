@@ -99,6 +99,16 @@ STALL_DECREASE = 1e-3
 STAGE1_MAX_ITERATIONS = 60
 #: Stage 1's fits of one measurement, each after rejecting the tracks the one before flagged.
 STAGE1_ROUNDS = 4
+#: Stage 1 fits a measurement again from the FK axis itself where its fit from the start turned onto the image axis
+#: through its ellipses' centres has a residual sigma beyond ALT_SIGMA_RATIO times the median of the others' and that
+#: start lies more than ALT_START_DEG from the FK axis; the better fit is kept (``stage1._better``).
+ALT_START_DEG = 3.0
+ALT_SIGMA_RATIO = 1.5
+#: A stage-1 fit whose residual sigma is more than this times another fit's of the same measurement is a poor
+#: minimum, however many tracks it kept (its inflated noise lets every track pass: a cylinder-rendered wrist spin of
+#: a two-spin recording, fitted from the image axis through its ellipses' centres, kept all 43 tracks at 2.5 px and
+#: read as a changed calibration, chi-square 45; from the checked pose's FK axis, 41 tracks at 0.028 px, 2.4).
+POOR_FIT_SIGMA_RATIO = 3.0
 #: LM iterations allowed from the twin start.
 TWIN_ITERATIONS = 20
 #: A measurement with fewer kept tracks than WEAK_TRACKS, or fewer than WEAK_MANY_TRACKS and no arc of WEAK_ARC_DEG,

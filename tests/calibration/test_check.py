@@ -180,13 +180,14 @@ def test_a_spin_fitted_again_re_tests_the_tracks_its_refit_rejected(monkeypatch)
     its own: of the last spin's 51 tracks (all on their true circles, 0.03-0.04 px) the refit keeps 41, the re-test
     takes 9 back."""
     import gtsam_rotid.calibration.check as check
+    import gtsam_rotid.calibration.stage1 as stage1
 
     root = Path(__file__).resolve().parents[1] / "data" / "jaco2_cylinder_j5_check"
     dataset = Dataset.load(root)
     saved = json.loads((root / "calibration.json").read_text())
     pose, covariance = gtsam.Pose3(np.array(saved["arm_T_camera"])), np.array(saved["covariance"])
     monkeypatch.setattr(check, "START_TURNS_DEG", ())
-    monkeypatch.setattr(check, "POOR_FIT_SIGMA_RATIO", 0.5)
+    monkeypatch.setattr(stage1, "POOR_FIT_SIGMA_RATIO", 0.5)
     refits = []
     refit = check._stage1_measurement
     monkeypatch.setattr(check, "_stage1_measurement", lambda *a, **k: refits.append(refit(*a, **k)) or refits[-1])
