@@ -33,10 +33,8 @@ from .setup import _setup
 from .stage1 import (
     _better,
     _checked,
-    _readmit_tracks,
+    _refit,
     _stage1,
-    _stage1_measurement,
-    _start_line,
     _track_correlation,
     _track_offset_meat,
     circles_about,
@@ -387,24 +385,6 @@ def _pose_free_stage1(arm, camera, measurements, pose, setup, options):
     builder = _builder(arm, camera, options, model=Model.PROJECTED, robust=track_huber)
     return [_checked(builder, measurements[k], k, pose, setup.prepared[k], s, options, setup)
             for k, s in enumerate(best)], candidates
-
-
-def _refit(builders, camera, measurements, start, setup, options, fits, ks, image_axes: bool = True):
-    """``fits`` with each spin of ``ks`` fitted again alone from ``start``: its FK axis turned onto the image axis
-    through the ellipses' centres, or (``image_axes`` false) the FK axis itself with the circles settled first; the
-    tracks a refit rejected for their fit re-tested at its final line, as ``_stage1`` does for every fit. Returns
-    (the fits, the spins refitted); a spin whose refit fails keeps its fit."""
-    trial, fitted = list(fits), []
-    for k in ks:
-        try:
-            trial[k] = _stage1_measurement(
-                builders, measurements[k], k, start, setup.prepared[k], options,
-                _start_line(camera, setup.axes[k], setup.centre_axes[k] if image_axes else None, start),
-                settle=not image_axes)
-        except (RotIdError, RuntimeError, np.linalg.LinAlgError):
-            continue
-        fitted.append(k)
-    return _readmit_tracks(builders, measurements, start, setup, trial, options, only=fitted), fitted
 
 
 def _rigid_spins(arm, camera, measurements, pose, setup, options, fits, candidates):

@@ -593,25 +593,39 @@ def _stage1(arm, camera, measurements, pose, setup: _Setup, options, image_axes:
     if not (image_axes and alternatives):
         return stage1
     sigmas = np.sqrt([s.sigma2 for s in stage1])
-    trial, fitted = list(stage1), []
-    for k, m in enumerate(measurements):
+    ks = []
+    for k in range(len(measurements)):
         others = np.delete(sigmas, k)
         others = others[np.isfinite(others)]
         if not (others.size and sigmas[k] > ALT_SIGMA_RATIO * np.median(others)):
             continue  # (not standing out; NaN never does)
         line = _start_line(camera, setup.axes[k], None, pose)
-        if np.degrees(np.linalg.norm(starts[k].localCoordinates(line))) <= ALT_START_DEG:
-            continue  # (the same start: the same fit)
+        if np.degrees(np.linalg.norm(starts[k].localCoordinates(line))) > ALT_START_DEG:  # (else the same fit)
+            ks.append(k)
+    if not ks:
+        return stage1
+    trial, fitted = _refit(builders, camera, measurements, pose, setup, options, stage1, ks, image_axes=False,
+                           max_rounds=max_rounds)
+    return [trial[k] if k in fitted and _better(trial[k], s) else s for k, s in enumerate(stage1)]
+
+
+def _refit(builders, camera, measurements, start, setup: _Setup, options, fits, ks, image_axes: bool = True,
+           max_rounds: int = STAGE1_ROUNDS):
+    """``fits`` with each measurement of ``ks`` fitted again alone from ``start``: its FK axis turned onto the image
+    axis through the ellipses' centres, or (``image_axes`` false) the FK axis itself with the circles settled first;
+    the tracks a refit rejected for their fit re-tested at its final line, as ``_stage1`` does for every fit.
+    Returns (the fits, the measurements refitted); one whose refit fails keeps its fit."""
+    trial, fitted = list(fits), []
+    for k in ks:
         try:
-            trial[k] = _stage1_measurement(builders, m, k, pose, setup.prepared[k], options, line, settle=True,
-                                           max_rounds=max_rounds)
+            trial[k] = _stage1_measurement(
+                builders, measurements[k], k, start, setup.prepared[k], options,
+                _start_line(camera, setup.axes[k], setup.centre_axes[k] if image_axes else None, start),
+                settle=not image_axes, max_rounds=max_rounds)
         except (RotIdError, RuntimeError, np.linalg.LinAlgError):
             continue
         fitted.append(k)
-    if not fitted:
-        return stage1
-    trial = _readmit_tracks(builders, measurements, pose, setup, trial, options, only=fitted)
-    return [trial[k] if k in fitted and _better(trial[k], s) else s for k, s in enumerate(stage1)]
+    return _readmit_tracks(builders, measurements, start, setup, trial, options, only=fitted), fitted
 
 
 def _start_line(camera: Camera, axis, image_axis: np.ndarray, pose: gtsam.Pose3) -> gtsam.Rot3:
