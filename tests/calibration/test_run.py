@@ -127,8 +127,9 @@ def test_single_crossing_is_reported_degenerate(single_crossing, method):
 def test_wrong_joint_angles_end_in_a_reported_poor_minimum():
     # 8 s spins (noise_free_scene's 6 s leave one measurement without an arc of 90 deg: the short-arc refits then
     # run on data no pose explains, 85 s per method); 4 measurements, of which none may be left out, so the
-    # disagreement is reported after one round of second opinions (5: one is left out first, 60 s per method)
-    dataset, _ = simulate.reference_scene(seed=1, noise_var=0.0, duration=8.0, n_measurements=4)
+    # disagreement is reported after one round of second opinions (5: one is left out first, 60 s per method);
+    # 10 frames a second (the second opinions' coaxial solves cost per point: 8 s per method, 25 s at 30 fps)
+    dataset, _ = simulate.reference_scene(seed=1, noise_var=0.0, duration=8.0, n_measurements=4, fps=10.0)
     measurements = list(dataset)
     # every measurement gets another measurement's joint angles: no pose explains the image axes
     shuffled = [Measurement(measurements[(k + 1) % len(measurements)].joint_angles, m.tracks)
