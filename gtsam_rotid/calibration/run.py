@@ -99,7 +99,7 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
                                "joints' axes differ from pose to pose and pass beside the camera") from error
     if _troubled(result) and not _undetermined_by_the_axes(result, setup):
         # (with refined intrinsics, at the camera the last pass started from, as its setup)
-        swap = _confirmed_swap(arm, started, used, method, options, kept, setup)
+        swap = _confirmed_swap(arm, started, used, method, options, kept, setup, given_usable=_sound(result, setup))
         if swap is not None:
             result = replace(result, swapped=swap)
     reports = [replace(r, index=kept[r.index]) for r in result.measurements]
@@ -140,12 +140,15 @@ def calibrate(arm: Arm | Dataset, camera: Camera | None = None, measurements: li
     return replace(result, untrusted=_untrusted(result, setup))
 
 
-def _troubled(result: CalibrationResult) -> bool:
+def _troubled(result: CalibrationResult, scaled: bool = False) -> bool:
     """Something is wrong with the result: not converged or determined, ambiguous, its axes disagreeing, or a
-    measurement called an outlier."""
+    measurement called an outlier. With ``scaled``, axes that disagree are no trouble where their scatter scaled a
+    covariance that is still usable (short arcs' image axes are far from Gaussian: six 6 s spins as recorded
+    disagree at P 1e-7 and are usable)."""
     c = result.axis_consistency
+    disagree = c is not None and not c.consistent and not (scaled and result.covariance_usable)
     return (not result.converged or not result.observability.is_observable or result.ambiguous
-            or (c is not None and not c.consistent) or any(m.outlier for m in result.measurements))
+            or disagree or any(m.outlier for m in result.measurements))
 
 
 def _undetermined_by_the_axes(result: CalibrationResult, setup: _Setup) -> bool:
@@ -158,13 +161,16 @@ def _undetermined_by_the_axes(result: CalibrationResult, setup: _Setup) -> bool:
     return geometry is not None and (geometry.is_crossing or geometry.is_parallel)
 
 
-def _confirmed_swap(arm, camera, measurements, method, options, index, setup: _Setup | None = None) -> dict | None:
+def _confirmed_swap(arm, camera, measurements, method, options, index, setup: _Setup | None = None,
+                    given_usable: bool = False) -> dict | None:
     """Two measurements given in each other's place (:mod:`.swaps`): the screened exchange
     (:func:`.swaps.exchange_candidate`) where a calibration with the two exchanged is sound (converged, determined,
     not ambiguous, its axes agreeing, no measurement an outlier, nothing untrusted): ``{"measurements": [a, b]``
     (the caller's indices), ``"miss_px"``, ``"swapped_miss_px"``, ``"next_miss_px"`` (the screen's), ``"sigma_mm"``
     (that calibration's largest 1 sigma)``}``; None otherwise. ``setup``: the calibration's (built here for a
-    refusal)."""
+    refusal). Where the calibration as given is refused or not usable (``given_usable`` False), the exchanged one's
+    axes may disagree if their scatter leaves its covariance usable (:func:`_troubled`): on six 6 s spins the
+    calibration as recorded does, and exchanges the screen found were not named for it."""
     if setup is None:
         try:
             setup = _setup(arm, camera, measurements, options, index)
@@ -178,7 +184,7 @@ def _confirmed_swap(arm, camera, measurements, method, options, index, setup: _S
         other, other_setup = _calibrate(arm, camera, exchanged(measurements, a, b), method, options, index)
     except RotIdError:
         return None
-    if _troubled(other) or _untrusted(other, other_setup):
+    if _troubled(other, scaled=not given_usable) or _untrusted(other, other_setup):
         return None
     return {"measurements": [int(index[a]), int(index[b])], **candidate,
             "sigma_mm": float(np.max(other.sigma_mm_arm))}
