@@ -511,9 +511,10 @@ MIN_VIDEO_CORRELATION = 0.65
 #: videos' median differs from the rate given (or stated by the files) by more than FPS_CHECK_RATIO, make_dataset
 #: says so: a rate off by half (15 fps given for a 30 fps recording) leaves every video unplaced or its readings
 #: refused, with nothing naming the frame rate before. At 8 % a rate 10 % off either way is named (16.5 fps given
-#: for 15 fps videos was not, at 15 % with the rate read 4 % high); 5 % off places every video and shows in the
-#: calibration as readings that disagree with the tracks. (A ramp whose acceleration itself ramps up leaves part of
-#: the lag: about 0.4 of it where the angle grows as the cube of the time.)
+#: for 15 fps videos was not, at 15 % with the rate read 4 % high); 5 % off is left to the placement and the
+#: calibration (5 % high places every video, whose readings then disagree with the tracks; 5 % low two of six). (A
+#: ramp whose acceleration itself ramps up leaves part of the lag: about 0.4 of it where the angle grows as the cube
+#: of the time.)
 FPS_CHECK_DEG = 0.25
 FPS_CHECK_RATIO = 1.08
 #: With readings, a video's frames (a bag's images) this close (s) to the ends of its pose's span in the joint
