@@ -60,10 +60,17 @@ def test_a_refusal_names_the_exchange_where_the_axes_as_recorded_disagree():
     """Six 6 s spins (seed 6) as recorded are usable with axes that disagree (P 1e-7: short arcs' image axes are far
     from Gaussian) and a covariance their scatter scales; with measurements 0 and 2 exchanged the calibration is
     refused, and the screen finds the exchange, but its calibration was no confirmation while its axes had to agree:
-    the refusal did not name it. As recorded, nothing is called swapped."""
+    the refusal did not name it. With 1 and 3 exchanged the centres' axes, 5.9 px off the FK axes as recorded, fit
+    0.59 times as well exchanged back: the screen now tries exchanges down to 0.7 of the miss (it asked for 0.5).
+    As recorded, nothing is called swapped."""
     dataset, _ = _scene(6)
     with pytest.raises(CalibrationError, match=r"measurements 0 and 2 look swapped"):
         calibrate(_exchanged(dataset, 0, 2))
+    swapped = _exchanged(dataset, 1, 3)
+    options = CalibrationOptions()
+    found = exchange_candidate(dataset.camera, _setup(dataset.arm, dataset.camera, list(swapped), options), options)
+    assert found is not None and found["positions"] == [1, 3], found
+    assert 0.5 < found["swapped_miss_px"] / found["miss_px"] < 0.7, found
     recorded = calibrate(dataset)
     assert recorded.covariance_usable and not recorded.axis_consistency.consistent and recorded.swapped is None
 
