@@ -31,7 +31,7 @@ from .options import (
 from .result import CalibrationResult, MeasurementReport, OutlierKind
 from .setup import _Setup, _setup, arc_span_deg
 from .stage2 import _check_scale, _paper, _refined_stage1, _settled
-from .swaps import exchange_candidate, exchanged, swap_sentence
+from .swaps import exchange_candidates, exchanged, swap_sentence
 from .tuning import (
     INITIAL_TOLERANCE,
     INTRINSICS_PASSES,
@@ -163,31 +163,31 @@ def _undetermined_by_the_axes(result: CalibrationResult, setup: _Setup) -> bool:
 
 def _confirmed_swap(arm, camera, measurements, method, options, index, setup: _Setup | None = None,
                     given_usable: bool = False) -> dict | None:
-    """Two measurements given in each other's place (:mod:`.swaps`): the screened exchange
-    (:func:`.swaps.exchange_candidate`) where a calibration with the two exchanged is sound (converged, determined,
-    not ambiguous, its axes agreeing, no measurement an outlier, nothing untrusted): ``{"measurements": [a, b]``
-    (the caller's indices), ``"miss_px"``, ``"swapped_miss_px"``, ``"next_miss_px"`` (the screen's), ``"sigma_mm"``
-    (that calibration's largest 1 sigma)``}``; None otherwise. ``setup``: the calibration's (built here for a
-    refusal). Where the calibration as given is refused or not usable (``given_usable`` False), the exchanged one's
-    axes may disagree if their scatter leaves its covariance usable (:func:`_troubled`): on six 6 s spins the
-    calibration as recorded does, and exchanges the screen found were not named for it."""
+    """Two measurements given in each other's place (:mod:`.swaps`): the first screened exchange
+    (:func:`.swaps.exchange_candidates`, best first) where a calibration with the two exchanged is sound
+    (converged, determined, not ambiguous, its axes agreeing, no measurement an outlier, nothing untrusted):
+    ``{"measurements": [a, b]`` (the caller's indices), ``"miss_px"``, ``"swapped_miss_px"``, ``"next_miss_px"``
+    (the screen's), ``"sigma_mm"`` (that calibration's largest 1 sigma)``}``; None otherwise. ``setup``: the
+    calibration's (built here for a refusal). Where the calibration as given is refused or not usable
+    (``given_usable`` False), the exchanged one's axes may disagree if their scatter leaves its covariance usable
+    (:func:`_troubled`): on six 6 s spins the calibration as recorded does, and exchanges the screen found were not
+    named for it."""
     if setup is None:
         try:
             setup = _setup(arm, camera, measurements, options, index)
         except RotIdError:
             return None
-    candidate = exchange_candidate(camera, setup, options)
-    if candidate is None:
-        return None
-    a, b = candidate.pop("positions")
-    try:
-        other, other_setup = _calibrate(arm, camera, exchanged(measurements, a, b), method, options, index)
-    except RotIdError:
-        return None
-    if _troubled(other, scaled=not given_usable) or _untrusted(other, other_setup):
-        return None
-    return {"measurements": [int(index[a]), int(index[b])], **candidate,
-            "sigma_mm": float(np.max(other.sigma_mm_arm))}
+    for candidate in exchange_candidates(camera, setup, options):
+        a, b = candidate.pop("positions")
+        try:
+            other, other_setup = _calibrate(arm, camera, exchanged(measurements, a, b), method, options, index)
+        except RotIdError:
+            continue
+        if _troubled(other, scaled=not given_usable) or _untrusted(other, other_setup):
+            continue
+        return {"measurements": [int(index[a]), int(index[b])], **candidate,
+                "sigma_mm": float(np.max(other.sigma_mm_arm))}
+    return None
 
 
 def _untrusted(result: CalibrationResult, setup: _Setup) -> dict[str, list[int]]:

@@ -185,8 +185,11 @@ THIN_CURVATURE_SIGMAS = 2.0
 #: through the centres miss by 3.9-6.8 px as recorded (a centre is not the axis' image), 23-30 px with two
 #: measurements exchanged, the next best exchange 14-18 px: a ratio can screen but not decide. On seeds 6, 8, 9 and
 #: 10 the centres' axes miss by 4.5-9.0 px as recorded and exchanges cut the miss only to 0.50-0.69 of it: at 0.5,
-#: 6 of their 12 exchanges were named, at 0.7 11 (the calibration that follows decides; no wrong camera or joint
-#: of the swaps and intrinsics-check benchmarks was called swapped at either)
+#: 6 of their 12 exchanges were named, at 0.7 11, and all 12 with SWAP_CANDIDATES 2 (the calibrations that follow
+#: decide; no wrong camera or joint of the swaps and intrinsics-check benchmarks was called swapped at any)
 SWAP_SCREEN_RATIO = 0.7
+#: the screened exchanges calibrated in turn until one is sound, best first (each costs a calibration where the
+#: one before it was not sound)
+SWAP_CANDIDATES = 2
 #: every pair is tried up to this many measurements; beyond, the pairs among this many that the FK axes miss most
 SWAP_ALL_PAIRS = 8
