@@ -437,7 +437,7 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
     try:
         kinematics = kinematics_check(arm, camera, setup, stage1, result.arm_T_camera, sigma2,
                                       [arm.joint_angle_vector(m.joint_angles) for m in measurements],
-                                      result.covariance)
+                                      result.covariance, scaled=not c.consistent)
     except (np.linalg.LinAlgError, ValueError):
         kinematics = None
     if shapes is not None:
