@@ -334,7 +334,9 @@ def intrinsics_words(result: CalibrationResult) -> str:
                 "and principal point may change: the camera's intrinsics are the likelier cause, and the estimate is "
                 "not trusted. Check the intrinsics first (is the camera file this camera's, at this resolution? "
                 "recalibrate them)" + then)
-    likely = i.get("likely", True) or i.get("one_out_chi2") is None
+    # (a camera that explains the axes where the camera as given failed only the axes' own test, which scaled the
+    # covariance, not the model check's: systematic, not ``likely``, yet all the way)
+    likely = i.get("likely", True) or i.get("one_out_chi2") is None or i["p_value"] >= FREED_P
     closer = ("" if likely else
               "; a first-order check that keeps the image axes as measured through the camera file, so a wrong "
               "camera is not fitted all the way, but far better than by leaving out any one measurement, whose best "
