@@ -439,7 +439,7 @@ def _checked_model(arm, camera, measurements, setup: _Setup, stage1, result: Cal
     try:  # (refined intrinsics are in the covariance: the axes' coarser reading of them has nothing to add)
         if result.camera is None:
             intrinsics = intrinsics_check(camera, setup, stage1, result.arm_T_camera, sigma2, result.covariance,
-                                              scaled=not c.consistent)
+                                          scaled=not c.consistent)
     except (np.linalg.LinAlgError, ValueError):
         intrinsics = None
     try:
