@@ -336,8 +336,8 @@ def intrinsics_words(result: CalibrationResult) -> str:
                 "recalibrate them)" + then)
     # (a camera that explains the axes where the camera as given failed only the axes' own test, which scaled the
     # covariance, not the model check's: systematic, not ``likely``, yet all the way)
-    likely = i.get("likely", True) or i.get("one_out_chi2") is None or i["p_value"] >= FREED_P
-    closer = ("" if likely else
+    agree = i.get("likely", True) or i.get("one_out_chi2") is None or i["p_value"] >= FREED_P
+    closer = ("" if agree else
               "; a first-order check that keeps the image axes as measured through the camera file, so a wrong "
               "camera is not fitted all the way, but far better than by leaving out any one measurement, whose best "
               f"χ² is {i['one_out_chi2']:.3g}")
@@ -347,7 +347,7 @@ def intrinsics_words(result: CalibrationResult) -> str:
                  f"{c.kinematics['p_value']:.2g}); the camera is the likelier cause.")
     return (f"the image axes of all {len(i['measurements'])} measurements (the left-out ones too) disagree with any "
             f"one pose seen through this camera (χ² = {i['exact_chi2']:.3g} for {i['exact_dof']} dof, P = "
-            f"{i['exact_p']:.2g}) but {'agree' if likely else 'come far closer'} with a camera whose "
+            f"{i['exact_p']:.2g}) but {'agree' if agree else 'come far closer'} with a camera whose "
             f"{_camera_change(i)} (χ² = {i['chi2']:.3g} for {i['dof']} dof, P = {i['p_value']:.2g}{closer}; a "
             "first-order reading: the principal point and the focal length trade off). Wrong intrinsics move every "
             "axis together and leave an estimate wrong by far more than its covariance says, so it is not trusted."
