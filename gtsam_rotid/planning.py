@@ -23,6 +23,7 @@ import multiprocessing
 import re
 import threading
 import time
+import warnings
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -739,6 +740,11 @@ def plan_poses(arm: Arm, camera: Camera, arm_T_camera: gtsam.Pose3, n: int = 6, 
                 list(arm.joint_names), before)
 
 
+#: how long a forked search process may take after this process' own share (times that share's time, at least the
+#: minimum in seconds) before its share is run here instead (:func:`_forked_shares`)
+SHARE_WAIT_FACTOR = 10.0
+SHARE_WAIT_MIN_S = 60.0
+
 #: what a forked search process inherits: the arguments of _search_share (set just before the fork)
 _SHARED: dict = {}
 
@@ -769,6 +775,55 @@ def _other_threads() -> bool:
     return any(t is not this and t.is_alive() and type(t).__name__ != "TMonitor" for t in threading.enumerate())
 
 
+def _share_child(part: int, writer) -> None:
+    """A forked process' share, sent back through ``writer`` (an exception ends it without sending: the parent then
+    runs the share itself, and meets the exception there)."""
+    try:
+        writer.send(_search_share(part))
+    finally:
+        writer.close()
+
+
+def _forked_shares(jobs: int) -> list:
+    """The shares of :func:`_search` (``_SHARED`` set): 1 .. jobs - 1 in forked processes, each answering through
+    its own pipe, share 0 here. A process that has not answered ``SHARE_WAIT_FACTOR`` times share 0's time after it
+    (at least ``SHARE_WAIT_MIN_S``), or that ended without answering, is killed and its share run here: a forked
+    process can hang on a lock some thread of this one held at the fork (an intermittent 600 s hang in CI), and a
+    pool would wait for it for ever. The shares' random streams are their own, so the plan is the same."""
+    context = multiprocessing.get_context("fork")
+    children = []
+    try:
+        for part in range(1, jobs):
+            reader, writer = context.Pipe(duplex=False)
+            process = context.Process(target=_share_child, args=(part, writer), daemon=True)
+            process.start()
+            writer.close()
+            children.append((part, process, reader))
+        start = time.perf_counter()
+        parts = [_search_share(0)]
+        deadline = time.perf_counter() + max(SHARE_WAIT_MIN_S, SHARE_WAIT_FACTOR * (time.perf_counter() - start))
+        for part, process, reader in children:
+            answer = None
+            try:
+                if reader.poll(max(0.0, deadline - time.perf_counter())):
+                    answer = reader.recv()
+            except (EOFError, OSError):
+                answer = None
+            if answer is None:
+                warnings.warn(f"planning: search process {part} of {jobs - 1} gave no answer (exit code "
+                              f"{process.exitcode}); its share runs here", RuntimeWarning, stacklevel=2)
+                process.kill()
+                answer = _search_share(part)
+            parts.append(answer)
+        return parts
+    finally:
+        for _, process, reader in children:
+            reader.close()
+            if process.is_alive():
+                process.kill()
+            process.join()
+
+
 def _search(arm: Arm, predictor: _Predictor, constraints: _Constraints, scenes: list[SpinScene], need: int,
             options: PlanOptions, progress):
     """``options.candidates`` candidates shared among ``options.jobs`` processes (this one takes the first share;
@@ -785,9 +840,7 @@ def _search(arm: Arm, predictor: _Predictor, constraints: _Constraints, scenes: 
           and not _other_threads()):
         _SHARED.update(shared)
         try:
-            with multiprocessing.get_context("fork").Pool(jobs - 1) as pool:
-                others = pool.map_async(_search_share, range(1, jobs))
-                parts = [_search_share(0)] + others.get()
+            parts = _forked_shares(jobs)
         finally:
             _SHARED.clear()
     else:

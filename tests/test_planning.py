@@ -8,6 +8,7 @@ import re
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import gtsam
@@ -295,7 +296,8 @@ def test_plan_satisfies_its_constraints_and_beats_random_poses(kinova, collision
 def test_plan_on_two_processes_is_valid_and_repeatable(kinova, collisions, monkeypatch):
     """``jobs=2``: two shares of the candidates, each with its own random stream; the plan satisfies the constraints,
     its prediction (ranked at ``rank_samples`` of the guess samples) is the prediction of its poses at all of them,
-    and the same seed gives the same plan, forked or with the shares run here in turn."""
+    and the same seed gives the same plan, forked or with the shares run here in turn, or with a forked process that
+    hangs or dies replaced by its share run here."""
     import gtsam_rotid.planning as planning
 
     config = simulate.SceneConfig(duration=20.0)
@@ -309,6 +311,14 @@ def test_plan_on_two_processes_is_valid_and_repeatable(kinova, collisions, monke
     np.testing.assert_allclose(plan.prediction.sigma, check.sigma, rtol=1e-9)
     again = plan_poses(kinova, config.camera, truth.arm_T_camera, 6, options, collisions=collisions)
     np.testing.assert_array_equal(np.array(again.joint_angles), np.array(plan.joint_angles))
+    # a forked process that hangs (a lock held at the fork) or dies without answering: killed, its share run here
+    monkeypatch.setattr(planning, "SHARE_WAIT_MIN_S", 0.5)
+    monkeypatch.setattr(planning, "SHARE_WAIT_FACTOR", 1.0)
+    for child in (lambda part, writer: time.sleep(3600), lambda part, writer: os._exit(3)):
+        monkeypatch.setattr(planning, "_share_child", child)
+        with pytest.warns(RuntimeWarning, match="search process 1 of 1 gave no answer"):
+            rescued = plan_poses(kinova, config.camera, truth.arm_T_camera, 6, options, collisions=collisions)
+        np.testing.assert_array_equal(np.array(rescued.joint_angles), np.array(plan.joint_angles))
     monkeypatch.setattr(planning.multiprocessing, "get_all_start_methods", lambda: ["spawn"])
     here = plan_poses(kinova, config.camera, truth.arm_T_camera, 6, options, collisions=collisions)
     np.testing.assert_array_equal(np.array(here.joint_angles), np.array(plan.joint_angles))
@@ -340,6 +350,8 @@ def test_a_host_with_busy_threads_plans_without_forking():
     inside a BLAS call left the forked search hanging under load), so with other threads running the shares run
     here in turn, and give the plan that forked shares give. In a subprocess with a timeout: a hang fails the test."""
     script = textwrap.dedent("""
+        import faulthandler, sys
+        faulthandler.dump_traceback_later(400, exit=True)  # where a hang sits, in the failure's stderr
         import logging, math, threading, numpy as np
         from gtsam_rotid.arm import Arm
         from gtsam_rotid import planning, simulate
