@@ -186,6 +186,26 @@ def test_axes_that_disagree_beyond_their_noise_scale_the_covariance(noisy_scene,
     assert CalibrationResult.load(tmp_path / "r.json").axis_consistency == test
 
 
+def test_with_track_offsets_declared_the_axes_scatter_is_read_by_the_scale_alone(noisy_scene):
+    """Each track's own offset declared (``track_offset_px``, as the corner tracker's datasets do): the shared errors
+    a common floor stands for are in the covariance, and failing axes scale it, with no floor besides (read as a
+    floor too, it widened the rendered ambient scenes' covariances up to 4x in sigma where the scale alone held them):
+    the covariance is the unscaled one times the scale, ``chi2 / (dof - 2)``. Without the offsets the same axes
+    also get a floor."""
+    from gtsam_rotid.estimate import CalibrationOptions
+
+    dataset, _ = noisy_scene
+    results = {level: calibrate(dataset, method="weighted",
+                                options=CalibrationOptions(track_offset_px=0.05, axis_consistency_p=level))
+               for level in (0.2, 0.0)}
+    test = results[0.2].axis_consistency  # measured: chi2 9.4, 6 dof, P 0.15
+    assert not test.consistent and test.floor_px == 0.0 and test.floor_covariance is None
+    assert test.scale == pytest.approx(test.chi2 / (test.dof - 2), rel=1e-12) and test.scale > 2.0
+    np.testing.assert_allclose(results[0.2].covariance, test.scale * results[0.0].covariance, rtol=1e-9)
+    bare = calibrate(dataset, method="weighted", options=CalibrationOptions(axis_consistency_p=0.2))
+    assert not bare.axis_consistency.consistent and bare.axis_consistency.floor_px > 0.0
+
+
 def test_the_axes_scale_and_floor_grow_continuously_with_their_scatter(noisy_scene):
     """Where the axes' test turns, the covariance does not jump: a level just above the axes' P (they fail) and just
     below it (they pass) give the same covariance to 1e-3, and the scale and floor rise continuously from nothing at
