@@ -350,7 +350,7 @@ def test_a_host_with_busy_threads_plans_without_forking():
     inside a BLAS call left the forked search hanging under load), so with other threads running the shares run
     here in turn, and give the plan that forked shares give. In a subprocess with a timeout: a hang fails the test."""
     script = textwrap.dedent("""
-        import faulthandler, sys
+        import faulthandler
         faulthandler.dump_traceback_later(400, exit=True)  # where a hang sits, in the failure's stderr
         import logging, math, threading, numpy as np
         from gtsam_rotid.arm import Arm
