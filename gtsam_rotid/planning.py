@@ -807,8 +807,8 @@ def _forked_shares(jobs: int) -> list:
             try:
                 if reader.poll(max(0.0, deadline - time.perf_counter())):
                     answer = reader.recv()
-            except (EOFError, OSError):
-                answer = None
+            except (EOFError, OSError):  # (it ended without answering)
+                pass
             if answer is None:
                 warnings.warn(f"planning: search process {part} of {jobs - 1} gave no answer (exit code "
                               f"{process.exitcode}); its share runs here", RuntimeWarning, stacklevel=2)

@@ -213,15 +213,16 @@ def _axis_consistency(rows, floors: list | None, options, fitted: int = 0) -> Ax
     excess = axis_excess(chi2, dof, options.axis_consistency_p)
     if excess <= 0.0:
         return AxisConsistency(chi2, dof, p, 1.0, passed=passed)
+    scale = 1.0 + excess / (dof - 2)
     if (options.track_offset_px or 0.0) > 0.0:
         # the tracks' own offsets are declared: the shared errors the floor stands for are in the covariance, and
         # the scatter is read as them understated (the scale). Read as a floor besides, it widened the rendered
         # ambient scenes' covariances up to 4x in sigma where the scale alone held them (UR5 text seed 0, the axes at
         # P = 0.057: a floor of 0.58 px, the error at chi-square 0.12 against 1.9 scaled and 5.8 bare; NEES over
         # the 15 usable 2.97, 4.23 by the scale alone, its 95 % interval 4.38-7.88)
-        return AxisConsistency(chi2, dof, p, 1.0 + excess / (dof - 2), passed=passed)
+        return AxisConsistency(chi2, dof, p, scale, passed=passed)
     floor, increment = _axis_floor(rows, chi2 - excess)
-    return AxisConsistency(chi2, dof, p, 1.0 + excess / (dof - 2), floor, increment, passed=passed)
+    return AxisConsistency(chi2, dof, p, scale, floor, increment, passed=passed)
 
 
 def axis_excess(chi2: float, dof: int, level: float) -> float:
